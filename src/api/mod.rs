@@ -1,0 +1,1 @@
+//! HTTP API: one router per resource, DTOs with utoipa schemas, problem+json errors.

@@ -1,0 +1,1 @@
+//! Bridge workers: WebSocket protocol, dispatcher, persistent execution queue, simulated robot.

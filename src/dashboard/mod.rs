@@ -1,0 +1,1 @@
+//! Dashboard: static page assets embedded in the binary.

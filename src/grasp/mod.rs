@@ -1,0 +1,1 @@
+//! Task-specific arm configurations and robust grasps (paper eq. 10-29).

@@ -1,0 +1,1 @@
+//! Human arm-hand model, anthropometry, demonstration formats, synthetic study generator.

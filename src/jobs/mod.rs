@@ -1,0 +1,1 @@
+//! Job runner: blocking CPU work off the async runtime, progress, cancellation.

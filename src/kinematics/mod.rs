@@ -1,0 +1,1 @@
+//! Kinematics: URDF -> immutable `Model`; per-call scratch `Data`; FK, Jacobians, IK, manipulability.

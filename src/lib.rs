@@ -1,0 +1,19 @@
+//! reachgrasp: humanlike, task-specific reaching and grasping for redundant arms and
+//! low-complexity hands, as an HTTP planning service.
+//!
+//! Pure computation (no I/O, no async, deterministic for a seed): [`kinematics`], [`human`],
+//! [`mapping`], [`motion`], [`grasp`], [`optim`]. The service shell around them: [`store`],
+//! [`api`], [`jobs`], [`bridge`], [`dashboard`]. Equation numbers refer to
+//! `shared/reference/humanlike-grasping-paper.md`.
+
+pub mod api;
+pub mod bridge;
+pub mod dashboard;
+pub mod grasp;
+pub mod human;
+pub mod jobs;
+pub mod kinematics;
+pub mod mapping;
+pub mod motion;
+pub mod optim;
+pub mod store;

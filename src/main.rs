@@ -1,0 +1,3 @@
+fn main() {
+    println!("reachgrasp: the service shell is not built yet");
+}

@@ -1,0 +1,1 @@
+//! Human to humanlike robot motion mapping (paper eq. 1-7).

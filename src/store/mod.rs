@@ -1,0 +1,1 @@
+//! SQLite repositories (sqlx, runtime-checked queries); numeric arrays stored as compact BLOBs.
