@@ -34,7 +34,10 @@ pub const MAX_IK_BUDGET_MS: f64 = 2000.0;
 
 /// Loaded systems by id, rebuilt when the stored row changes (keyed by `updated_at`).
 #[derive(Clone, Debug, Default)]
-pub struct RobotCache(Arc<RwLock<HashMap<String, (String, Arc<System>)>>>);
+pub struct RobotCache(Arc<RwLock<HashMap<String, CachedSystem>>>);
+
+/// `(updated_at of the row it was built from, the system)`.
+type CachedSystem = (String, Arc<System>);
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -587,7 +590,6 @@ fn detail(row: &repo::RobotRow, s: &System) -> RobotDetail {
 }
 
 // ------------------------------------------------------------------------------------ handlers
-
 
 /// List the arm-hand systems.
 #[utoipa::path(get, path = "/v1/robots", tag = "robots",

@@ -65,8 +65,8 @@ where
     let mut used = [false; 16];
     for slot in 0..n {
         let mut best = usize::MAX;
-        for k in 0..n {
-            if !used[k] && (best == usize::MAX || eig.eigenvalues[k] > eig.eigenvalues[best]) {
+        for (k, &u) in used.iter().enumerate().take(n) {
+            if !u && (best == usize::MAX || eig.eigenvalues[k] > eig.eigenvalues[best]) {
                 best = k;
             }
         }
