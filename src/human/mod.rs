@@ -60,3 +60,6 @@ pub struct HumanFrame {
     /// (`x` along the distal phalanx, `z` the palmar normal).
     pub fingertips: [Isometry3<f64>; 5],
 }
+
+#[cfg(test)]
+mod tests;

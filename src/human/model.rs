@@ -50,7 +50,7 @@ use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, Unit, UnitQuaternion
 
 use super::anthropometry::{ArmDims, HandDims};
 use super::demo::Handedness;
-use crate::kinematics::{JointKind, Model, ModelBuilder};
+use crate::kinematics::{JointKind, JointLimits, Model, ModelBuilder};
 
 /// Names of the five fingers, in the order of [`super::HumanFrame::fingertips`].
 pub const FINGER_NAMES: [&str; 5] = ["thumb", "index", "middle", "ring", "little"];
@@ -352,10 +352,12 @@ fn build(root: &str, spec: &[JointSpec]) -> Model {
             Some(axis) => JointKind::Revolute { axis },
             None => JointKind::Fixed,
         };
-        b.add_joint(&j.name, parent, &j.child, kind, j.origin, (j.lower, j.upper), None)
+        // Human joints carry no velocity or effort limits: the model is only evaluated, not driven.
+        let limits = JointLimits::new(j.lower, j.upper, f64::INFINITY, f64::INFINITY);
+        b.add_joint(&j.name, parent, &j.child, kind, j.origin, limits, None)
             .expect("the human specs are well-formed");
     }
-    b.build()
+    b.build().expect("the human specs are well-formed")
 }
 
 /// The 20-DoF hand model for these dimensions; its `q` order is glove channels 0..20.

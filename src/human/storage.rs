@@ -46,7 +46,7 @@ pub fn pack_frames(frames: &[HumanFrame], glove: &[[f64; 22]]) -> Vec<f64> {
 
 /// Inverse of [`pack_frames`].
 pub fn unpack_frames(data: &[f64]) -> Result<(Vec<HumanFrame>, Vec<[f64; 22]>), HumanError> {
-    if data.len() % FRAME_WIDTH != 0 {
+    if !data.len().is_multiple_of(FRAME_WIDTH) {
         return Err(HumanError::MalformedStorage {
             reason: format!("{} values is not a multiple of {FRAME_WIDTH}", data.len()),
         });
@@ -76,7 +76,7 @@ pub fn to_le_bytes(values: &[f64]) -> Vec<u8> {
 
 /// Inverse of [`to_le_bytes`].
 pub fn from_le_bytes(bytes: &[u8]) -> Result<Vec<f64>, HumanError> {
-    if bytes.len() % 8 != 0 {
+    if !bytes.len().is_multiple_of(8) {
         return Err(HumanError::MalformedStorage {
             reason: format!("{} bytes is not a multiple of 8", bytes.len()),
         });

@@ -441,6 +441,7 @@ fn grasp_rotation(style: Style, a: &Vector3<f64>) -> UnitQuaternion<f64> {
 }
 
 /// Place the hand on the object and close each finger onto its surface.
+#[allow(clippy::too_many_arguments)]
 fn solve_grasp(
     hk: &mut HandKinematics,
     dims: &HandDims,
@@ -527,8 +528,8 @@ fn solve_grasp(
 }
 
 fn clamp_q(q: &mut [f64; HAND_DOF], p: &Postures) {
-    for k in 0..HAND_DOF {
-        q[k] = q[k].clamp(p.lower[k], p.upper[k]);
+    for (k, v) in q.iter_mut().enumerate() {
+        *v = v.clamp(p.lower[k], p.upper[k]);
     }
 }
 
