@@ -112,7 +112,11 @@ impl HandDims {
                 }
             }
         });
-        Ok(Self { length: hand_length, breadth: hand_breadth, fingers })
+        Ok(Self {
+            length: hand_length,
+            breadth: hand_breadth,
+            fingers,
+        })
     }
 }
 

@@ -76,7 +76,10 @@ fn read_table(
             let v = cells[i].parse::<f64>().map_err(|_| HumanError::Csv {
                 stream,
                 line,
-                message: format!("column `{c}` (sample {index}): `{}` is not a number", cells[i]),
+                message: format!(
+                    "column `{c}` (sample {index}): `{}` is not a number",
+                    cells[i]
+                ),
             })?;
             r.push(v);
         }
@@ -110,8 +113,18 @@ pub fn parse_glove_csv(
     let t = rows.iter().map(|r| r[0]).collect();
     let values: Vec<Vec<f64>> = rows.into_iter().map(|mut r| r.split_off(1)).collect();
     Ok(match calibration {
-        Some(c) => GloveStream { t, angles: None, raw: Some(values), calibration: Some(c) },
-        None => GloveStream { t, angles: Some(values), raw: None, calibration: None },
+        Some(c) => GloveStream {
+            t,
+            angles: None,
+            raw: Some(values),
+            calibration: Some(c),
+        },
+        None => GloveStream {
+            t,
+            angles: Some(values),
+            raw: None,
+            calibration: None,
+        },
     })
 }
 
@@ -186,7 +199,17 @@ mod tests {
         let mut bad = s.clone();
         bad.wrist[1].pop();
         let e = parse_tracker_csv(&tracker_to_csv(&bad)).unwrap_err();
-        assert!(matches!(e, HumanError::WrongWidth { stream: "tracker", index: 1, .. }), "{e}");
+        assert!(
+            matches!(
+                e,
+                HumanError::WrongWidth {
+                    stream: "tracker",
+                    index: 1,
+                    ..
+                }
+            ),
+            "{e}"
+        );
     }
 
     #[test]
@@ -198,7 +221,11 @@ mod tests {
         let e = parse_tracker_csv(&header).unwrap_err();
         assert!(matches!(e, HumanError::Csv { line: 2, .. }), "{e}");
         // NaN parses; validation rejects it later with the sample index and field.
-        let g = format!("t,{}\n0,{}\n", GLOVE_CHANNELS.join(","), vec!["NaN"; 22].join(","));
+        let g = format!(
+            "t,{}\n0,{}\n",
+            GLOVE_CHANNELS.join(","),
+            vec!["NaN"; 22].join(",")
+        );
         let s = parse_glove_csv(&g, None).unwrap();
         assert!(s.angles.unwrap()[0][0].is_nan());
     }

@@ -97,11 +97,21 @@ impl Subject {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum ObjectShape {
-    Sphere { radius: f64 },
-    Cylinder { radius: f64, height: f64 },
+    Sphere {
+        radius: f64,
+    },
+    Cylinder {
+        radius: f64,
+        height: f64,
+    },
     /// Full edge lengths along x, y, z.
-    Box { size: [f64; 3] },
-    Capsule { radius: f64, height: f64 },
+    Box {
+        size: [f64; 3],
+    },
+    Capsule {
+        radius: f64,
+        height: f64,
+    },
 }
 
 impl ObjectShape {
@@ -133,9 +143,9 @@ impl ObjectShape {
     /// The smallest width across the object that a hand would span (grasp size).
     pub fn grasp_width(&self) -> f64 {
         match *self {
-            Self::Sphere { radius } | Self::Cylinder { radius, .. } | Self::Capsule { radius, .. } => {
-                2.0 * radius
-            }
+            Self::Sphere { radius }
+            | Self::Cylinder { radius, .. }
+            | Self::Capsule { radius, .. } => 2.0 * radius,
             Self::Box { size } => size[0].min(size[1]).min(size[2]),
         }
     }
@@ -144,7 +154,10 @@ impl ObjectShape {
         let dims: Vec<(&str, f64)> = match *self {
             Self::Sphere { radius } => vec![("object.shape.radius", radius)],
             Self::Cylinder { radius, height } | Self::Capsule { radius, height } => {
-                vec![("object.shape.radius", radius), ("object.shape.height", height)]
+                vec![
+                    ("object.shape.radius", radius),
+                    ("object.shape.height", height),
+                ]
             }
             Self::Box { size } => vec![
                 ("object.shape.size[0]", size[0]),
@@ -168,7 +181,10 @@ pub struct Pose {
 
 impl Default for Pose {
     fn default() -> Self {
-        Self { position: [0.0; 3], orientation: [1.0, 0.0, 0.0, 0.0] }
+        Self {
+            position: [0.0; 3],
+            orientation: [1.0, 0.0, 0.0, 0.0],
+        }
     }
 }
 
@@ -176,7 +192,10 @@ impl Pose {
     pub fn from_isometry(iso: &Isometry3<f64>) -> Self {
         let q = iso.rotation.quaternion();
         let p = iso.translation.vector;
-        Self { position: [p.x, p.y, p.z], orientation: [q.w, q.i, q.j, q.k] }
+        Self {
+            position: [p.x, p.y, p.z],
+            orientation: [q.w, q.i, q.j, q.k],
+        }
     }
     pub fn to_isometry(&self) -> Isometry3<f64> {
         let [w, x, y, z] = self.orientation;
@@ -268,7 +287,11 @@ fn default_max_gap() -> f64 {
 
 impl Default for SyncOptions {
     fn default() -> Self {
-        Self { glove_offset_s: 0.0, rate_hz: default_rate(), max_gap_s: default_max_gap() }
+        Self {
+            glove_offset_s: 0.0,
+            rate_hz: default_rate(),
+            max_gap_s: default_max_gap(),
+        }
     }
 }
 
@@ -326,15 +349,30 @@ fn check_times(stream: &'static str, t: &[f64], max_gap: f64) -> Result<(), Huma
     }
     for (i, &ti) in t.iter().enumerate() {
         if !ti.is_finite() {
-            return Err(HumanError::NonFinite { stream, index: i, field: "t".into(), value: ti });
+            return Err(HumanError::NonFinite {
+                stream,
+                index: i,
+                field: "t".into(),
+                value: ti,
+            });
         }
         if i > 0 {
             let prev = t[i - 1];
             if ti <= prev {
-                return Err(HumanError::NotIncreasing { stream, index: i, previous: prev, t: ti });
+                return Err(HumanError::NotIncreasing {
+                    stream,
+                    index: i,
+                    previous: prev,
+                    t: ti,
+                });
             }
             if ti - prev > max_gap {
-                return Err(HumanError::Gap { stream, index: i, gap: ti - prev, limit: max_gap });
+                return Err(HumanError::Gap {
+                    stream,
+                    index: i,
+                    gap: ti - prev,
+                    limit: max_gap,
+                });
             }
         }
     }
@@ -343,7 +381,12 @@ fn check_times(stream: &'static str, t: &[f64], max_gap: f64) -> Result<(), Huma
 
 fn check_len(stream: &'static str, field: &str, n: usize, got: usize) -> Result<(), HumanError> {
     if n != got {
-        return Err(HumanError::LengthMismatch { stream, field: field.into(), expected: n, got });
+        return Err(HumanError::LengthMismatch {
+            stream,
+            field: field.into(),
+            expected: n,
+            got,
+        });
     }
     Ok(())
 }
@@ -434,7 +477,10 @@ fn validate_glove(s: &GloveStream, max_gap: f64) -> Result<Vec<[f64; 22]>, Human
     let (values, field, cal) = match (&s.angles, &s.raw, &s.calibration) {
         (Some(a), None, None) => (a, "angles", None),
         (None, Some(r), Some(c)) => {
-            for (name, v) in [("calibration.gain", &c.gain), ("calibration.offset", &c.offset)] {
+            for (name, v) in [
+                ("calibration.gain", &c.gain),
+                ("calibration.offset", &c.offset),
+            ] {
                 if v.len() != 22 {
                     return Err(HumanError::LengthMismatch {
                         stream: STREAM,
@@ -496,7 +542,12 @@ fn validate_sync(s: &SyncOptions) -> Result<(), HumanError> {
 fn validate_object(o: &ObjectSpec) -> Result<(), HumanError> {
     o.shape.validate()?;
     for (k, v) in o.pose.position.iter().enumerate() {
-        check_range(&format!("object.pose.position[{k}]"), *v, -MAX_POSITION_M, MAX_POSITION_M)?;
+        check_range(
+            &format!("object.pose.position[{k}]"),
+            *v,
+            -MAX_POSITION_M,
+            MAX_POSITION_M,
+        )?;
     }
     let q = o.pose.orientation;
     let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -511,7 +562,11 @@ fn validate_object(o: &ObjectSpec) -> Result<(), HumanError> {
 }
 
 fn mean_rate(t: &[f64]) -> f64 {
-    if t.len() < 2 { 0.0 } else { (t.len() - 1) as f64 / (t[t.len() - 1] - t[0]) }
+    if t.len() < 2 {
+        0.0
+    } else {
+        (t.len() - 1) as f64 / (t[t.len() - 1] - t[0])
+    }
 }
 
 /// Validate a demonstration, align and resample its streams, and derive the human kinematics of
@@ -532,7 +587,11 @@ pub fn ingest(input: &DemonstrationInput) -> Result<Demonstration, HumanError> {
     let end = t1.min(g1);
     let dt = 1.0 / input.sync.rate_hz;
     // A hair of tolerance so that an end exactly on the grid is kept despite rounding.
-    let n = if end > start { ((end - start) / dt + 1e-9).floor() as usize + 1 } else { 0 };
+    let n = if end > start {
+        ((end - start) / dt + 1e-9).floor() as usize + 1
+    } else {
+        0
+    };
     if n < 2 {
         return Err(HumanError::NoOverlap {
             tracker_start: t0,

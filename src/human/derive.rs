@@ -22,7 +22,9 @@ impl HandKinematics {
         debug_assert_eq!(model.nq(), HAND_DOF);
         let data = Data::new(&model);
         let tips = FINGER_NAMES.map(|f| {
-            model.frame_id(&format!("{f}_tip")).expect("the hand model names every fingertip")
+            model
+                .frame_id(&format!("{f}_tip"))
+                .expect("the hand model names every fingertip")
         });
         Self { model, data, tips }
     }

@@ -8,23 +8,56 @@ pub enum HumanError {
     #[error("stream `{stream}` is empty")]
     EmptyStream { stream: &'static str },
     #[error("stream `{stream}`: column `{field}` has {got} samples, expected {expected} (as `t`)")]
-    LengthMismatch { stream: &'static str, field: String, expected: usize, got: usize },
+    LengthMismatch {
+        stream: &'static str,
+        field: String,
+        expected: usize,
+        got: usize,
+    },
     #[error(
         "stream `{stream}` sample {index}: timestamp {t} is not strictly greater than the previous one ({previous})"
     )]
-    NotIncreasing { stream: &'static str, index: usize, previous: f64, t: f64 },
+    NotIncreasing {
+        stream: &'static str,
+        index: usize,
+        previous: f64,
+        t: f64,
+    },
     #[error("stream `{stream}` sample {index}: field `{field}` is not finite ({value})")]
-    NonFinite { stream: &'static str, index: usize, field: String, value: f64 },
-    #[error("stream `{stream}` sample {index}: field `{field}` has {got} values, expected {expected}")]
-    WrongWidth { stream: &'static str, index: usize, field: String, expected: usize, got: usize },
+    NonFinite {
+        stream: &'static str,
+        index: usize,
+        field: String,
+        value: f64,
+    },
+    #[error(
+        "stream `{stream}` sample {index}: field `{field}` has {got} values, expected {expected}"
+    )]
+    WrongWidth {
+        stream: &'static str,
+        index: usize,
+        field: String,
+        expected: usize,
+        got: usize,
+    },
     #[error(
         "stream `{stream}` sample {index}: gap of {gap} s before this sample exceeds the limit of {limit} s"
     )]
-    Gap { stream: &'static str, index: usize, gap: f64, limit: f64 },
+    Gap {
+        stream: &'static str,
+        index: usize,
+        gap: f64,
+        limit: f64,
+    },
     #[error(
         "stream `{stream}` sample {index}: angle `{field}` = {value} rad is outside ±π (±180°)"
     )]
-    AngleOutOfRange { stream: &'static str, index: usize, field: String, value: f64 },
+    AngleOutOfRange {
+        stream: &'static str,
+        index: usize,
+        field: String,
+        value: f64,
+    },
     #[error(
         "stream `{stream}` sample {index}: position `{field}` is {distance} m from the tracker origin (limit {limit} m)"
     )]
@@ -38,21 +71,44 @@ pub enum HumanError {
     #[error(
         "stream `{stream}` sample {index}: quaternion `{field}` has norm {norm} and cannot be normalised"
     )]
-    DegenerateQuaternion { stream: &'static str, index: usize, field: String, norm: f64 },
+    DegenerateQuaternion {
+        stream: &'static str,
+        index: usize,
+        field: String,
+        norm: f64,
+    },
     #[error(
         "the tracker ([{tracker_start}, {tracker_end}] s) and glove ([{glove_start}, {glove_end}] s, after the offset) streams do not overlap for at least two frames"
     )]
-    NoOverlap { tracker_start: f64, tracker_end: f64, glove_start: f64, glove_end: f64 },
+    NoOverlap {
+        tracker_start: f64,
+        tracker_end: f64,
+        glove_start: f64,
+        glove_end: f64,
+    },
     #[error("`{field}` = {value} is invalid: {reason}")]
-    InvalidParameter { field: String, value: f64, reason: &'static str },
+    InvalidParameter {
+        field: String,
+        value: f64,
+        reason: &'static str,
+    },
     #[error("stream `{stream}` CSV line {line}: {message}")]
-    Csv { stream: &'static str, line: usize, message: String },
+    Csv {
+        stream: &'static str,
+        line: usize,
+        message: String,
+    },
     #[error("stored frame array is malformed: {reason}")]
     MalformedStorage { reason: String },
     #[error(
         "synthetic trial (subject {subject}, position {position}): target is out of reach ({distance} m from the shoulder, arm length {reach} m)"
     )]
-    Unreachable { subject: String, position: usize, distance: f64, reach: f64 },
+    Unreachable {
+        subject: String,
+        position: usize,
+        distance: f64,
+        reach: f64,
+    },
 }
 
 impl HumanError {

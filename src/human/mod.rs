@@ -39,8 +39,8 @@ pub use demo::{
 pub use derive::HandKinematics;
 pub use error::HumanError;
 pub use model::{
-    ARM_JOINTS, FINGER_NAMES, GLOVE_CHANNELS, HAND_DOF, JointSpec, arm_model, arm_spec,
-    hand_model, hand_spec,
+    ARM_JOINTS, FINGER_NAMES, GLOVE_CHANNELS, HAND_DOF, JointSpec, arm_model, arm_spec, hand_model,
+    hand_spec,
 };
 pub use storage::{FRAME_WIDTH, pack_frames, unpack_frames};
 pub use synth::{ObjectKind, StudyConfig, generate_study, generate_trial};

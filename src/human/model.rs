@@ -135,7 +135,15 @@ fn revolute(
 }
 
 fn fixed(name: String, parent: String, child: String, origin: Isometry3<f64>) -> JointSpec {
-    JointSpec { name, parent, child, origin, axis: None, lower: 0.0, upper: 0.0 }
+    JointSpec {
+        name,
+        parent,
+        child,
+        origin,
+        axis: None,
+        lower: 0.0,
+        upper: 0.0,
+    }
 }
 
 fn along_x(d: f64) -> Isometry3<f64> {
@@ -347,7 +355,9 @@ fn mirror(j: &mut JointSpec) {
 fn build(root: &str, spec: &[JointSpec]) -> Model {
     let mut b = ModelBuilder::new(root);
     for j in spec {
-        let parent = b.frame_id(&j.parent).expect("specs list parents before children");
+        let parent = b
+            .frame_id(&j.parent)
+            .expect("specs list parents before children");
         let kind = match j.axis {
             Some(axis) => JointKind::Revolute { axis },
             None => JointKind::Fixed,

@@ -39,7 +39,11 @@ pub fn lerp(a: &Vector3<f64>, b: &Vector3<f64>, s: f64) -> Vector3<f64> {
 /// weights are 0/0, normalised linear interpolation is exact to rounding.
 pub fn slerp(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>, s: f64) -> UnitQuaternion<f64> {
     a.try_slerp(b, s, 1e-9).unwrap_or_else(|| {
-        let bq = if a.coords.dot(&b.coords) < 0.0 { -b.into_inner() } else { b.into_inner() };
+        let bq = if a.coords.dot(&b.coords) < 0.0 {
+            -b.into_inner()
+        } else {
+            b.into_inner()
+        };
         UnitQuaternion::from_quaternion(a.into_inner() * (1.0 - s) + bq * s)
     })
 }
@@ -80,7 +84,9 @@ mod tests {
 
     #[test]
     fn linear_signals_are_reproduced_exactly_on_an_irregular_grid() {
-        let ts: Vec<f64> = (0..50).map(|k| k as f64 / 240.0 + 1e-4 * ((k * 7) % 3) as f64).collect();
+        let ts: Vec<f64> = (0..50)
+            .map(|k| k as f64 / 240.0 + 1e-4 * ((k * 7) % 3) as f64)
+            .collect();
         let ys: Vec<f64> = ts.iter().map(|t| 3.0 * t - 0.5).collect();
         let out: Vec<f64> = (0..20).map(|k| 0.001 + k as f64 / 100.0).collect();
         let r = resample_linear(&ts, &ys, &out);

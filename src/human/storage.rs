@@ -112,7 +112,9 @@ mod tests {
                 }
             })
             .collect();
-        let glove: Vec<[f64; 22]> = (0..3).map(|k| std::array::from_fn(|c| (k * c) as f64)).collect();
+        let glove: Vec<[f64; 22]> = (0..3)
+            .map(|k| std::array::from_fn(|c| (k * c) as f64))
+            .collect();
         let flat = pack_frames(&frames, &glove);
         assert_eq!(flat.len(), 3 * FRAME_WIDTH);
         let back = from_le_bytes(&to_le_bytes(&flat)).unwrap();

@@ -13,7 +13,7 @@
 //!   moving by minimum jerk from a low resting swivel to a moderately raised one (Kang et al.
 //!   2005 describe the natural swivel as the elbow hanging low and slightly out).
 //! * Hand: preshaping opens the hand by minimum jerk until `τ_peak ∈ [0.6, 0.8]`, to a maximum grip
-//!   aperture (thumb tip to index tip) of `0.8 · size + 0.04 m` (the linear scaling reported by
+//!   aperture (thumb tip to index tip) of `0.8 · size + 0.05 m` (the linear scaling reported by
 //!   Jeannerod 1984 and Smeets & Brenner 1999), then closes onto the object: each finger flexes
 //!   along its own closing synergy until its tip reaches the object surface.
 //! * Variability: movement time, lift, swivel, peak timing, aperture and final wrist pose vary
@@ -62,8 +62,13 @@ enum Style {
 }
 
 impl ObjectKind {
-    pub const ALL: [ObjectKind; 5] =
-        [Self::Ball, Self::Bottle, Self::KitchenTimer, Self::Pencil, Self::Sunglasses];
+    pub const ALL: [ObjectKind; 5] = [
+        Self::Ball,
+        Self::Bottle,
+        Self::KitchenTimer,
+        Self::Pencil,
+        Self::Sunglasses,
+    ];
 
     pub fn name(&self) -> &'static str {
         match self {
@@ -80,10 +85,21 @@ impl ObjectKind {
     pub fn shape(&self) -> ObjectShape {
         match self {
             Self::Ball => ObjectShape::Sphere { radius: 0.04 },
-            Self::Bottle => ObjectShape::Cylinder { radius: 0.033, height: 0.21 },
-            Self::KitchenTimer => ObjectShape::Cylinder { radius: 0.03, height: 0.055 },
-            Self::Pencil => ObjectShape::Cylinder { radius: 0.0035, height: 0.17 },
-            Self::Sunglasses => ObjectShape::Box { size: [0.145, 0.05, 0.04] },
+            Self::Bottle => ObjectShape::Cylinder {
+                radius: 0.033,
+                height: 0.21,
+            },
+            Self::KitchenTimer => ObjectShape::Cylinder {
+                radius: 0.03,
+                height: 0.055,
+            },
+            Self::Pencil => ObjectShape::Cylinder {
+                radius: 0.0035,
+                height: 0.17,
+            },
+            Self::Sunglasses => ObjectShape::Box {
+                size: [0.145, 0.05, 0.04],
+            },
         }
     }
 
@@ -100,9 +116,9 @@ impl ObjectKind {
 
     fn style(&self) -> Style {
         match self {
-            Self::Ball | Self::KitchenTimer => Style::TopPower,
+            Self::Ball | Self::KitchenTimer | Self::Sunglasses => Style::TopPower,
             Self::Bottle => Style::LateralPower,
-            Self::Pencil | Self::Sunglasses => Style::TopPinch,
+            Self::Pencil => Style::TopPinch,
         }
     }
 
@@ -119,7 +135,10 @@ impl ObjectKind {
             Self::Pencil => (
                 0.0035,
                 UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
-                    * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2),
+                    * UnitQuaternion::from_axis_angle(
+                        &Vector3::x_axis(),
+                        std::f64::consts::FRAC_PI_2,
+                    ),
             ),
             // Long side across the approach direction, lying flat.
             Self::Sunglasses => (
@@ -197,9 +216,8 @@ const GLOVE_SIGMA: f64 = 0.5 * std::f64::consts::PI / 180.0;
 
 impl StudyConfig {
     pub fn validate(&self) -> Result<(), HumanError> {
-        let count = |field: &str, v: usize, max: usize| {
-            check_range(field, v as f64, 1.0, max as f64)
-        };
+        let count =
+            |field: &str, v: usize, max: usize| check_range(field, v as f64, 1.0, max as f64);
         count("subjects", self.subjects, MAX_SUBJECTS)?;
         count("positions", self.positions, POSITIONS)?;
         count("trials", self.trials, MAX_TRIALS)?;
@@ -218,7 +236,11 @@ impl StudyConfig {
 
     /// Number of demonstrations the study produces.
     pub fn len(&self) -> usize {
-        let per = if self.full_factorial { self.objects.len() } else { 1 };
+        let per = if self.full_factorial {
+            self.objects.len()
+        } else {
+            1
+        };
         self.subjects * self.positions * per * self.trials
     }
 
@@ -349,18 +371,24 @@ struct Postures {
 
 fn postures(style: Style, dims: &HandDims) -> Postures {
     // Per finger: [abduction, mcp, pip, dip]; thumb: [abduction, opposition, mcp, ip]. Degrees.
-    let rest_thumb = [10.0, 5.0, 10.0, 10.0];
-    let rest_f = [0.0, 15.0, 25.0, 10.0];
+    // Relaxed hand: thumb resting in front of the index, fingers curled (aperture ≈ 4 cm).
+    let rest_thumb = [30.0, 40.0, 20.0, 20.0];
+    let rest_f = [0.0, 30.0, 45.0, 20.0];
     let open_thumb = [55.0, 25.0, 0.0, -5.0];
     let open_abd = [12.0, 2.0, 8.0, 15.0];
     let open_f = [-10.0, 5.0, 0.0];
     let (closed_thumb, closed_f): ([f64; 4], [[f64; 3]; 4]) = match style {
         Style::TopPower | Style::LateralPower => {
-            ([45.0, 60.0, 45.0, 60.0], [[85.0, 105.0, 70.0]; 4])
+            ([60.0, 35.0, 35.0, 40.0], [[85.0, 105.0, 70.0]; 4])
         }
         Style::TopPinch => (
             [40.0, 55.0, 35.0, 30.0],
-            [[60.0, 55.0, 25.0], [65.0, 75.0, 40.0], [80.0, 100.0, 60.0], [85.0, 105.0, 65.0]],
+            [
+                [60.0, 55.0, 25.0],
+                [65.0, 75.0, 40.0],
+                [80.0, 100.0, 60.0],
+                [85.0, 105.0, 65.0],
+            ],
         ),
     };
     let mut p = Postures {
@@ -429,15 +457,15 @@ fn grasp_rotation(style: Style, a: &Vector3<f64>) -> UnitQuaternion<f64> {
             (x, x.cross(&y))
         }
         Style::LateralPower => {
-            // Palm facing left-forward (30° from the pure lateral), thumb up, fingers forward-right.
-            let z = (left * deg(30.0).cos() + a * deg(30.0).sin()).normalize();
+            // Palm facing left-forward (10° from the pure lateral), thumb up, fingers forward-right.
+            let z = (left * deg(10.0).cos() + a * deg(10.0).sin()).normalize();
             (z.cross(&up), z)
         }
     };
     let y = z.cross(&x);
-    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
-        Matrix3::from_columns(&[x, y, z]),
-    ))
+    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(Matrix3::from_columns(
+        &[x, y, z],
+    )))
 }
 
 /// Place the hand on the object and close each finger onto its surface.
@@ -459,6 +487,7 @@ fn solve_grasp(
                 ObjectShape::Cylinder { height, .. } if style == Style::TopPower => {
                     0.5 * height + 0.01
                 }
+                ObjectShape::Box { size } if style == Style::TopPower => 0.5 * size[2] + 0.01,
                 shape => 0.5 * shape.grasp_width() + 0.004,
             };
             // Palm centre: between the wrist and the MCP row, on the palmar skin.
@@ -482,49 +511,140 @@ fn solve_grasp(
     };
     let world_centre = object.pose.to_isometry() * Point3::from(grasp_point);
     let wrist_t = world_centre.coords - rotation * centre_in_hand;
-    let wrist = Isometry3::from_parts(Translation3::from(wrist_t), rotation);
-    let to_object = object.pose.to_isometry().inverse() * wrist;
+    let mut wrist = Isometry3::from_parts(Translation3::from(wrist_t), rotation);
+    let object_pose = object.pose.to_isometry();
     let mut q = *open;
-    // Close each finger along its synergy until its tip touches the surface (pad contact at
-    // ~4 mm from the tip's centre line); fingers that never meet the object close fully.
-    for f in 0..5 {
-        let dofs = finger_dofs(f);
-        let dist = |hk: &mut HandKinematics, q: &[f64; HAND_DOF]| {
-            let tip = hk.fingertips_local(q)[f];
-            object.shape.signed_distance(&(to_object * Point3::from(tip.translation.vector)).coords)
-                - 0.004
-        };
-        let at = |s: f64| {
-            let mut qq = q;
-            for k in dofs.clone() {
-                qq[k] = open[k] + s * (postures.closed[k] - open[k]);
-            }
-            qq
-        };
-        let mut lo = 0.0;
-        let mut hi = None;
-        const STEPS: usize = 24;
-        for k in 1..=STEPS {
-            let s = k as f64 / STEPS as f64;
-            if dist(hk, &at(s)) <= 0.0 {
-                hi = Some(s);
-                break;
-            }
-            lo = s;
+    // A thumb that cannot reach the object (or that the open hand already pushes into it) means
+    // the hand sits too far to one side: slide the hand along the surface normal at the thumb
+    // tip by the thumb's signed gap and close again.
+    for _ in 0..4 {
+        let to_object = object_pose.inverse() * wrist;
+        let (qh, thumb_gap) = close_hand(hk, object, &to_object, open, &postures.closed);
+        q = qh;
+        if thumb_gap.abs() < 1e-3 {
+            break;
         }
-        let s = match hi {
-            Some(mut hi) => {
-                for _ in 0..30 {
-                    let mid = 0.5 * (lo + hi);
-                    if dist(hk, &at(mid)) <= 0.0 { hi = mid } else { lo = mid }
-                }
-                hi
-            }
-            None => 1.0,
-        };
-        q = at(s);
+        let tip = to_object * Point3::from(hk.fingertips_local(&q)[0].translation.vector);
+        let h = 1e-6;
+        let grad = Vector3::from_fn(|k, _| {
+            let mut e = Vector3::zeros();
+            e[k] = h;
+            (object.shape.signed_distance(&(tip.coords + e))
+                - object.shape.signed_distance(&(tip.coords - e)))
+                / (2.0 * h)
+        });
+        if grad.norm() < 1e-9 {
+            break;
+        }
+        // Moving the hand by +δ moves the object by −δ relative to the thumb tip.
+        let shift = object_pose.rotation * (-grad.normalize() * thumb_gap);
+        wrist.translation.vector += shift;
     }
     Grasp { wrist, q }
+}
+
+/// Close the fingers and then the thumb onto the object (hand placed at `to_object` relative to
+/// the object frame). Fingers close along their synergy; the thumb tries a few closing targets
+/// (more or less opposition) and keeps the one that touches the object farthest from the index
+/// pad — the opposing contact a real grasp would use. Returns the posture and the thumb's
+/// signed gap to the surface (negative: inside).
+fn close_hand(
+    hk: &mut HandKinematics,
+    object: &ObjectSpec,
+    to_object: &Isometry3<f64>,
+    open: &[f64; HAND_DOF],
+    closed: &[f64; HAND_DOF],
+) -> ([f64; HAND_DOF], f64) {
+    let mut q = *open;
+    for f in 1..5 {
+        q = close_finger(hk, object, to_object, &q, open, closed, f).0;
+    }
+    let index_tip = hk.fingertips_local(&q)[1].translation.vector;
+    let mut best: Option<(bool, f64, f64, [f64; HAND_DOF])> = None;
+    for abd in [45.0, 60.0] {
+        for opp in [20.0, 35.0, 50.0, 65.0, 80.0] {
+            let mut target = *closed;
+            target[0] = deg(abd);
+            target[1] = deg(opp);
+            let (qt, gap) = close_finger(hk, object, to_object, &q, open, &target, 0);
+            let touching = gap.abs() < 1e-3;
+            let spread = (hk.fingertips_local(&qt)[0].translation.vector - index_tip).norm();
+            // Prefer touching, then the widest opposition; among misses, the smallest gap.
+            let key = if touching { spread } else { -gap.abs() };
+            let better = match &best {
+                None => true,
+                Some((bt, bk, _, _)) => (touching, key) > (*bt, *bk),
+            };
+            if better {
+                best = Some((touching, key, gap, qt));
+            }
+        }
+    }
+    let (_, _, gap, qt) = best.expect("candidates were tried");
+    (qt, gap)
+}
+
+/// Close finger `f` of `q` from `open` towards `closed` until its pad touches the surface (pad
+/// contact at ~4 mm from the tip's centre line). Returns the posture and the remaining pad
+/// distance (0 at contact; positive when the finger closed fully without touching). A tip that
+/// starts inside the object (the open hand already overlaps it) is opened further until it is
+/// outside, so that the pad rests on the surface.
+fn close_finger(
+    hk: &mut HandKinematics,
+    object: &ObjectSpec,
+    to_object: &Isometry3<f64>,
+    q: &[f64; HAND_DOF],
+    open: &[f64; HAND_DOF],
+    closed: &[f64; HAND_DOF],
+    f: usize,
+) -> ([f64; HAND_DOF], f64) {
+    const PAD: f64 = 0.004;
+    const STEPS: usize = 24;
+    let dofs = finger_dofs(f);
+    let mut dist = |s: f64| {
+        let mut qq = *q;
+        for k in dofs.clone() {
+            qq[k] = open[k] + s * (closed[k] - open[k]);
+        }
+        let tip = hk.fingertips_local(&qq)[f];
+        let d = object
+            .shape
+            .signed_distance(&(to_object * Point3::from(tip.translation.vector)).coords)
+            - PAD;
+        (qq, d)
+    };
+    let mut bracket = None;
+    if dist(0.0).1 <= 0.0 {
+        for k in 1..=STEPS {
+            let s = -(k as f64) / STEPS as f64;
+            if dist(s).1 > 0.0 {
+                bracket = Some((s, s + 1.0 / STEPS as f64));
+                break;
+            }
+        }
+    } else {
+        for k in 1..=STEPS {
+            let s = k as f64 / STEPS as f64;
+            if dist(s).1 <= 0.0 {
+                bracket = Some((s - 1.0 / STEPS as f64, s));
+                break;
+            }
+        }
+    }
+    match bracket {
+        Some((mut lo, mut hi)) => {
+            for _ in 0..30 {
+                let mid = 0.5 * (lo + hi);
+                if dist(mid).1 <= 0.0 {
+                    hi = mid
+                } else {
+                    lo = mid
+                }
+            }
+            dist(lo)
+        }
+        None => dist(1.0),
+    }
 }
 
 fn clamp_q(q: &mut [f64; HAND_DOF], p: &Postures) {
@@ -560,7 +680,10 @@ fn generate_trial_with(
     let subject = &spec.subject;
     let arm = subject.arm_dims()?;
     let dims = subject.hand_dims()?;
-    let object_index = ObjectKind::ALL.iter().position(|o| *o == spec.object).unwrap_or(0);
+    let object_index = ObjectKind::ALL
+        .iter()
+        .position(|o| *o == spec.object)
+        .unwrap_or(0);
     let mut rng = rng_for(
         seed,
         &[
@@ -596,7 +719,7 @@ fn generate_trial_with(
     let duration = (0.75 + 0.9 * rho) * (1.0 + 0.06 * g());
     let lift = (0.035 + 0.008 * g()).clamp(0.015, 0.06);
     let t_peak = (0.70 + 0.035 * g()).clamp(0.61, 0.79);
-    let mga_target = (0.8 * spec.object.grasp_size() + 0.04) * (1.0 + 0.04 * g());
+    let mga_target = (0.8 * spec.object.grasp_size() + 0.05) * (1.0 + 0.04 * g());
     let swivel0 = deg(12.0 + 4.0 * g());
     let swivel1 = deg(28.0 + 6.0 * g());
     let lean = 0.015 + 0.005 * g();
@@ -629,25 +752,48 @@ fn generate_trial_with(
         blend(&post.rest, &post.open, hi)
     };
 
-    let rotation = rot_jitter * grasp_rotation(style, &a);
-    let mut grasp =
-        solve_grasp(hk, &dims, style, &post, &q_open, &object, rotation, grasp_point);
-    grasp.wrist.translation.vector += end_jitter;
+    // The hand is yawed to line up with the forearm (as people do, keeping the wrist near
+    // neutral deviation): place it once along the shoulder's approach direction, find where the
+    // forearm then points, and place it again along that direction.
+    let shoulder1 = shoulder0 + a * lean;
+    let mut approach = a;
+    let mut grasp = None;
+    for _ in 0..2 {
+        let rotation = rot_jitter * grasp_rotation(style, &approach);
+        let g = solve_grasp(
+            hk,
+            &dims,
+            style,
+            &post,
+            &q_open,
+            &object,
+            rotation,
+            grasp_point + end_jitter,
+        );
+        let w = g.wrist.translation.vector;
+        let e = elbow_position(&shoulder1, &w, arm.upper_arm, arm.forearm, swivel1);
+        let f = Vector3::new(w.x - e.x, w.y - e.y, 0.0);
+        if f.norm() > 1e-6 {
+            approach = f.normalize();
+        }
+        grasp = Some(g);
+    }
+    let mut grasp = grasp.expect("two passes");
     clamp_q(&mut grasp.q, &post);
 
-    // Resting hand: palm down on the table, fingers forward, turned 20° inwards.
-    let rest_x = Vector3::new(deg(20.0).cos(), deg(20.0).sin(), 0.0);
+    // Resting hand: palm down on the table in line with the resting forearm, the wrist high
+    // enough for the curled fingertips to rest on the table.
+    let wrist0 = Vector3::new(start_xy[0], start_xy[1], 0.075);
+    let e0 = elbow_position(&shoulder0, &wrist0, arm.upper_arm, arm.forearm, swivel0);
+    let rest_x = Vector3::new(wrist0.x - e0.x, wrist0.y - e0.y, 0.0).normalize();
     let rest_z = -Vector3::z();
     let rest_rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
         Matrix3::from_columns(&[rest_x, rest_z.cross(&rest_x), rest_z]),
     ));
-    let wrist0 = Vector3::new(start_xy[0], start_xy[1], 0.045);
     let wrist1 = grasp.wrist.translation.vector;
     let rot1 = grasp.wrist.rotation;
 
-    // Reachability along the straight transport (with the lift the path only gets shorter in
-    // the worst case by the lift; check the end, the farthest point).
-    let shoulder1 = shoulder0 + a * lean;
+    // Reachability: the end of the transport is its farthest point from the shoulder.
     let dist = (wrist1 - shoulder1).norm();
     if dist > 0.97 * reach {
         return Err(HumanError::Unreachable {
@@ -673,7 +819,12 @@ fn generate_trial_with(
         } else {
             blend(&q_open, &grasp.q, min_jerk((tau - t_peak) / (1.0 - t_peak)))
         };
-        (shoulder, elbow, Isometry3::from_parts(Translation3::from(wrist), rot), q)
+        (
+            shoulder,
+            elbow,
+            Isometry3::from_parts(Translation3::from(wrist), rot),
+            q,
+        )
     };
 
     // Tracker stream at 240 Hz.
@@ -687,7 +838,11 @@ fn generate_trial_with(
     };
     let noise = spec.noise;
     let mut g3 = |sigma: f64| {
-        if noise { Vector3::new(g(), g(), g()) * sigma } else { Vector3::zeros() }
+        if noise {
+            Vector3::new(g(), g(), g()) * sigma
+        } else {
+            Vector3::zeros()
+        }
     };
     for k in 0..nt {
         let t = k as f64 / TRACKER_HZ;
@@ -701,23 +856,29 @@ fn generate_trial_with(
         tracker.t.push(t);
         tracker.shoulder.push(pos(s, g3(TRACKER_POS_SIGMA)));
         tracker.elbow.push(pos(e, g3(TRACKER_POS_SIGMA)));
-        tracker.wrist.push(pos(w.translation.vector, g3(TRACKER_POS_SIGMA)));
+        tracker
+            .wrist
+            .push(pos(w.translation.vector, g3(TRACKER_POS_SIGMA)));
         tracker.wrist_orientation.push(vec![q.w, q.i, q.j, q.k]);
     }
 
     // Glove stream at 90 Hz, its first sample at a random phase of the tracker clock.
-    let mut rng2 = rng_for(seed ^ 0x61_6C_6F_76_65, &[spec.subject_index as u64, p as u64, object_index as u64, spec.trial as u64]);
+    let mut rng2 = rng_for(
+        seed ^ 0x61_6C_6F_76_65,
+        &[
+            spec.subject_index as u64,
+            p as u64,
+            object_index as u64,
+            spec.trial as u64,
+        ],
+    );
     let g0 = rng2.random::<f64>() / GLOVE_HZ;
     let ng = ((total - g0) * GLOVE_HZ).floor() as usize + 1;
-    let mut glove = GloveStream {
-        t: Vec::with_capacity(ng),
-        angles: Some(Vec::with_capacity(ng)),
-        raw: None,
-        calibration: None,
-    };
-    let angles = glove.angles.as_mut().expect("just set");
+    let mut glove_t = Vec::with_capacity(ng);
+    let mut angles = Vec::with_capacity(ng);
     for k in 0..ng {
         let t = g0 + k as f64 / GLOVE_HZ;
+        glove_t.push(t);
         let (_, e, w, q) = state(t);
         // Wrist channels: the hand's tilt relative to the forearm axis, in the hand frame.
         let f = w.rotation.inverse() * (w.translation.vector - e).normalize();
@@ -728,7 +889,8 @@ fn generate_trial_with(
         row.push(flex);
         row.push(dev);
         if noise {
-            row.iter_mut().for_each(|v| *v += GLOVE_SIGMA * gauss(&mut rng2));
+            row.iter_mut()
+                .for_each(|v| *v += GLOVE_SIGMA * gauss(&mut rng2));
         }
         angles.push(row);
     }
@@ -749,7 +911,15 @@ fn generate_trial_with(
             )),
         },
         tracker,
-        glove,
-        sync: SyncOptions { rate_hz: spec.rate_hz, ..SyncOptions::default() },
+        glove: GloveStream {
+            t: glove_t,
+            angles: Some(angles),
+            raw: None,
+            calibration: None,
+        },
+        sync: SyncOptions {
+            rate_hz: spec.rate_hz,
+            ..SyncOptions::default()
+        },
     })
 }
