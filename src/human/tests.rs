@@ -1,5 +1,6 @@
 //! Tests of the human layer: model FK against closed forms, ingest exactness, every rejection,
 //! and the generator's motor-control properties.
+#![allow(clippy::needless_range_loop)] // index loops mirror the closed forms being checked
 
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 
