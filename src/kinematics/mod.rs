@@ -7,10 +7,26 @@
 
 mod algorithms;
 mod error;
+mod ik;
+mod joint_vector;
+pub mod manipulability;
+mod mesh;
 mod model;
+#[cfg(test)]
+mod robot_tests;
+mod system;
+pub mod urdf;
 
 pub use algorithms::{Data, forward_kinematics, frame_jacobian};
 pub use error::KinematicsError;
+pub use ik::{IkOptions, IkReport, IkSolver, IkTarget};
+pub use joint_vector::JointVector;
+pub use manipulability::{
+    Ellipsoid, force_transmission_ratio, manipulability, velocity_ellipsoid,
+    velocity_transmission_ratio,
+};
 pub use model::{
     Actuation, Collision, FrameId, Joint, JointKind, JointLimits, Mimic, Model, ModelBuilder,
 };
+pub use system::{Finger, FingerSpec, Mount, SpreadPair, System, SystemDescriptor, UrdfSources};
+pub use urdf::{DirMeshes, MeshSource, NoMeshes, model_from_urdf_file, model_from_urdf_str};
