@@ -8,7 +8,6 @@
 use std::collections::HashMap;
 
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
-use parry3d_f64::query::PointQuery;
 use parry3d_f64::shape::{Ball, Capsule, Cuboid, Cylinder, SharedShape, TriMesh, TriMeshFlags};
 use serde::{Deserialize, Serialize};
 
@@ -152,14 +151,20 @@ impl Object {
                 field: "orientation".into(),
             });
         }
-        let rot = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+        let rot =
+            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
         spec.orientation = [rot.w, rot.i, rot.j, rot.k];
         let pose = Isometry3::from_parts(Translation3::from(Vector3::from(spec.position)), rot);
-        let y_to_z = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
+        let y_to_z =
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
         let (shape, local_fix, bounding_radius) = match &mut spec.shape {
             ShapeSpec::Sphere { radius } => {
                 positive("shape.radius", *radius)?;
-                (SharedShape::new(Ball::new(*radius)), Isometry3::identity(), *radius)
+                (
+                    SharedShape::new(Ball::new(*radius)),
+                    Isometry3::identity(),
+                    *radius,
+                )
             }
             ShapeSpec::Cylinder { radius, height } => {
                 positive("shape.radius", *radius)?;
@@ -176,7 +181,11 @@ impl Object {
                     positive(&format!("shape.size[{i}]"), *s)?;
                 }
                 let he = Vector3::new(size[0], size[1], size[2]) * 0.5;
-                (SharedShape::new(Cuboid::new(he)), Isometry3::identity(), he.norm())
+                (
+                    SharedShape::new(Cuboid::new(he)),
+                    Isometry3::identity(),
+                    he.norm(),
+                )
             }
             ShapeSpec::Capsule { radius, length } => {
                 positive("shape.radius", *radius)?;
@@ -267,7 +276,14 @@ impl Object {
         let proj = self.shape.project_point(&self.parry_pose, p, false);
         let diff = p - proj.point;
         let d = diff.norm();
-        let sign = if proj.is_inside { -1.0 } else { 1.0 };
+        // A boundary projection of a mesh does not say inside/outside; the solid containment
+        // test (pseudo-normals of the oriented mesh) does.
+        let inside = if self.shape.as_trimesh().is_some() {
+            self.shape.contains_point(&self.parry_pose, p)
+        } else {
+            proj.is_inside
+        };
+        let sign = if inside { -1.0 } else { 1.0 };
         let normal = if d > 1e-12 {
             diff * (sign / d)
         } else {
@@ -287,7 +303,10 @@ impl Object {
 
 /// Check a triangle soup is a closed 2-manifold with consistent orientation.
 /// Returns its volume centroid and its bounding radius about that centroid.
-fn check_mesh(vertices: &[[f64; 3]], triangles: &[[u32; 3]]) -> Result<([f64; 3], f64), GraspError> {
+fn check_mesh(
+    vertices: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+) -> Result<([f64; 3], f64), GraspError> {
     if triangles.is_empty() || vertices.len() < 4 {
         return Err(GraspError::MalformedMesh {
             reason: format!(
@@ -435,7 +454,8 @@ pub fn parse_obj(text: &str) -> Result<ShapeSpec, GraspError> {
 pub fn parse_stl(bytes: &[u8]) -> Result<ShapeSpec, GraspError> {
     let mut corners: Vec<[f64; 3]> = Vec::new();
     let is_ascii = bytes.starts_with(b"solid")
-        && std::str::from_utf8(bytes).is_ok_and(|s| s.contains("facet") || s.trim_end().ends_with("endsolid"));
+        && std::str::from_utf8(bytes)
+            .is_ok_and(|s| s.contains("facet") || s.trim_end().ends_with("endsolid"));
     if is_ascii {
         let text = std::str::from_utf8(bytes).expect("checked above");
         for (ln, line) in text.lines().enumerate() {
@@ -443,12 +463,11 @@ pub fn parse_stl(bytes: &[u8]) -> Result<ShapeSpec, GraspError> {
             if it.next() == Some("vertex") {
                 let mut v = [0.0; 3];
                 for x in v.iter_mut() {
-                    *x = it
-                        .next()
-                        .and_then(|s| s.parse().ok())
-                        .ok_or_else(|| GraspError::MalformedMesh {
+                    *x = it.next().and_then(|s| s.parse().ok()).ok_or_else(|| {
+                        GraspError::MalformedMesh {
                             reason: format!("STL line {}: bad vertex", ln + 1),
-                        })?;
+                        }
+                    })?;
                 }
                 corners.push(v);
             }
@@ -461,7 +480,10 @@ pub fn parse_stl(bytes: &[u8]) -> Result<ShapeSpec, GraspError> {
     } else {
         if bytes.len() < 84 {
             return Err(GraspError::MalformedMesh {
-                reason: format!("binary STL shorter than its 84-byte header ({} bytes)", bytes.len()),
+                reason: format!(
+                    "binary STL shorter than its 84-byte header ({} bytes)",
+                    bytes.len()
+                ),
             });
         }
         let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
@@ -486,7 +508,8 @@ pub fn parse_stl(bytes: &[u8]) -> Result<ShapeSpec, GraspError> {
                 let mut v = [0.0; 3];
                 for (k, x) in v.iter_mut().enumerate() {
                     let o = base + 12 * c + 4 * k;
-                    *x = f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]) as f64;
+                    *x = f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]])
+                        as f64;
                 }
                 corners.push(v);
             }
@@ -580,24 +603,222 @@ pub fn seeded_shapes() -> Vec<(&'static str, ShapeSpec, [f64; 4])> {
 
 /// A seeded object resting on a horizontal table of height `table_z`, its centroid above `(x, y)`.
 pub fn seeded_object(name: &str, x: f64, y: f64, table_z: f64) -> Option<ObjectSpec> {
-    seeded_shapes().into_iter().find(|(n, _, _)| *n == name).map(|(n, shape, q)| {
-        let rot = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
-        // Lowest point along world z of the rotated shape.
-        let lowest = match (&shape, q == [1.0, 0.0, 0.0, 0.0]) {
-            (_, true) => half_height(&shape),
-            (ShapeSpec::Capsule { radius, .. }, false) => *radius,
-            (ShapeSpec::Cylinder { radius, .. }, false) => *radius,
-            _ => {
-                let _ = rot;
-                half_height(&shape)
+    seeded_shapes()
+        .into_iter()
+        .find(|(n, _, _)| *n == name)
+        .map(|(n, shape, q)| {
+            let rot =
+                UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+            // Lowest point along world z of the rotated shape.
+            let lowest = match (&shape, q == [1.0, 0.0, 0.0, 0.0]) {
+                (_, true) => half_height(&shape),
+                (ShapeSpec::Capsule { radius, .. }, false) => *radius,
+                (ShapeSpec::Cylinder { radius, .. }, false) => *radius,
+                _ => {
+                    let _ = rot;
+                    half_height(&shape)
+                }
+            };
+            ObjectSpec {
+                name: n.to_string(),
+                shape,
+                position: [x, y, table_z + lowest],
+                orientation: q,
+                support: Some(SupportPlane::horizontal(table_z)),
             }
-        };
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(shape: ShapeSpec) -> ObjectSpec {
         ObjectSpec {
-            name: n.to_string(),
+            name: "t".into(),
             shape,
-            position: [x, y, table_z + lowest],
-            orientation: q,
-            support: Some(SupportPlane::horizontal(table_z)),
+            position: [0.5, 0.1, 0.2],
+            orientation: [1.0, 0.0, 0.0, 0.0],
+            support: None,
         }
-    })
+    }
+
+    const CUBE_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+        f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
+
+    #[test]
+    fn sphere_and_cylinder_signed_distances_match_closed_forms() {
+        let s = Object::new(spec(ShapeSpec::Sphere { radius: 0.05 })).unwrap();
+        let p = Point3::new(0.5, 0.1, 0.3);
+        let q = s.query(&p);
+        assert!((q.signed_distance - 0.05).abs() < 1e-12);
+        assert!((q.normal - Vector3::z()).norm() < 1e-12);
+        let inside = s.query(&Point3::new(0.52, 0.1, 0.2));
+        assert!((inside.signed_distance + 0.03).abs() < 1e-12);
+        assert!((inside.normal - Vector3::x()).norm() < 1e-12);
+        // Cylinder axis is local z: a point beside it is radial, a point above meets the cap.
+        let c = Object::new(spec(ShapeSpec::Cylinder {
+            radius: 0.03,
+            height: 0.2,
+        }))
+        .unwrap();
+        let side = c.query(&Point3::new(0.5, 0.15, 0.25));
+        assert!((side.signed_distance - 0.02).abs() < 1e-12, "{side:?}");
+        let top = c.query(&Point3::new(0.5, 0.1, 0.35));
+        assert!((top.signed_distance - 0.05).abs() < 1e-12, "{top:?}");
+        assert!((top.normal - Vector3::z()).norm() < 1e-12);
+    }
+
+    #[test]
+    fn signed_distance_gradient_is_the_normal() {
+        let objs = [
+            ShapeSpec::Box {
+                size: [0.1, 0.2, 0.05],
+            },
+            ShapeSpec::Capsule {
+                radius: 0.01,
+                length: 0.1,
+            },
+            parse_obj(CUBE_OBJ).unwrap(),
+        ];
+        for shape in objs {
+            let mut sp = spec(shape);
+            sp.orientation = [0.9, 0.1, -0.3, 0.2];
+            let o = Object::new(sp).unwrap();
+            let p = Point3::new(0.61, 0.23, 0.27);
+            let q = o.query(&p);
+            let h = 1e-6;
+            for a in 0..3 {
+                let mut pp = p;
+                let mut pm = p;
+                pp[a] += h;
+                pm[a] -= h;
+                let fd = (o.query(&pp).signed_distance - o.query(&pm).signed_distance) / (2.0 * h);
+                assert!(
+                    (fd - q.normal[a]).abs() < 1e-5,
+                    "{:?} {a}: {fd} vs {}",
+                    o.spec().shape,
+                    q.normal[a]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn non_positive_and_non_finite_dimensions_are_rejected_by_field() {
+        let e = Object::new(spec(ShapeSpec::Sphere { radius: 0.0 })).unwrap_err();
+        assert_eq!(
+            e,
+            GraspError::InvalidDimension {
+                field: "shape.radius".into(),
+                value: 0.0
+            }
+        );
+        let e = Object::new(spec(ShapeSpec::Box {
+            size: [0.1, -0.2, 0.1],
+        }))
+        .unwrap_err();
+        assert!(
+            matches!(e, GraspError::InvalidDimension { ref field, .. } if field == "shape.size[1]")
+        );
+        let e = Object::new(spec(ShapeSpec::Cylinder {
+            radius: 0.1,
+            height: f64::NAN,
+        }))
+        .unwrap_err();
+        assert!(
+            matches!(e, GraspError::InvalidDimension { ref field, .. } if field == "shape.height")
+        );
+        let mut s = spec(ShapeSpec::Sphere { radius: 0.1 });
+        s.position[1] = f64::INFINITY;
+        assert!(matches!(Object::new(s), Err(GraspError::NonFinite { .. })));
+    }
+
+    #[test]
+    fn meshes_are_parsed_checked_and_recentred() {
+        let o = Object::new(spec(parse_obj(CUBE_OBJ).unwrap())).unwrap();
+        // Unit cube re-centred: the centroid is the object position, faces 0.5 away.
+        let q = o.query(&Point3::new(0.5, 0.1, 0.2));
+        assert!((q.signed_distance + 0.5).abs() < 1e-9, "{q:?}");
+        // Missing face: not closed.
+        let open: String = CUBE_OBJ.lines().take(13).collect::<Vec<_>>().join("\n");
+        assert!(matches!(
+            Object::new(spec(parse_obj(&open).unwrap())),
+            Err(GraspError::NonManifoldMesh { .. })
+        ));
+        // All faces flipped: closed but inside out.
+        let flipped = CUBE_OBJ.replace("f 1 4 3 2", "f 2 3 4 1");
+        assert!(matches!(
+            Object::new(spec(parse_obj(&flipped).unwrap())),
+            Err(GraspError::NonManifoldMesh { .. })
+        ));
+        assert!(matches!(
+            parse_obj("v 0 0 x\n"),
+            Err(GraspError::MalformedMesh { .. })
+        ));
+        assert!(matches!(
+            parse_obj("v 0 0 0\nf 1 2 3\n"),
+            Err(GraspError::MalformedMesh { .. })
+        ));
+        // Binary STL of the same cube welds back to 8 vertices.
+        let ShapeSpec::Mesh {
+            vertices,
+            triangles,
+        } = parse_obj(CUBE_OBJ).unwrap()
+        else {
+            unreachable!()
+        };
+        let mut stl = vec![0u8; 80];
+        stl.extend_from_slice(&(triangles.len() as u32).to_le_bytes());
+        for t in &triangles {
+            stl.extend_from_slice(&[0u8; 12]);
+            for &i in t {
+                for x in vertices[i as usize] {
+                    stl.extend_from_slice(&(x as f32).to_le_bytes());
+                }
+            }
+            stl.extend_from_slice(&[0u8; 2]);
+        }
+        let ShapeSpec::Mesh {
+            vertices: v2,
+            triangles: t2,
+        } = parse_stl(&stl).unwrap()
+        else {
+            unreachable!()
+        };
+        assert_eq!((v2.len(), t2.len()), (8, 12));
+        assert!(
+            Object::new(spec(ShapeSpec::Mesh {
+                vertices: v2,
+                triangles: t2
+            }))
+            .is_ok()
+        );
+        assert!(matches!(
+            parse_stl(&stl[..100]),
+            Err(GraspError::MalformedMesh { .. })
+        ));
+        let mut huge = vec![0u8; 80];
+        huge.extend_from_slice(&(10_000_000u32).to_le_bytes());
+        assert!(matches!(
+            parse_stl(&huge),
+            Err(GraspError::MeshTooLarge { .. })
+        ));
+    }
+
+    #[test]
+    fn seeded_objects_rest_on_their_table() {
+        for (name, _, _) in seeded_shapes() {
+            let o = Object::new(seeded_object(name, 0.6, 0.0, 0.1).unwrap()).unwrap();
+            // The lowest surface point touches the plane: a point 1 mm under the centroid's
+            // footprint on the table is within 1 mm of the object.
+            let plane = o.support().unwrap();
+            let c = o.centroid();
+            let below = Point3::new(c.x, c.y, plane.offset - 0.001);
+            assert!(
+                (o.query(&below).signed_distance - 0.001).abs() < 1e-9,
+                "{name}"
+            );
+        }
+    }
 }
