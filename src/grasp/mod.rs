@@ -8,9 +8,16 @@
 
 pub mod indexes;
 pub mod objects;
+pub mod optimizer;
+pub mod system;
 
 pub use indexes::{Ellipsoids, Goal, TaskDirection, Transmission};
 pub use objects::{Object, ObjectSpec, ShapeSpec, SupportPlane};
+pub use optimizer::{
+    Contact, GraspRequest, GraspResult, NamedJoint, QualityMeasure, Residuals, Terms, Weights,
+    plan_grasp,
+};
+pub use system::{Finger, HandArm, LinkSphere};
 
 /// Errors of the grasp layer: bad requests, named by field and carrying the numbers.
 #[non_exhaustive]

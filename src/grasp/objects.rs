@@ -472,7 +472,7 @@ pub fn parse_stl(bytes: &[u8]) -> Result<ShapeSpec, GraspError> {
                 corners.push(v);
             }
         }
-        if corners.len() % 3 != 0 {
+        if !corners.len().is_multiple_of(3) {
             return Err(GraspError::MalformedMesh {
                 reason: "STL vertex count is not a multiple of 3".into(),
             });
