@@ -17,7 +17,7 @@ pub use optimizer::{
     Contact, GraspRequest, GraspResult, NamedJoint, QualityMeasure, Residuals, Terms, Weights,
     plan_grasp,
 };
-pub use system::{Finger, HandArm, LinkSphere};
+pub use system::{Finger, HandArm, JointValue, LinkSphere, SpreadOrder};
 
 /// Errors of the grasp layer: bad requests, named by field and carrying the numbers.
 #[non_exhaustive]

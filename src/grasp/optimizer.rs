@@ -569,8 +569,8 @@ impl<'a> Eval<'a> {
             *ri = tq.signed_distance - f.radius;
         }
         let mut k = m;
-        for &(a, b) in &self.sys.spread_pairs {
-            r[k] = self.q[a] - self.q[b];
+        for sp in &self.sys.spread_pairs {
+            r[k] = sp.lower.at(&self.q) - sp.upper.at(&self.q);
             k += 1;
         }
         for (i, s) in self.sys.link_spheres.iter().enumerate() {
@@ -597,9 +597,9 @@ impl<'a> Eval<'a> {
             );
         }
         let mut k = m;
-        for &(a, b) in &self.sys.spread_pairs {
-            self.grad_q[a] += d[k];
-            self.grad_q[b] -= d[k];
+        for sp in &self.sys.spread_pairs {
+            self.grad_q[sp.lower.q_index] += sp.lower.multiplier * d[k];
+            self.grad_q[sp.upper.q_index] -= sp.upper.multiplier * d[k];
             k += 1;
         }
         for i in 0..self.sys.link_spheres.len() {

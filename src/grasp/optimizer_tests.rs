@@ -169,7 +169,16 @@ fn dir(d: Vector3<f64>, kind: Transmission) -> TaskDirection {
 
 #[test]
 fn cost_gradient_and_constraint_jacobian_match_central_differences() {
-    let sys = test_system();
+    let mut sys = test_system();
+    // A spread-order row (eq. 28) with a coupled joint value, to cover its Jacobian too.
+    sys.spread_pairs = vec![crate::grasp::SpreadOrder {
+        lower: crate::grasp::JointValue {
+            q_index: sys.hand_joints[0],
+            multiplier: 0.5,
+            offset: 0.1,
+        },
+        upper: crate::grasp::JointValue::independent(sys.hand_joints[1]),
+    }];
     assert!(sys.link_spheres.len() >= 6, "{}", sys.link_spheres.len());
     let mut req = GraspRequest::new(
         ball([0.5, 0.1, 0.2], 0.035),
@@ -488,4 +497,31 @@ fn bad_requests_are_rejected_naming_the_field() {
         plan_grasp(&sys, &req).unwrap_err(),
         GraspError::InvalidWeight { field: "d", .. }
     ));
+}
+
+/// Not a claim: prints feasible rate and timing over the seeded objects on the test system
+/// (the real figures come from `benches/grasp.rs`).
+#[test]
+#[ignore]
+fn survey_seeded_objects_on_the_test_system() {
+    let sys = test_system();
+    let mut times = Vec::new();
+    let mut feasible = 0;
+    let mut total = 0;
+    for (name, _, _) in crate::grasp::objects::seeded_shapes() {
+        for (x, y) in [(0.45, 0.0), (0.5, 0.15), (0.4, -0.2), (0.55, -0.05)] {
+            let obj = Object::new(crate::grasp::objects::seeded_object(name, x, y, 0.1).unwrap()).unwrap();
+            let req = GraspRequest::new(obj, vec![], QualityMeasure::CentroidDistance);
+            let r = plan_grasp(&sys, &req).unwrap();
+            total += 1;
+            if r.feasible {
+                feasible += 1;
+            } else {
+                println!("{name} at ({x}, {y}): {:?} {:?}", r.reason, r.residuals);
+            }
+            times.push(r.time_s * 1e3);
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    println!("feasible {feasible}/{total}, median {:.1} ms, max {:.1} ms", times[times.len() / 2], times[times.len() - 1]);
 }

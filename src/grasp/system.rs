@@ -25,6 +25,43 @@ pub struct Finger {
     pub radius: f64,
 }
 
+/// A joint value as an affine function of one independent coordinate:
+/// `multiplier · q[q_index] + offset` (mimic joints included).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointValue {
+    /// Independent coordinate.
+    pub q_index: usize,
+    /// Coupling factor.
+    pub multiplier: f64,
+    /// Offset.
+    pub offset: f64,
+}
+
+impl JointValue {
+    /// An independent joint.
+    pub fn independent(q_index: usize) -> Self {
+        JointValue {
+            q_index,
+            multiplier: 1.0,
+            offset: 0.0,
+        }
+    }
+
+    /// Its value at `q`.
+    pub fn at(&self, q: &[f64]) -> f64 {
+        self.multiplier * q[self.q_index] + self.offset
+    }
+}
+
+/// Spread ordering of eq. 28: `value(lower) ≤ value(upper)` (abduction/adduction collisions).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpreadOrder {
+    /// Joint that must stay below.
+    pub lower: JointValue,
+    /// Joint that must stay above.
+    pub upper: JointValue,
+}
+
 /// A sphere rigidly attached to a link: one element of the discrete point set `S_i` of eq. 29.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LinkSphere {
@@ -53,8 +90,8 @@ pub struct HandArm {
     pub fingers: Vec<Finger>,
     /// Index of the thumb finger.
     pub thumb: Option<usize>,
-    /// Ordered spread pairs `(a, b)` of `q` indices: `q_a ≤ q_b` (eq. 28).
-    pub spread_pairs: Vec<(usize, usize)>,
+    /// Ordered spread pairs (eq. 28): `value(lower) ≤ value(upper)`.
+    pub spread_pairs: Vec<SpreadOrder>,
     /// Elbow frame for the anthropomorphism term D.
     pub elbow: Option<FrameId>,
     /// Link spheres kept out of the object and above the support plane (eq. 29).
