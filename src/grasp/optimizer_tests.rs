@@ -510,7 +510,8 @@ fn survey_seeded_objects_on_the_test_system() {
     let mut total = 0;
     for (name, _, _) in crate::grasp::objects::seeded_shapes() {
         for (x, y) in [(0.45, 0.0), (0.5, 0.15), (0.4, -0.2), (0.55, -0.05)] {
-            let obj = Object::new(crate::grasp::objects::seeded_object(name, x, y, 0.1).unwrap()).unwrap();
+            let obj = Object::new(crate::grasp::objects::seeded_object(name, x, y, 0.1).unwrap())
+                .unwrap();
             let req = GraspRequest::new(obj, vec![], QualityMeasure::CentroidDistance);
             let r = plan_grasp(&sys, &req).unwrap();
             total += 1;
@@ -523,5 +524,61 @@ fn survey_seeded_objects_on_the_test_system() {
         }
     }
     times.sort_by(f64::total_cmp);
-    println!("feasible {feasible}/{total}, median {:.1} ms, max {:.1} ms", times[times.len() / 2], times[times.len() - 1]);
+    println!(
+        "feasible {feasible}/{total}, median {:.1} ms, max {:.1} ms",
+        times[times.len() / 2],
+        times[times.len() - 1]
+    );
+}
+
+pub(crate) fn real_systems() -> Vec<HandArm> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    [
+        "wam_t42",
+        "wam_ihy",
+        "wam_ob4f",
+        "pa10_t42",
+        "pa10_ihy",
+        "pa10_ob4f",
+    ]
+    .iter()
+    .map(|n| {
+        let s = crate::kinematics::System::from_file(&dir.join(format!("{n}.toml"))).unwrap();
+        HandArm::from_system(&s).unwrap()
+    })
+    .collect()
+}
+
+#[test]
+#[ignore]
+fn survey_real_systems() {
+    for sys in real_systems() {
+        let mut times = Vec::new();
+        let mut feasible = 0;
+        let mut total = 0;
+        for (name, _, _) in crate::grasp::objects::seeded_shapes() {
+            for (x, y) in [(0.5, 0.0), (0.55, 0.15), (0.45, -0.2)] {
+                let obj =
+                    Object::new(crate::grasp::objects::seeded_object(name, x, y, 0.0).unwrap())
+                        .unwrap();
+                let req = GraspRequest::new(obj, vec![], QualityMeasure::CentroidDistance);
+                let r = plan_grasp(&sys, &req).unwrap();
+                total += 1;
+                if r.feasible {
+                    feasible += 1;
+                } else {
+                    println!("  {} {name} at ({x}, {y}): {:?}", sys.name, r.reason);
+                }
+                times.push(r.time_s * 1e3);
+            }
+        }
+        times.sort_by(f64::total_cmp);
+        println!(
+            "{}: spheres {}, feasible {feasible}/{total}, median {:.1} ms, max {:.1} ms",
+            sys.name,
+            sys.link_spheres.len(),
+            times[times.len() / 2],
+            times[times.len() - 1]
+        );
+    }
 }

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use nalgebra::{Point3, Vector3};
 use parry3d_f64::shape::{Shape, TypedShape};
 
-use crate::kinematics::{FrameId, Model};
+use crate::kinematics::{Data, FrameId, Model, System, forward_kinematics};
 
 use super::GraspError;
 
@@ -177,6 +177,35 @@ impl HandArm {
             .take(wrist_joints)
             .copied()
             .collect();
+        // Frames rigidly attached to each fingertip (the tip's body): spheres there that overlap
+        // the contact sphere are dropped, the rest shrunk to the contact radius, because the
+        // contact sphere is the finger pad that touches the surface (eq. 27).
+        let tip_body: Vec<Vec<FrameId>> = self
+            .fingers
+            .iter()
+            .map(|f| {
+                let mut body = vec![f.tip];
+                let mut fr = f.tip;
+                while let (Some(j), Some(parent)) =
+                    (model.joint_of_frame(fr), model.frame_parent(fr))
+                {
+                    if !j.kind.is_fixed() {
+                        break;
+                    }
+                    body.push(parent);
+                    fr = parent;
+                }
+                // The moving link carrying the tip (the distal phalanx) is also the tip's body.
+                if let Some(j) = model.joint_of_frame(fr)
+                    && !j.kind.is_fixed()
+                {
+                    body.push(fr);
+                }
+                body
+            })
+            .collect();
+        let mut data = Data::new(model);
+        forward_kinematics(model, &mut data, &model.neutral());
         let mut spheres = Vec::new();
         let mut buf = Vec::new();
         for c in model.collisions() {
@@ -188,11 +217,18 @@ impl HandArm {
             }
             buf.clear();
             spheres_of(c.shape.as_ref(), &c.origin, &mut buf);
-            for &(center, radius) in &buf {
-                let overlaps_tip = self.fingers.iter().any(|f| {
-                    f.tip == c.frame && (center - f.tip_offset).norm() < f.radius + radius
-                });
-                if !overlaps_tip && radius > 1e-4 {
+            'sphere: for &(center, mut radius) in &buf {
+                for (f, body) in self.fingers.iter().zip(&tip_body) {
+                    if body.contains(&c.frame) {
+                        let world = data.frame(c.frame) * Point3::from(center);
+                        let tip = data.frame(f.tip) * Point3::from(f.tip_offset);
+                        if (world - tip).norm() < f.radius + radius {
+                            continue 'sphere;
+                        }
+                        radius = radius.min(0.9 * f.radius);
+                    }
+                }
+                if radius > 1e-4 {
                     spheres.push(LinkSphere {
                         frame: c.frame,
                         center,
@@ -202,6 +238,51 @@ impl HandArm {
             }
         }
         self.link_spheres = spheres;
+    }
+
+    /// The grasp view of a kinematic [`System`]: the wrist frame is the grasp frame, the first
+    /// elbow frame is D's elbow, contact spheres are centred on the tip frames, link spheres come
+    /// from the hand's and the last three arm joints' collision shapes.
+    pub fn from_system(sys: &System) -> Result<HandArm, GraspError> {
+        let mut h = HandArm {
+            name: sys.name.clone(),
+            model: sys.model.clone(),
+            arm_joints: sys.arm_joints.clone(),
+            hand_joints: sys.hand_joints.clone(),
+            palm: sys.wrist_frame,
+            fingers: sys
+                .fingers
+                .iter()
+                .map(|f| Finger {
+                    name: f.name.clone(),
+                    tip: f.tip,
+                    tip_offset: Vector3::zeros(),
+                    radius: f.contact_radius,
+                })
+                .collect(),
+            thumb: Some(sys.thumb),
+            spread_pairs: sys
+                .spread_pairs
+                .iter()
+                .map(|p| SpreadOrder {
+                    lower: JointValue {
+                        q_index: p.lower.q_index,
+                        multiplier: p.lower.multiplier,
+                        offset: p.lower.offset,
+                    },
+                    upper: JointValue {
+                        q_index: p.upper.q_index,
+                        multiplier: p.upper.multiplier,
+                        offset: p.upper.offset,
+                    },
+                })
+                .collect(),
+            elbow: sys.elbow_frames.first().copied(),
+            link_spheres: Vec::new(),
+        };
+        h.collect_link_spheres(3);
+        h.validate()?;
+        Ok(h)
     }
 
     /// Check indices and sizes; called once when a system is registered.
