@@ -601,6 +601,11 @@ pub fn seeded_shapes() -> Vec<(&'static str, ShapeSpec, [f64; 4])> {
     ]
 }
 
+/// Documented reachable placements `(x, y)` of the seeded objects on a table at `z = 0` in the
+/// robot base frame (the shipped systems stand on that plane): in front of the shoulder, 0.45 to
+/// 0.55 m out, up to 0.2 m to either side. Used by the claim tests and `benches/grasp.rs`.
+pub const REACHABLE_PLACEMENTS: [(f64, f64); 3] = [(0.5, 0.0), (0.55, 0.15), (0.45, -0.2)];
+
 /// A seeded object resting on a horizontal table of height `table_z`, its centroid above `(x, y)`.
 pub fn seeded_object(name: &str, x: f64, y: f64, table_z: f64) -> Option<ObjectSpec> {
     seeded_shapes()

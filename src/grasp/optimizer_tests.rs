@@ -549,6 +549,38 @@ pub(crate) fn real_systems() -> Vec<HandArm> {
     .collect()
 }
 
+/// Claim (d): for every shipped system and every seeded object at the documented reachable
+/// placements, the returned grasp is feasible and its constraints hold: |fingertip surface
+/// distance| ≤ 1 mm, penetration ≤ 0.5 mm, limits and couplings exact.
+#[test]
+fn claim_d_every_system_grasps_every_seeded_object_within_tolerance() {
+    use crate::grasp::objects::{REACHABLE_PLACEMENTS, seeded_object, seeded_shapes};
+    for sys in real_systems() {
+        let (lo, hi) = bounds(&sys);
+        for (name, _, _) in seeded_shapes() {
+            for (x, y) in REACHABLE_PLACEMENTS {
+                let obj = Object::new(seeded_object(name, x, y, 0.0).unwrap()).unwrap();
+                let req = GraspRequest::new(obj, vec![], QualityMeasure::CentroidDistance);
+                let r = plan_grasp(&sys, &req).unwrap();
+                let at = format!("{} {name} at ({x}, {y})", sys.name);
+                assert!(r.feasible, "{at}: {:?}", r.reason);
+                assert!(r.residuals.max_surface_distance <= 1e-3, "{at}");
+                for c in &r.contacts {
+                    assert!(c.surface_distance.abs() <= 1e-3, "{at}: {c:?}");
+                }
+                assert!(r.residuals.max_object_penetration <= 5e-4, "{at}");
+                assert!(r.residuals.max_support_penetration <= 5e-4, "{at}");
+                assert!(r.residuals.max_spread_violation <= 1e-9, "{at}");
+                assert!(r.residuals.max_coupling_error <= 1e-12, "{at}");
+                let q: Vec<f64> = r.q_arm.iter().chain(&r.q_hand).map(|j| j.value).collect();
+                for (k, v) in q.iter().enumerate() {
+                    assert!(*v >= lo[k] && *v <= hi[k], "{at}: joint {k} = {v} outside [{}, {}]", lo[k], hi[k]);
+                }
+            }
+        }
+    }
+}
+
 #[test]
 #[ignore]
 fn survey_real_systems() {
