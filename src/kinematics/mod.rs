@@ -1,1 +1,16 @@
 //! Kinematics: URDF -> immutable `Model`; per-call scratch `Data`; FK, Jacobians, IK, manipulability.
+//!
+//! Conventions: the root frame of a model is the world origin; joint values in radians (revolute)
+//! or metres (prismatic); `q` holds only the independent coordinates in [`Model::joint_names`]
+//! order, mimic joints following `multiplier * q[driver] + offset`; 6-D quantities are ordered
+//! linear then angular and expressed in the world frame.
+
+mod algorithms;
+mod error;
+mod model;
+
+pub use algorithms::{Data, forward_kinematics, frame_jacobian};
+pub use error::KinematicsError;
+pub use model::{
+    Actuation, Collision, FrameId, Joint, JointKind, JointLimits, Mimic, Model, ModelBuilder,
+};
