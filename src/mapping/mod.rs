@@ -5,10 +5,20 @@
 //! independent joint coordinates inside the joint limits (eq. 6-7).
 
 pub mod goals;
+mod nlp;
+pub mod objective;
 pub mod registration;
+// pub mod solve;
 
 pub use goals::{CatmullRom4, FingerGoal, MAX_FINGERS};
+pub use objective::{
+    Evaluator, FrameGoals, MappingModel, Objective, Term, Weights, quaternion_distance,
+};
 pub use registration::{ArmPoints, BodyAxes, Registration, RegistrationSpec, RobotAnchor, Scale};
+/*pub use solve::{
+    BatchItem, Cancelled, FrameMetrics, MappedTrajectory, Mapper, SolverOptions, map_batch,
+    registration_for,
+};*/
 
 /// Everything that can go wrong in the mapping layer; the API turns it into 4xx problem+json.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -30,4 +40,22 @@ pub enum MappingError {
     InvalidRegistration { reason: String },
     #[error("scale must be a positive finite number, got {value}")]
     InvalidScale { value: f64 },
+    #[error("weight `{field}` must be finite and non-negative, got {value}")]
+    InvalidWeight { field: &'static str, value: f64 },
+    #[error("at least one weight must be positive")]
+    AllWeightsZero,
+    #[error("solver option `{field}` is invalid: {value}")]
+    InvalidOption { field: &'static str, value: f64 },
+    #[error("frame {frame}: time {t} does not increase past the previous frame's {previous}")]
+    NonIncreasingTime { frame: usize, t: f64, previous: f64 },
+    #[error(
+        "joint `{joint}`: its limits and those of the joints it drives leave no range ({lower} > {upper})"
+    )]
+    EmptyJointRange {
+        joint: String,
+        lower: f64,
+        upper: f64,
+    },
+    #[error("hand with {fingers} fingers and thumb {thumb} is not supported (1..=5 fingers)")]
+    UnsupportedHand { fingers: usize, thumb: usize },
 }
