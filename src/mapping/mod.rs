@@ -8,16 +8,17 @@ pub mod goals;
 mod nlp;
 pub mod objective;
 pub mod registration;
-// pub mod solve;
+pub mod solve;
+// pub mod trajectory;
 
 pub use goals::{CatmullRom4, FingerGoal, MAX_FINGERS};
 pub use objective::{
     Evaluator, FrameGoals, MappingModel, Objective, Term, Weights, quaternion_distance,
 };
 pub use registration::{ArmPoints, BodyAxes, Registration, RegistrationSpec, RobotAnchor, Scale};
-/*pub use solve::{
-    BatchItem, Cancelled, FrameMetrics, MappedTrajectory, Mapper, SolverOptions, map_batch,
-    registration_for,
+pub use solve::{FrameMetrics, Mapper, SolverOptions};
+/*pub use trajectory::{
+    BatchItem, Cancelled, MappedTrajectory, map_batch, registration_for,
 };*/
 
 /// Everything that can go wrong in the mapping layer; the API turns it into 4xx problem+json.

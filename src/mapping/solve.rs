@@ -6,17 +6,13 @@
 //! jump to another IK branch. A frame that does not converge is solved as far as it gets, kept
 //! (the trajectory stays continuous) and reported as `converged: false` — never hidden.
 
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::MappingError;
-use super::goals::{MAX_FINGERS, finger_goals};
+use super::goals::MAX_FINGERS;
 use super::nlp::{BoxSolver, SolveReport};
 use super::objective::{Evaluator, FrameGoals, MappingModel, Objective, Term, Weights};
-use super::registration::{ArmPoints, Registration, RegistrationSpec, RobotAnchor};
-use crate::human::HumanFrame;
 
 /// Solver settings of a mapping run.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -53,7 +49,8 @@ impl Default for SolverOptions {
 
 impl SolverOptions {
     pub fn validate(&self) -> Result<(), MappingError> {
-        let bad = |field: &'static str, value: f64| Err(MappingError::InvalidOption { field, value });
+        let bad =
+            |field: &'static str, value: f64| Err(MappingError::InvalidOption { field, value });
         if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
             return bad("tolerance", self.tolerance);
         }
@@ -96,48 +93,18 @@ pub struct FrameMetrics {
     pub converged: bool,
 }
 
-/// A demonstration mapped onto the robot.
-#[derive(Clone, Debug, PartialEq)]
-pub struct MappedTrajectory {
-    /// Independent joints, the order of each row of `positions`.
-    pub joint_names: Vec<String>,
-    pub times: Vec<f64>,
-    /// Row-major `frames × nq` joint positions.
-    pub positions: Vec<f64>,
-    pub metrics: Vec<FrameMetrics>,
-    pub registration: Registration,
-}
-
-impl MappedTrajectory {
-    pub fn nq(&self) -> usize {
-        self.joint_names.len()
-    }
-    pub fn frame(&self, k: usize) -> &[f64] {
-        let nq = self.nq();
-        &self.positions[k * nq..(k + 1) * nq]
-    }
-    /// Indices of the frames that did not converge.
-    pub fn unconverged(&self) -> impl Iterator<Item = usize> + '_ {
-        self.metrics
-            .iter()
-            .enumerate()
-            .filter(|(_, m)| !m.converged)
-            .map(|(k, _)| k)
-    }
-}
-
 /// The reusable per-worker mapping solver: FK scratch, solver cache, bound buffers. Mapping a
 /// frame allocates nothing.
 pub struct Mapper {
-    eval: Evaluator,
-    solver: BoxSolver,
-    terms: Vec<Term>,
-    options: SolverOptions,
-    lo: Vec<f64>,
-    hi: Vec<f64>,
-    step: Vec<f64>,
-    q: Vec<f64>,
-    best: Vec<f64>,
+    pub(super) eval: Evaluator,
+    pub(super) solver: BoxSolver,
+    pub(super) terms: Vec<Term>,
+    pub(super) options: SolverOptions,
+    pub(super) lo: Vec<f64>,
+    pub(super) hi: Vec<f64>,
+    pub(super) step: Vec<f64>,
+    pub(super) q: Vec<f64>,
+    pub(super) best: Vec<f64>,
 }
 
 impl Mapper {
@@ -176,20 +143,6 @@ impl Mapper {
         &self.terms
     }
 
-    /// Goals of one human frame in the robot base frame.
-    pub fn goals(&self, frame: &HumanFrame, reg: &Registration, out: &mut FrameGoals) {
-        let tips: [_; 5] = std::array::from_fn(|i| {
-            let iso = &frame.fingertips[i];
-            (
-                reg.point(&iso.translation.vector.into()),
-                reg.orientation(&iso.rotation),
-            )
-        });
-        let mm = self.eval.model();
-        finger_goals(&tips, mm.fingers(), mm.thumb, &mut out.fingers);
-        out.elbow = reg.point(&frame.elbow);
-    }
-
     /// Solves one frame inside `[lo, hi]` from `q` (updated in place).
     fn solve_in_box(&mut self, goals: &FrameGoals, max_iter: usize) -> SolveReport {
         let Self {
@@ -208,69 +161,10 @@ impl Mapper {
         solver.solve(lo, hi, &mut f, q, max_iter)
     }
 
-    /// Maps a whole demonstration.
-    pub fn map(
-        &mut self,
-        frames: &[HumanFrame],
-        spec: &RegistrationSpec,
-        robot: &RobotAnchor,
-    ) -> Result<MappedTrajectory, MappingError> {
-        self.map_cancellable(frames, spec, robot, &AtomicBool::new(false))
-            .expect("never cancelled")
-    }
-
-    /// [`Self::map`], polling `cancel` between frames (`None` once cancelled).
-    pub fn map_cancellable(
-        &mut self,
-        frames: &[HumanFrame],
-        spec: &RegistrationSpec,
-        robot: &RobotAnchor,
-        cancel: &AtomicBool,
-    ) -> Option<Result<MappedTrajectory, MappingError>> {
-        let reg = match registration_for(frames, spec, robot) {
-            Ok(r) => r,
-            Err(e) => return Some(Err(e)),
-        };
-        let nq = self.eval.nq();
-        let mut out = MappedTrajectory {
-            joint_names: self.eval.model().model.joint_names().to_vec(),
-            times: Vec::with_capacity(frames.len()),
-            positions: Vec::with_capacity(frames.len() * nq),
-            metrics: Vec::with_capacity(frames.len()),
-            registration: reg,
-        };
-        let mut goals = FrameGoals::default();
-        for (k, frame) in frames.iter().enumerate() {
-            if cancel.load(Ordering::Relaxed) {
-                return None;
-            }
-            if let Err(e) = check_frame(k, frame) {
-                return Some(Err(e));
-            }
-            if k > 0 && !(frame.t > frames[k - 1].t) {
-                return Some(Err(MappingError::NonIncreasingTime {
-                    frame: k,
-                    t: frame.t,
-                    previous: frames[k - 1].t,
-                }));
-            }
-            self.goals(frame, &reg, &mut goals);
-            let metrics = if k == 0 {
-                self.solve_first(&goals, frame.t)
-            } else {
-                self.solve_next(&goals, frame.t, frame.t - frames[k - 1].t)
-            };
-            out.times.push(frame.t);
-            out.positions.extend_from_slice(&self.q);
-            out.metrics.push(metrics);
-        }
-        Some(Ok(out))
-    }
-
     /// First frame: several starts within the joint limits, best objective kept.
     pub fn solve_first(&mut self, goals: &FrameGoals, t: f64) -> FrameMetrics {
-        let model = self.eval.model().model.clone();
-        let (lower, upper) = (model.lower_limits(), model.upper_limits());
+        let mm = self.eval.model();
+        let (lower, upper) = (mm.lower.clone(), mm.upper.clone());
         let mut rng = ChaCha8Rng::seed_from_u64(self.options.seed);
         let mut best: Option<(f64, usize, bool)> = None;
         let mut total_iter = 0;
@@ -283,8 +177,8 @@ impl Mapper {
                     rng.random_range(l..=u)
                 };
             }
-            self.lo.copy_from_slice(lower);
-            self.hi.copy_from_slice(upper);
+            self.lo.copy_from_slice(&lower);
+            self.hi.copy_from_slice(&upper);
             let report = self.solve_in_box(goals, self.options.first_frame_max_iterations);
             total_iter += report.iterations;
             let f = self.eval.value(&self.terms, goals, &self.q);
@@ -300,12 +194,8 @@ impl Mapper {
 
     /// A later frame: warm start from the previous solution inside the step-bounded box.
     pub fn solve_next(&mut self, goals: &FrameGoals, t: f64, dt: f64) -> FrameMetrics {
-        let model = self.eval.model().model.clone();
-        let (lower, upper, vmax) = (
-            model.lower_limits(),
-            model.upper_limits(),
-            model.velocity_limits(),
-        );
+        let mm = &self.eval.mm;
+        let (lower, upper, vmax) = (&mm.lower, &mm.upper, mm.model.velocity_limits());
         for i in 0..self.q.len() {
             let v = if vmax[i].is_finite() && vmax[i] > 0.0 {
                 vmax[i]
@@ -330,7 +220,13 @@ impl Mapper {
         self.q.copy_from_slice(q);
     }
 
-    fn metrics(&mut self, goals: &FrameGoals, t: f64, iterations: usize, converged: bool) -> FrameMetrics {
+    fn metrics(
+        &mut self,
+        goals: &FrameGoals,
+        t: f64,
+        iterations: usize,
+        converged: bool,
+    ) -> FrameMetrics {
         let objective = self.eval.value(&self.terms, goals, &self.q);
         let m = self.eval.model().fingers();
         let mut position_error = [0.0; MAX_FINGERS];
@@ -369,143 +265,127 @@ impl Mapper {
 
 /// A box for random starts: the limits, or ±π where a joint is unbounded.
 fn finite_range(l: f64, u: f64) -> (f64, f64) {
-    let l = if l.is_finite() { l } else { -std::f64::consts::PI };
-    let u = if u.is_finite() { u } else { std::f64::consts::PI };
+    let l = if l.is_finite() {
+        l
+    } else {
+        -std::f64::consts::PI
+    };
+    let u = if u.is_finite() {
+        u
+    } else {
+        std::f64::consts::PI
+    };
     (l, u.max(l))
 }
 
-fn check_frame(k: usize, f: &HumanFrame) -> Result<(), MappingError> {
-    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-    let fields: [(&'static str, bool); 5] = [
-        ("t", f.t.is_finite()),
-        ("shoulder", finite(f.shoulder.coords.as_slice())),
-        ("elbow", finite(f.elbow.coords.as_slice())),
-        (
-            "wrist",
-            finite(f.wrist.translation.vector.as_slice()) && finite(f.wrist.rotation.coords.as_slice()),
-        ),
-        (
-            "fingertips",
-            f.fingertips.iter().all(|t| {
-                finite(t.translation.vector.as_slice()) && finite(t.rotation.coords.as_slice())
-            }),
-        ),
-    ];
-    for (field, ok) in fields {
-        if !ok {
-            return Err(MappingError::NonFinite { frame: k, field });
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mapping::objective::tests::toy_system;
+    use nalgebra::{Point3, UnitQuaternion};
+
+    /// Goals the robot meets exactly at `q*`: its own fingertip poses.
+    fn goals_at(mm: &MappingModel, q: &[f64]) -> FrameGoals {
+        let mut ev = Evaluator::new(mm.clone());
+        ev.update(q);
+        let mut g = FrameGoals::default();
+        for i in 0..mm.fingers() {
+            g.fingers[i].position = ev.tip_position(i);
+            g.fingers[i].orientation = ev.tip_orientation(i);
+        }
+        g.elbow = Point3::new(0.3, -0.3, 0.5);
+        g
+    }
+
+    fn random_q(mm: &MappingModel, rng: &mut ChaCha8Rng) -> Vec<f64> {
+        (0..mm.lower.len())
+            .map(|k| {
+                let (l, u) = (mm.lower[k], mm.upper[k]);
+                l + (u - l) * rng.random_range(0.15..0.85)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn first_frame_recovers_reachable_fingertip_goals() {
+        let mm = toy_system();
+        let w = Weights {
+            position: 1.0,
+            orientation: 1e-3,
+            elbow: 0.0,
+        };
+        let mut mapper = Mapper::new(mm.clone(), w, SolverOptions::default()).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..3 {
+            let q_star = random_q(&mm, &mut rng);
+            let goals = goals_at(&mm, &q_star);
+            let m = mapper.solve_first(&goals, 0.0);
+            let worst = m.position_error[..m.fingers]
+                .iter()
+                .cloned()
+                .fold(0.0, f64::max);
+            assert!(
+                worst < 2e-3,
+                "fingertip error {worst} m, objective {}",
+                m.objective
+            );
+            for (k, &x) in mapper.solution().iter().enumerate() {
+                assert!(x >= mm.lower[k] && x <= mm.upper[k]);
+            }
         }
     }
-    Ok(())
-}
 
-/// The registration of a demonstration (its arm points, the spec, the robot).
-pub fn registration_for(
-    frames: &[HumanFrame],
-    spec: &RegistrationSpec,
-    robot: &RobotAnchor,
-) -> Result<Registration, MappingError> {
-    let points: Vec<ArmPoints> = frames
-        .iter()
-        .map(|f| ArmPoints {
-            shoulder: f.shoulder,
-            elbow: f.elbow,
-            wrist: f.wrist.translation.vector.into(),
-            middle_tip: f.fingertips[2].translation.vector.into(),
-        })
-        .collect();
-    Registration::resolve(spec, &points, robot)
-}
-
-/// One demonstration of a batch.
-#[derive(Clone, Copy, Debug)]
-pub struct BatchItem<'a> {
-    pub frames: &'a [HumanFrame],
-    pub registration: &'a RegistrationSpec,
-}
-
-/// Batch mapping was cancelled through its flag.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("mapping cancelled after {completed} of {total} demonstrations")]
-pub struct Cancelled {
-    pub completed: usize,
-    pub total: usize,
-}
-
-/// Maps many demonstrations across `threads` workers (each with its own [`Mapper`]), in input
-/// order. `progress(done, total)` is called after each demonstration; `cancel` is polled between
-/// demonstrations and between frames of one.
-pub fn map_batch(
-    mm: &MappingModel,
-    robot: &RobotAnchor,
-    items: &[BatchItem<'_>],
-    weights: Weights,
-    options: SolverOptions,
-    threads: usize,
-    progress: &(dyn Fn(usize, usize) + Sync),
-    cancel: &AtomicBool,
-) -> Result<Vec<Result<MappedTrajectory, MappingError>>, Cancelled> {
-    let total = items.len();
-    let next = AtomicUsize::new(0);
-    let done = AtomicUsize::new(0);
-    let threads = threads.clamp(1, total.max(1));
-    let mut results: Vec<Option<Result<MappedTrajectory, MappingError>>> = vec![None; total];
-    let chunks: Vec<Vec<(usize, Result<MappedTrajectory, MappingError>)>> =
-        std::thread::scope(|s| {
-            let handles: Vec<_> = (0..threads)
-                .map(|_| {
-                    s.spawn(|| {
-                        let mut mine = Vec::new();
-                        let mut mapper = match Mapper::new(mm.clone(), weights, options) {
-                            Ok(m) => m,
-                            Err(e) => {
-                                // Configuration errors apply to every item; report them all.
-                                loop {
-                                    let i = next.fetch_add(1, Ordering::Relaxed);
-                                    if i >= total {
-                                        return mine;
-                                    }
-                                    mine.push((i, Err(e.clone())));
-                                }
-                            }
-                        };
-                        loop {
-                            if cancel.load(Ordering::Relaxed) {
-                                return mine;
-                            }
-                            let i = next.fetch_add(1, Ordering::Relaxed);
-                            if i >= total {
-                                return mine;
-                            }
-                            let item = items[i];
-                            let r = mapper.map_cancellable(item.frames, item.registration, robot, cancel);
-                            match r {
-                                Some(r) => {
-                                    mine.push((i, r));
-                                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                                    progress(d, total);
-                                }
-                                None => return mine,
-                            }
-                        }
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().expect("mapping worker panicked"))
-                .collect()
-        });
-    for chunk in chunks {
-        for (i, r) in chunk {
-            results[i] = Some(r);
+    #[test]
+    fn next_frame_stays_within_the_step_bound_and_the_limits() {
+        let mm = toy_system();
+        let opts = SolverOptions {
+            step_scale: 1.0,
+            ..SolverOptions::default()
+        };
+        let mut mapper = Mapper::new(mm.clone(), Weights::default(), opts).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let q0 = random_q(&mm, &mut rng);
+        mapper.set_solution(&q0);
+        // A goal far away: the step bound must hold the solution back.
+        let mut goals = goals_at(&mm, &random_q(&mm, &mut rng));
+        goals.fingers[0].orientation = UnitQuaternion::identity();
+        let dt = 0.01;
+        let m = mapper.solve_next(&goals, dt, dt);
+        let vmax = mm.model.velocity_limits();
+        let mut moved = 0.0_f64;
+        for (k, (&a, &b)) in q0.iter().zip(mapper.solution()).enumerate() {
+            assert!(
+                (b - a).abs() <= vmax[k] * dt * (1.0 + 1e-12),
+                "joint {k} stepped {}",
+                b - a
+            );
+            assert!(b >= mm.lower[k] && b <= mm.upper[k]);
+            moved = moved.max((b - a).abs());
         }
+        assert!(
+            moved > 0.5 * 2.0 * dt,
+            "the solution should move towards the goal"
+        );
+        assert!(m.iterations <= opts.max_iterations);
     }
-    if cancel.load(Ordering::Relaxed) || results.iter().any(Option::is_none) {
-        return Err(Cancelled {
-            completed: done.load(Ordering::Relaxed),
-            total,
-        });
+
+    #[test]
+    fn options_are_validated() {
+        let bad = SolverOptions {
+            tolerance: -1.0,
+            ..SolverOptions::default()
+        };
+        assert!(matches!(
+            Mapper::new(toy_system(), Weights::default(), bad),
+            Err(MappingError::InvalidOption {
+                field: "tolerance",
+                ..
+            })
+        ));
+        let bad = SolverOptions {
+            first_frame_starts: 0,
+            ..SolverOptions::default()
+        };
+        assert!(bad.validate().is_err());
     }
-    Ok(results.into_iter().map(|r| r.expect("checked above")).collect())
 }
