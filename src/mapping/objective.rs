@@ -10,6 +10,7 @@ use nalgebra::{Matrix6xX, Point3, UnitQuaternion, Vector3};
 
 use super::MappingError;
 use super::goals::{FingerGoal, MAX_FINGERS};
+use super::registration::{BodyAxes, RobotAnchor};
 use crate::kinematics::{Data, FrameId, Model, forward_kinematics, frame_jacobian};
 
 /// Weights of eq. 5.
@@ -174,6 +175,90 @@ impl MappingModel {
     pub fn fingers(&self) -> usize {
         self.tips.len()
     }
+
+    /// The robot side of the default registration: shoulder centre where the axes of the first
+    /// two arm coordinates `shoulder_q` come closest at the neutral configuration (they meet for
+    /// the WAM and the PA10), base axes x forward / z up, and the reach as the largest
+    /// shoulder-to-fingertip distance over a fixed seeded sample of configurations (a sample, not
+    /// a closed form, so it holds for any arm; 512 samples put it within ~1 % of the maximum).
+    pub fn anchor(&self, shoulder_q: [usize; 2]) -> Result<RobotAnchor, MappingError> {
+        use rand::{RngExt, SeedableRng};
+        let model = &self.model;
+        let mut data = Data::new(model);
+        let neutral: Vec<f64> = (0..model.nq())
+            .map(|k| {
+                let (l, u) = (self.lower[k], self.upper[k]);
+                if l.is_finite() && u.is_finite() {
+                    0.5 * (l + u)
+                } else {
+                    l.max(0.0).min(u)
+                }
+            })
+            .collect();
+        forward_kinematics(model, &mut data, &neutral);
+        let mut lines = [(Point3::origin(), Vector3::zeros()); 2];
+        for (line, &k) in lines.iter_mut().zip(&shoulder_q) {
+            if k >= model.nq() {
+                return Err(MappingError::InvalidRegistration {
+                    reason: format!("shoulder coordinate {k} is not a joint of the robot"),
+                });
+            }
+            let joint = model.q_joint(k);
+            let axis = joint
+                .kind
+                .axis()
+                .ok_or_else(|| MappingError::InvalidRegistration {
+                    reason: format!("shoulder joint `{}` has no axis", joint.name),
+                })?;
+            let x = data.frame(joint.child);
+            *line = (
+                Point3::from(x.translation.vector),
+                x.rotation * axis.into_inner(),
+            );
+        }
+        let shoulder = closest_point_between_lines(lines[0], lines[1]);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5ea5);
+        let mut q = neutral.clone();
+        let mut reach = 0.0_f64;
+        for _ in 0..512 {
+            for k in 0..q.len() {
+                let (l, u) = (
+                    self.lower[k].max(-std::f64::consts::PI),
+                    self.upper[k].min(std::f64::consts::PI),
+                );
+                q[k] = if l < u { rng.random_range(l..=u) } else { l };
+            }
+            forward_kinematics(model, &mut data, &q);
+            for &tip in &self.tips {
+                reach = reach.max((data.frame(tip).translation.vector - shoulder.coords).norm());
+            }
+        }
+        Ok(RobotAnchor {
+            shoulder,
+            axes: BodyAxes::default(),
+            reach,
+        })
+    }
+}
+
+/// Midpoint of the common perpendicular of two lines `(point, direction)`; for (near-)parallel
+/// lines, the second line's point.
+fn closest_point_between_lines(
+    a: (Point3<f64>, Vector3<f64>),
+    b: (Point3<f64>, Vector3<f64>),
+) -> Point3<f64> {
+    let (p, u) = a;
+    let (q, v) = b;
+    let w = p - q;
+    let (uu, uv, vv) = (u.dot(&u), u.dot(&v), v.dot(&v));
+    let (uw, vw) = (u.dot(&w), v.dot(&w));
+    let den = uu * vv - uv * uv;
+    if den <= 1e-12 * uu * vv {
+        return q;
+    }
+    let s = (uv * vw - vv * uw) / den;
+    let t = (uu * vw - uv * uw) / den;
+    Point3::from(((p + u * s).coords + (q + v * t).coords) * 0.5)
 }
 
 /// Quaternion distance of eq. 2-3 and its gradient with respect to the world angular velocity
@@ -585,6 +670,21 @@ pub(crate) mod tests {
     #[test]
     fn gradient_matches_central_differences_on_a_coupled_arm_hand() {
         check_gradient(toy_system(), 7, 20);
+    }
+
+    #[test]
+    fn anchor_finds_the_shoulder_where_the_first_two_axes_meet() {
+        let mm = toy_system();
+        let a = mm.anchor([0, 1]).unwrap();
+        // a0 rotates about the vertical line x = y = 0; a1 about y through (0, 0, 0.35): they meet there.
+        assert!((a.shoulder - Point3::new(0.0, 0.0, 0.35)).norm() < 1e-12);
+        // Arm links 0.25 + 0.25 + 0.2 + 0.2 + 0.05 from a1, then palm 0.06 and the fingers.
+        assert!(a.reach > 0.8 && a.reach < 1.15, "reach {}", a.reach);
+        let skew = closest_point_between_lines(
+            (Point3::new(0.0, 0.0, 0.0), Vector3::x()),
+            (Point3::new(0.0, 0.0, 1.0), Vector3::y()),
+        );
+        assert!((skew - Point3::new(0.0, 0.0, 0.5)).norm() < 1e-15);
     }
 
     #[test]
