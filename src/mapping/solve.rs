@@ -158,7 +158,7 @@ impl Mapper {
             Some(g) => eval.value_and_gradient(terms, goals, x, g),
             None => eval.value(terms, goals, x),
         };
-        solver.solve(lo, hi, &mut f, q, max_iter)
+        solver.solve(lo, hi, &[], &mut f, q, max_iter)
     }
 
     /// First frame: several starts within the joint limits, best objective kept.
