@@ -54,6 +54,10 @@ pub enum KinematicsError {
     SeveralRoots { roots: Vec<String> },
     #[error("URDF has no root link (the joints form a cycle through link '{link}')")]
     Cycle { link: String },
+    #[error(
+        "joint '{joint}' has type '{kind}', which is not supported (revolute, continuous, prismatic, fixed)"
+    )]
+    UnsupportedJoint { joint: String, kind: String },
     #[error("link '{link}' has two parent joints ('{first}' and '{second}')")]
     TwoParents {
         link: String,

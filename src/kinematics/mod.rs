@@ -7,10 +7,17 @@
 
 mod algorithms;
 mod error;
+mod mesh;
 mod model;
+#[cfg(test)]
+mod robot_tests;
+mod system;
+pub mod urdf;
 
 pub use algorithms::{Data, forward_kinematics, frame_jacobian};
 pub use error::KinematicsError;
 pub use model::{
     Actuation, Collision, FrameId, Joint, JointKind, JointLimits, Mimic, Model, ModelBuilder,
 };
+pub use system::{Finger, FingerSpec, Mount, SpreadPair, System, SystemDescriptor, UrdfSources};
+pub use urdf::{DirMeshes, MeshSource, NoMeshes, model_from_urdf_file, model_from_urdf_str};
