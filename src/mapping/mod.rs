@@ -57,6 +57,10 @@ pub enum MappingError {
         lower: f64,
         upper: f64,
     },
+    #[error("spread pair `{lower}` <= `{upper}` can never hold")]
+    InfeasibleSpreadPair { lower: String, upper: String },
+    #[error("spread pairs: {reason}")]
+    UnsupportedSpreadPairs { reason: String },
     #[error("hand with {fingers} fingers and thumb {thumb} is not supported (1..=5 fingers)")]
     UnsupportedHand { fingers: usize, thumb: usize },
 }

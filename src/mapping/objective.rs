@@ -10,8 +10,11 @@ use nalgebra::{Matrix6xX, Point3, UnitQuaternion, Vector3};
 
 use super::MappingError;
 use super::goals::{FingerGoal, MAX_FINGERS};
+use super::nlp::{MAX_PAIRS, PairOrder};
 use super::registration::{BodyAxes, RobotAnchor};
-use crate::kinematics::{Data, FrameId, Model, forward_kinematics, frame_jacobian};
+use crate::kinematics::{
+    Data, FrameId, Model, SpreadPair, System, forward_kinematics, frame_jacobian,
+};
 
 /// Weights of eq. 5.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -117,6 +120,11 @@ pub struct MappingModel {
     pub thumb: usize,
     /// The robot joint frames of eq. 4 (shoulder and end effector excluded by the descriptor).
     pub elbow_frames: Vec<FrameId>,
+    /// The arm's shoulder centre (default registration target).
+    pub shoulder: FrameId,
+    /// Spread orderings (eq. 28) between two different coordinates; those within one coordinate
+    /// (e.g. the iHY's mirrored spread joints) are folded into `lower`/`upper`.
+    pub orders: Vec<PairOrder>,
     /// Bounds on `q` (eq. 7): the independent joints' limits intersected with the limits of every
     /// mimic joint they drive (`l ≤ k q + o ≤ u`), so couplings substituted into `q` respect
     /// the coupled joints' own limits too.
@@ -125,11 +133,25 @@ pub struct MappingModel {
 }
 
 impl MappingModel {
+    /// The mapping view of an arm-hand system.
+    pub fn from_system(system: &System) -> Result<Self, MappingError> {
+        Self::new(
+            system.model.clone(),
+            system.fingers.iter().map(|f| f.tip).collect(),
+            system.thumb,
+            system.elbow_frames.clone(),
+            system.shoulder_frame,
+            &system.spread_pairs,
+        )
+    }
+
     pub fn new(
         model: Arc<Model>,
         tips: Vec<FrameId>,
         thumb: usize,
         elbow_frames: Vec<FrameId>,
+        shoulder: FrameId,
+        spread_pairs: &[SpreadPair],
     ) -> Result<Self, MappingError> {
         if tips.is_empty() || tips.len() > MAX_FINGERS || thumb >= tips.len() {
             return Err(MappingError::UnsupportedHand {
@@ -153,6 +175,46 @@ impl MappingModel {
             lower[k] = lower[k].max(a);
             upper[k] = upper[k].min(b);
         }
+        // Eq. 28: m_a q_i + o_a ≤ m_b q_j + o_b.
+        let mut orders = Vec::new();
+        for pair in spread_pairs {
+            let (a, b) = (pair.lower, pair.upper);
+            if a.q_index == b.q_index {
+                // (m_a − m_b) q ≤ o_b − o_a: a bound on one coordinate.
+                let (c, r) = (a.multiplier - b.multiplier, b.offset - a.offset);
+                let k = a.q_index;
+                if c > 0.0 {
+                    upper[k] = upper[k].min(r / c);
+                } else if c < 0.0 {
+                    lower[k] = lower[k].max(r / c);
+                } else if r < 0.0 {
+                    return Err(MappingError::InfeasibleSpreadPair {
+                        lower: pair.lower_joint.clone(),
+                        upper: pair.upper_joint.clone(),
+                    });
+                }
+            } else {
+                orders.push(PairOrder {
+                    i: a.q_index,
+                    j: b.q_index,
+                    alpha: a.multiplier,
+                    beta: -b.multiplier,
+                    gamma: b.offset - a.offset,
+                });
+            }
+        }
+        let mut used = vec![false; lower.len()];
+        for o in &orders {
+            if orders.len() > MAX_PAIRS || used[o.i] || used[o.j] {
+                return Err(MappingError::UnsupportedSpreadPairs {
+                    reason: format!(
+                        "at most {MAX_PAIRS} spread pairs on disjoint coordinates are supported"
+                    ),
+                });
+            }
+            used[o.i] = true;
+            used[o.j] = true;
+        }
         for k in 0..lower.len() {
             if !(lower[k] <= upper[k]) {
                 return Err(MappingError::EmptyJointRange {
@@ -167,6 +229,8 @@ impl MappingModel {
             tips,
             thumb,
             elbow_frames,
+            shoulder,
+            orders,
             lower,
             upper,
         })
@@ -176,56 +240,23 @@ impl MappingModel {
         self.tips.len()
     }
 
-    /// The robot side of the default registration: shoulder centre where the axes of the first
-    /// two arm coordinates `shoulder_q` come closest at the neutral configuration (they meet for
-    /// the WAM and the PA10), base axes x forward / z up, and the reach as the largest
+    /// The robot side of the default registration: the descriptor's shoulder centre at the
+    /// neutral configuration, base axes x forward / z up, and the reach as the largest
     /// shoulder-to-fingertip distance over a fixed seeded sample of configurations (a sample, not
-    /// a closed form, so it holds for any arm; 512 samples put it within ~1 % of the maximum).
-    pub fn anchor(&self, shoulder_q: [usize; 2]) -> Result<RobotAnchor, MappingError> {
+    /// a closed form, so it holds for any arm; 512 samples land within a few % of the maximum).
+    pub fn anchor(&self) -> RobotAnchor {
         use rand::{RngExt, SeedableRng};
         let model = &self.model;
         let mut data = Data::new(model);
-        let neutral: Vec<f64> = (0..model.nq())
-            .map(|k| {
-                let (l, u) = (self.lower[k], self.upper[k]);
-                if l.is_finite() && u.is_finite() {
-                    0.5 * (l + u)
-                } else {
-                    l.max(0.0).min(u)
-                }
-            })
-            .collect();
-        forward_kinematics(model, &mut data, &neutral);
-        let mut lines = [(Point3::origin(), Vector3::zeros()); 2];
-        for (line, &k) in lines.iter_mut().zip(&shoulder_q) {
-            if k >= model.nq() {
-                return Err(MappingError::InvalidRegistration {
-                    reason: format!("shoulder coordinate {k} is not a joint of the robot"),
-                });
-            }
-            let joint = model.q_joint(k);
-            let axis = joint
-                .kind
-                .axis()
-                .ok_or_else(|| MappingError::InvalidRegistration {
-                    reason: format!("shoulder joint `{}` has no axis", joint.name),
-                })?;
-            let x = data.frame(joint.child);
-            *line = (
-                Point3::from(x.translation.vector),
-                x.rotation * axis.into_inner(),
-            );
-        }
-        let shoulder = closest_point_between_lines(lines[0], lines[1]);
+        let mut q = self.neutral();
+        forward_kinematics(model, &mut data, &q);
+        let shoulder = Point3::from(data.frame(self.shoulder).translation.vector);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5ea5);
-        let mut q = neutral.clone();
         let mut reach = 0.0_f64;
         for _ in 0..512 {
             for k in 0..q.len() {
-                let (l, u) = (
-                    self.lower[k].max(-std::f64::consts::PI),
-                    self.upper[k].min(std::f64::consts::PI),
-                );
+                let l = self.lower[k].max(-std::f64::consts::PI);
+                let u = self.upper[k].min(std::f64::consts::PI);
                 q[k] = if l < u { rng.random_range(l..=u) } else { l };
             }
             forward_kinematics(model, &mut data, &q);
@@ -233,32 +264,27 @@ impl MappingModel {
                 reach = reach.max((data.frame(tip).translation.vector - shoulder.coords).norm());
             }
         }
-        Ok(RobotAnchor {
+        RobotAnchor {
             shoulder,
             axes: BodyAxes::default(),
             reach,
-        })
+        }
     }
-}
 
-/// Midpoint of the common perpendicular of two lines `(point, direction)`; for (near-)parallel
-/// lines, the second line's point.
-fn closest_point_between_lines(
-    a: (Point3<f64>, Vector3<f64>),
-    b: (Point3<f64>, Vector3<f64>),
-) -> Point3<f64> {
-    let (p, u) = a;
-    let (q, v) = b;
-    let w = p - q;
-    let (uu, uv, vv) = (u.dot(&u), u.dot(&v), v.dot(&v));
-    let (uw, vw) = (u.dot(&w), v.dot(&w));
-    let den = uu * vv - uv * uv;
-    if den <= 1e-12 * uu * vv {
-        return q;
+    /// Mid-range configuration (0, clamped into range, where a coordinate is unbounded).
+    pub fn neutral(&self) -> Vec<f64> {
+        self.lower
+            .iter()
+            .zip(&self.upper)
+            .map(|(&l, &u)| {
+                if l.is_finite() && u.is_finite() {
+                    0.5 * (l + u)
+                } else {
+                    0.0_f64.max(l).min(u)
+                }
+            })
+            .collect()
     }
-    let s = (uv * vw - vv * uw) / den;
-    let t = (uu * vw - uv * uw) / den;
-    Point3::from(((p + u * s).coords + (q + v * t).coords) * 0.5)
 }
 
 /// Quaternion distance of eq. 2-3 and its gradient with respect to the world angular velocity
@@ -598,7 +624,9 @@ pub(crate) mod tests {
                     .unwrap(),
             );
         }
-        MappingModel::new(Arc::new(b.build().unwrap()), tips, 0, elbow).unwrap()
+        let model = Arc::new(b.build().unwrap());
+        let shoulder = model.frame_id("arm1").unwrap();
+        MappingModel::new(model, tips, 0, elbow, shoulder, &[]).unwrap()
     }
 
     pub(crate) fn random_goals(rng: &mut ChaCha8Rng, m: usize) -> FrameGoals {
@@ -672,19 +700,38 @@ pub(crate) mod tests {
         check_gradient(toy_system(), 7, 20);
     }
 
+    pub(crate) const SYSTEMS: [&str; 6] = [
+        "wam_t42",
+        "wam_ihy",
+        "wam_ob4f",
+        "pa10_t42",
+        "pa10_ihy",
+        "pa10_ob4f",
+    ];
+
+    pub(crate) fn system(name: &str) -> System {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("robots/systems")
+            .join(format!("{name}.toml"));
+        System::from_file(&path).unwrap()
+    }
+
     #[test]
-    fn anchor_finds_the_shoulder_where_the_first_two_axes_meet() {
-        let mm = toy_system();
-        let a = mm.anchor([0, 1]).unwrap();
-        // a0 rotates about the vertical line x = y = 0; a1 about y through (0, 0, 0.35): they meet there.
-        assert!((a.shoulder - Point3::new(0.0, 0.0, 0.35)).norm() < 1e-12);
-        // Arm links 0.25 + 0.25 + 0.2 + 0.2 + 0.05 from a1, then palm 0.06 and the fingers.
-        assert!(a.reach > 0.8 && a.reach < 1.15, "reach {}", a.reach);
-        let skew = closest_point_between_lines(
-            (Point3::new(0.0, 0.0, 0.0), Vector3::x()),
-            (Point3::new(0.0, 0.0, 1.0), Vector3::y()),
-        );
-        assert!((skew - Point3::new(0.0, 0.0, 0.5)).norm() < 1e-15);
+    fn gradient_matches_central_differences_for_all_six_systems() {
+        for (k, name) in SYSTEMS.iter().enumerate() {
+            let mm = MappingModel::from_system(&system(name)).unwrap();
+            check_gradient(mm, 100 + k as u64, 6);
+        }
+    }
+
+    #[test]
+    fn ihy_spread_ordering_folds_into_a_bound() {
+        let sys = system("wam_ihy");
+        let mm = MappingModel::from_system(&sys).unwrap();
+        // finger2_spread = −finger1_spread, so value(f2) ≤ value(f1) ⇔ q_f1 ≥ 0.
+        let k = sys.model.q_index("ihy_finger1_spread").unwrap();
+        assert_eq!(mm.lower[k], sys.model.lower_limits()[k].max(0.0));
+        assert!(mm.orders.is_empty());
     }
 
     #[test]

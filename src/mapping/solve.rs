@@ -11,7 +11,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::MappingError;
 use super::goals::MAX_FINGERS;
-use super::nlp::{BoxSolver, SolveReport};
+use super::nlp::{BoxSolver, PairOrder, SolveReport};
 use super::objective::{Evaluator, FrameGoals, MappingModel, Objective, Term, Weights};
 
 /// Solver settings of a mapping run.
@@ -104,6 +104,7 @@ pub struct Mapper {
     pub(super) hi: Vec<f64>,
     pub(super) step: Vec<f64>,
     pub(super) q: Vec<f64>,
+    pub(super) orders: Vec<PairOrder>,
     pub(super) best: Vec<f64>,
 }
 
@@ -124,6 +125,7 @@ impl Mapper {
         let nq = mm.model.nq();
         Ok(Self {
             solver: BoxSolver::new(nq, options.tolerance),
+            orders: mm.orders.clone(),
             eval: Evaluator::new(mm),
             terms: weights.terms(),
             options,
@@ -152,13 +154,14 @@ impl Mapper {
             lo,
             hi,
             q,
+            orders,
             ..
         } = self;
         let mut f = |x: &[f64], g: Option<&mut [f64]>| match g {
             Some(g) => eval.value_and_gradient(terms, goals, x, g),
             None => eval.value(terms, goals, x),
         };
-        solver.solve(lo, hi, &[], &mut f, q, max_iter)
+        solver.solve(lo, hi, orders, &mut f, q, max_iter)
     }
 
     /// First frame: several starts within the joint limits, best objective kept.
