@@ -7,6 +7,9 @@
 
 mod algorithms;
 mod error;
+mod ik;
+mod joint_vector;
+pub mod manipulability;
 mod mesh;
 mod model;
 #[cfg(test)]
@@ -16,6 +19,12 @@ pub mod urdf;
 
 pub use algorithms::{Data, forward_kinematics, frame_jacobian};
 pub use error::KinematicsError;
+pub use ik::{IkOptions, IkReport, IkSolver, IkTarget};
+pub use joint_vector::JointVector;
+pub use manipulability::{
+    Ellipsoid, force_transmission_ratio, manipulability, velocity_ellipsoid,
+    velocity_transmission_ratio,
+};
 pub use model::{
     Actuation, Collision, FrameId, Joint, JointKind, JointLimits, Mimic, Model, ModelBuilder,
 };
