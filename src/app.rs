@@ -43,6 +43,10 @@ impl App {
         if !config.robots.is_dir() {
             // Robots can also be registered over the API, so a missing folder is not fatal.
             tracing::warn!(robots = %config.robots.display(), "robots folder not found; starting without bundled robots");
+        } else {
+            api::robots::sync_bundled(&db, &config.robots)
+                .await
+                .context("cannot synchronise the bundled robots")?;
         }
         let listener = TcpListener::bind(config.bind)
             .await
@@ -52,6 +56,7 @@ impl App {
             db,
             config: Arc::new(config),
             jobs,
+            robots: api::robots::RobotCache::default(),
             shutdown,
         };
         Ok(App {

@@ -24,6 +24,16 @@ enum Command {
     Serve,
     /// Print the OpenAPI 3.1 document as JSON on stdout.
     Openapi,
+    /// Solve a batch of pose IK targets and print solutions and statistics as JSON.
+    Ik {
+        /// A robot id (bundled or registered) or a system descriptor file.
+        #[arg(long)]
+        robot: String,
+        /// JSON file: a list of IK requests (the body of POST /v1/robots/{id}/ik), or
+        /// `{"targets": [...]}`.
+        #[arg(long)]
+        targets: std::path::PathBuf,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -34,6 +44,7 @@ fn main() -> anyhow::Result<()> {
             println!("{}", reachgrasp::api::openapi().to_pretty_json()?);
             Ok(())
         }
+        Command::Ik { robot, targets } => ik(&cli.config, &robot, &targets),
     }
 }
 
@@ -46,4 +57,18 @@ fn serve(config: Config) -> anyhow::Result<()> {
         let app = App::build(config).await?;
         app.run_until(shutdown_signal()).await
     })
+}
+
+fn ik(config: &Config, robot: &str, targets: &std::path::Path) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use reachgrasp::api::robots;
+    let system = robots::resolve_robot_for_cli(config, robot)?;
+    let text = std::fs::read_to_string(targets)
+        .with_context(|| format!("cannot read {}", targets.display()))?;
+    let file: robots::IkBatchFile = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a list of IK targets", targets.display()))?;
+    let report = robots::ik_batch(robot, &system, file)
+        .map_err(|e| anyhow::anyhow!("invalid target: {}", e.detail()))?;
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
 }

@@ -60,6 +60,7 @@ pub mod extract;
 pub mod health;
 pub mod jobs;
 pub mod middleware;
+pub mod robots;
 pub mod testing;
 
 use std::sync::Arc;
@@ -91,6 +92,8 @@ pub struct AppState {
     pub db: SqlitePool,
     pub config: Arc<Config>,
     pub jobs: JobRunner,
+    /// Loaded arm-hand systems by id (see [`robots::system`]).
+    pub robots: robots::RobotCache,
     /// Resolves when the service starts shutting down (ends long-lived streams).
     pub shutdown: Shutdown,
 }
@@ -139,6 +142,7 @@ impl ShutdownTrigger {
     tags(
         (name = "health", description = "Liveness and readiness"),
         (name = "jobs", description = "Long-running computations: status, progress (SSE), cancellation"),
+        (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -149,6 +153,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
     OpenApiRouter::with_openapi(ApiDoc::openapi())
         .merge(health::router())
         .merge(jobs::router())
+        .merge(robots::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).

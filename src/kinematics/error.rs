@@ -50,7 +50,7 @@ pub enum KinematicsError {
         role: &'static str,
         link: String,
     },
-    #[error("URDF has several root links: {roots:?}")]
+    #[error("URDF has several root links: {}", quoted(roots))]
     SeveralRoots { roots: Vec<String> },
     #[error("URDF has no root link (the joints form a cycle through link '{link}')")]
     Cycle { link: String },
@@ -115,4 +115,8 @@ pub(crate) fn check_finite(
             value,
         })
     }
+}
+
+fn quoted(names: &[String]) -> String {
+    names.iter().map(|n| format!("'{n}'")).collect::<Vec<_>>().join(", ")
 }

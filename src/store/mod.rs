@@ -7,6 +7,7 @@
 
 pub mod blob;
 pub mod jobs;
+pub mod robots;
 
 use std::path::Path;
 use std::str::FromStr;

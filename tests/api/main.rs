@@ -6,3 +6,4 @@ mod helpers;
 mod jobs;
 mod openapi;
 mod process;
+mod robots;

@@ -1,0 +1,1244 @@
+//! `/v1/robots`: the arm-hand system library (bundled read-only systems from `robots/`, plus
+//! registered ones) and its kinematics: FK, Jacobians, IK, manipulability.
+//!
+//! Joint vectors always travel with their names (`joint_names` + `positions`) and are checked
+//! once against the model ([`JointVector`]). Kinematic errors become 422 problem+json naming the
+//! field and the joint, link or frame.
+
+use std::collections::HashMap;
+use std::path::Path as FsPath;
+use std::sync::{Arc, RwLock};
+use std::time::Duration;
+
+use axum::extract::State;
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use nalgebra::{Isometry3, Matrix6xX, Quaternion, Translation3, UnitQuaternion, Vector3, Vector6};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use sqlx::SqlitePool;
+use utoipa::ToSchema;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::{ApiError, AppState, FieldError, Json, Path, Problem};
+use crate::kinematics::{
+    self, Data, FrameId, IkOptions, IkSolver, IkTarget, JointKind, JointVector, KinematicsError,
+    NoMeshes, System, SystemDescriptor, UrdfSources, forward_kinematics, frame_jacobian,
+};
+use crate::store::{self, robots as repo};
+
+/// Longest IK time budget a request may ask for.
+pub const MAX_IK_BUDGET_MS: f64 = 2000.0;
+
+/// Loaded systems by id, rebuilt when the stored row changes (keyed by `updated_at`).
+#[derive(Clone, Debug, Default)]
+pub struct RobotCache(Arc<RwLock<HashMap<String, (String, Arc<System>)>>>);
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(list_robots, create_robot))
+        .routes(routes!(get_robot, delete_robot))
+        .routes(routes!(get_robot_urdf))
+        .routes(routes!(robot_fk))
+        .routes(routes!(robot_jacobian))
+        .routes(routes!(robot_ik))
+        .routes(routes!(robot_manipulability))
+}
+
+// ------------------------------------------------------------------------------------ errors
+
+/// The JSONPath a kinematics error belongs to, given where the URDF text came from.
+fn kin_error(e: KinematicsError, urdf_field: &str) -> ApiError {
+    use KinematicsError as E;
+    let path = match &e {
+        E::Descriptor { field, .. }
+        | E::UnknownFrame { field, .. }
+        | E::UnknownJointInDescriptor { field, .. } => {
+            format!("$.descriptor.{field}")
+        }
+        E::NonFinite { path, .. } if path.starts_with("mount") || path.starts_with("fingers") => {
+            format!("$.descriptor.{}", path.split(' ').next().unwrap_or(path))
+        }
+        E::WrongLength { .. } | E::NonFiniteJointValue { .. } => "$.positions".into(),
+        E::UnknownJoint { .. } | E::RepeatedJoint { .. } | E::MissingJoint { .. } => {
+            "$.joint_names".into()
+        }
+        _ => urdf_field.into(),
+    };
+    ApiError::invalid_field(path, e.to_string())
+}
+
+fn joint_vector(
+    model: &kinematics::Model,
+    names: &[String],
+    positions: &[f64],
+    base: &str,
+) -> Result<JointVector, ApiError> {
+    JointVector::from_named(model, names, positions).map_err(|e| {
+        let field = match e {
+            KinematicsError::UnknownJoint { .. }
+            | KinematicsError::RepeatedJoint { .. }
+            | KinematicsError::MissingJoint { .. } => "joint_names",
+            _ => "positions",
+        };
+        ApiError::invalid_field(format!("{base}.{field}"), e.to_string())
+    })
+}
+
+fn frame_of(system: &System, name: &str, path: &str) -> Result<FrameId, ApiError> {
+    system.model.frame_id(name).ok_or_else(|| {
+        ApiError::invalid_field(path, format!("frame '{name}' does not exist in this robot"))
+    })
+}
+
+fn finite_array<const N: usize>(v: &[f64; N], path: &str) -> Result<(), ApiError> {
+    match v.iter().position(|x| !x.is_finite()) {
+        Some(i) => Err(ApiError::invalid_field(
+            format!("{path}[{i}]"),
+            "must be a finite number",
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Unit quaternion from `[w, x, y, z]` (normalised; zero norm rejected).
+fn quaternion(q: &[f64; 4], path: &str) -> Result<UnitQuaternion<f64>, ApiError> {
+    finite_array(q, path)?;
+    let quat = Quaternion::new(q[0], q[1], q[2], q[3]);
+    if quat.norm() < 1e-9 {
+        return Err(ApiError::invalid_field(
+            path,
+            "quaternion [w, x, y, z] must not be zero",
+        ));
+    }
+    Ok(UnitQuaternion::from_quaternion(quat))
+}
+
+fn inf_to_none(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+// ------------------------------------------------------------------------------------ loading
+
+/// Builds the system of a stored row (URDF texts + descriptor; meshes are not stored, so
+/// registered systems use primitives).
+pub fn system_from_row(row: &repo::RobotRow) -> Result<System, KinematicsError> {
+    let desc: SystemDescriptor =
+        serde_json::from_str(&row.descriptor).map_err(|e| KinematicsError::Descriptor {
+            field: "descriptor".into(),
+            reason: e.to_string(),
+        })?;
+    match &row.hand_urdf {
+        Some(hand) => System::from_sources(
+            desc,
+            UrdfSources::ArmAndHand {
+                arm: &row.arm_urdf,
+                hand,
+            },
+            &NoMeshes,
+        ),
+        None => System::from_sources(desc, UrdfSources::Combined(&row.arm_urdf), &NoMeshes),
+    }
+}
+
+/// The loaded system `id` (404 if unknown), from the cache when the row has not changed. Other
+/// resources (mappings, grasps, trajectories) use this to resolve a robot id.
+pub async fn system(state: &AppState, id: &str) -> Result<Arc<System>, ApiError> {
+    let row = repo::get(&state.db, id)
+        .await?
+        .ok_or_else(|| ApiError::not_found("robot", id))?;
+    load_cached(&state.robots, row).await
+}
+
+async fn load_cached(cache: &RobotCache, row: repo::RobotRow) -> Result<Arc<System>, ApiError> {
+    if let Some((stamp, s)) = cache.0.read().expect("robot cache lock").get(&row.id)
+        && *stamp == row.updated_at
+    {
+        return Ok(s.clone());
+    }
+    let (id, stamp) = (row.id.clone(), row.updated_at.clone());
+    let built = tokio::task::spawn_blocking(move || system_from_row(&row))
+        .await
+        .map_err(ApiError::internal)?
+        // A stored row was validated when written; failing now is a bug, not bad input.
+        .map_err(|e| {
+            ApiError::internal(anyhow::anyhow!("stored robot {id} no longer loads: {e}"))
+        })?;
+    let s = Arc::new(built);
+    cache
+        .0
+        .write()
+        .expect("robot cache lock")
+        .insert(id, (stamp, s.clone()));
+    Ok(s)
+}
+
+/// Synchronises `robots/systems/*.toml` into the database at start: new files are inserted,
+/// changed ones updated, unchanged ones left alone. A file that does not load is logged and
+/// skipped (the service still starts).
+pub async fn sync_bundled(db: &SqlitePool, robots_dir: &FsPath) -> anyhow::Result<()> {
+    let dir = robots_dir.join("systems");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        tracing::warn!(dir = %dir.display(), "no bundled systems folder");
+        return Ok(());
+    };
+    let mut files: Vec<_> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    files.sort();
+    for path in files {
+        let Some(id) = path.file_stem().and_then(|s| s.to_str()).map(str::to_owned) else {
+            continue;
+        };
+        let loaded = tokio::task::spawn_blocking({
+            let path = path.clone();
+            move || bundled_texts(&path)
+        })
+        .await?;
+        let (desc, arm, hand) = match loaded {
+            Ok(t) => t,
+            Err(e) => {
+                tracing::warn!(file = %path.display(), error = %e, "bundled system does not load; skipped");
+                continue;
+            }
+        };
+        let descriptor = serde_json::to_string(&desc)?;
+        let outcome = repo::upsert_bundled(
+            db,
+            &repo::NewRobot {
+                id: &id,
+                name: &desc.name,
+                bundled: true,
+                descriptor: &descriptor,
+                arm_urdf: &arm,
+                hand_urdf: hand.as_deref(),
+            },
+        )
+        .await?;
+        tracing::info!(robot = %id, ?outcome, "bundled system");
+    }
+    Ok(())
+}
+
+/// Loads a bundled descriptor file, checks it builds from its texts alone, returns the texts.
+fn bundled_texts(
+    path: &FsPath,
+) -> Result<(SystemDescriptor, String, Option<String>), KinematicsError> {
+    let system = System::from_file(path)?;
+    let desc = system.descriptor.clone();
+    let dir = path.parent().unwrap_or(FsPath::new("."));
+    let read = |rel: &str| {
+        std::fs::read_to_string(dir.join(rel)).map_err(|e| KinematicsError::FileUnreadable {
+            path: dir.join(rel).display().to_string(),
+            reason: e.to_string(),
+        })
+    };
+    let (arm, hand) = match (&desc.arm_urdf, &desc.hand_urdf, &desc.urdf) {
+        (Some(a), Some(h), _) => (read(a)?, Some(read(h)?)),
+        (_, _, Some(c)) => (read(c)?, None),
+        _ => unreachable!("System::from_file checked the URDF fields"),
+    };
+    let row = repo::RobotRow {
+        id: String::new(),
+        name: desc.name.clone(),
+        bundled: true,
+        descriptor: serde_json::to_string(&desc).expect("descriptor serialises"),
+        arm_urdf: arm.clone(),
+        hand_urdf: hand.clone(),
+        created_at: String::new(),
+        updated_at: String::new(),
+    };
+    system_from_row(&row)?;
+    Ok((desc, arm, hand))
+}
+
+// ------------------------------------------------------------------------------------ DTOs
+
+/// A system in the list.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct RobotSummary {
+    pub id: String,
+    pub name: String,
+    /// Bundled systems come from `robots/` and are read-only.
+    pub bundled: bool,
+    /// Independent joints, the order of every joint vector of this robot.
+    pub joint_names: Vec<String>,
+    pub fingers: Vec<String>,
+    pub created_at: String,
+    pub updated_at: String,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct RobotList {
+    pub items: Vec<RobotSummary>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct MimicDto {
+    /// The independent joint this one follows.
+    pub joint: String,
+    pub multiplier: f64,
+    pub offset: f64,
+}
+
+/// A joint of the model. Limits are `null` where unbounded.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct JointDto {
+    pub name: String,
+    /// `revolute`, `continuous`, `prismatic` or `fixed`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub parent: String,
+    pub child: String,
+    pub axis: Option<[f64; 3]>,
+    pub lower: Option<f64>,
+    pub upper: Option<f64>,
+    pub velocity: Option<f64>,
+    pub effort: Option<f64>,
+    /// Independent coordinate (its index in `joint_names`), or coupled/fixed.
+    pub independent: bool,
+    pub q_index: Option<usize>,
+    /// For coupled joints (eq. 26): value = multiplier * value(joint) + offset, resolved to an
+    /// independent joint.
+    pub mimic: Option<MimicDto>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct FingerDto {
+    pub name: String,
+    pub tip_frame: String,
+    /// Fingertip contact-sphere radius, metres.
+    pub contact_radius: f64,
+    /// Independent joints moving this finger.
+    pub joints: Vec<String>,
+}
+
+/// A system with its joints, fingers and descriptor.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct RobotDetail {
+    pub id: String,
+    pub name: String,
+    pub bundled: bool,
+    pub joint_names: Vec<String>,
+    pub arm_joints: Vec<String>,
+    pub hand_joints: Vec<String>,
+    pub joints: Vec<JointDto>,
+    pub frames: Vec<String>,
+    pub fingers: Vec<FingerDto>,
+    pub thumb: String,
+    /// Eq. 28: each `[a, b]` requires value(a) <= value(b).
+    pub spread_pairs: Vec<[String; 2]>,
+    /// Eq. 4: frames whose origins enter the anthropomorphism term.
+    pub elbow_frames: Vec<String>,
+    pub shoulder_frame: String,
+    pub wrist_frame: String,
+    /// The descriptor as registered.
+    #[schema(value_type = Object)]
+    pub descriptor: serde_json::Value,
+    pub created_at: String,
+    pub updated_at: String,
+}
+
+/// Register a system: a descriptor plus either `arm_urdf` + `hand_urdf` (with `descriptor.mount`)
+/// or one combined `urdf` (with `descriptor.wrist_frame`). Meshes cannot be uploaded; use
+/// collision primitives.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CreateRobot {
+    /// The system descriptor (same fields as `robots/systems/*.toml`; path fields are ignored).
+    #[schema(value_type = Object)]
+    pub descriptor: serde_json::Value,
+    pub arm_urdf: Option<String>,
+    pub hand_urdf: Option<String>,
+    pub urdf: Option<String>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct FkRequest {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+    /// Frames to report (default: every frame).
+    pub frames: Option<Vec<String>>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct FramePose {
+    pub name: String,
+    /// Metres, world (robot base) frame.
+    pub position: [f64; 3],
+    /// `[w, x, y, z]`.
+    pub orientation: [f64; 4],
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct FkResponse {
+    pub frames: Vec<FramePose>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JacobianRequest {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+    pub frame: String,
+    /// Point rigidly attached to the frame, in frame coordinates (default the origin).
+    pub point: Option<[f64; 3]>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct JacobianResponse {
+    pub frame: String,
+    /// Column order.
+    pub joint_names: Vec<String>,
+    /// 6 rows in the world frame: linear velocity of the point (3), then angular velocity (3).
+    /// Coupled joints are folded into their drivers' columns.
+    pub rows: Vec<Vec<f64>>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SeedDto {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct IkRequest {
+    /// Frame to place (default: the wrist frame, where the hand mounts).
+    pub frame: Option<String>,
+    /// Point rigidly attached to the frame, in frame coordinates (default the origin).
+    pub point: Option<[f64; 3]>,
+    /// Target position of the point, metres, world frame.
+    pub position: [f64; 3],
+    /// Target orientation `[w, x, y, z]`; omit for a position-only target.
+    pub orientation: Option<[f64; 4]>,
+    /// Start configuration (default: mid-range); joints not named keep mid-range values.
+    pub seed: Option<SeedDto>,
+    pub position_weight: Option<f64>,
+    pub orientation_weight: Option<f64>,
+    pub position_tolerance: Option<f64>,
+    pub orientation_tolerance: Option<f64>,
+    /// Default 5 ms, at most 2000 ms.
+    pub time_budget_ms: Option<f64>,
+    pub max_restarts: Option<usize>,
+    /// Seed of the random restarts (default 0): the same request gives the same answer.
+    pub random_seed: Option<u64>,
+}
+
+/// The IK outcome. An unreachable target is `success: false` with the best residuals.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct IkResponse {
+    pub success: bool,
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+    pub position_error: f64,
+    pub orientation_error: f64,
+    pub iterations: usize,
+    pub restarts: usize,
+    pub elapsed_ms: f64,
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, ToSchema, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum TaskRows {
+    /// Linear and angular velocity (6-D).
+    Full,
+    /// Linear velocity of the point only (3-D).
+    Linear,
+    /// Angular velocity only (3-D).
+    Angular,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ManipulabilityRequest {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+    pub frame: String,
+    pub point: Option<[f64; 3]>,
+    /// Rows of the Jacobian to analyse (default `linear`).
+    pub task: Option<TaskRows>,
+    /// Task directions (3 or 6 components to match `task`) for the transmission ratios.
+    #[serde(default)]
+    pub directions: Vec<Vec<f64>>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct TransmissionDto {
+    /// The unit direction used.
+    pub direction: Vec<f64>,
+    /// Eq. 14; `null` when unbounded (the arm cannot move along the direction).
+    pub force_ratio: Option<f64>,
+    /// Eq. 15.
+    pub velocity_ratio: f64,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct ManipulabilityResponse {
+    /// Eq. 12: sqrt(det(J Jᵀ)).
+    pub manipulability: f64,
+    /// Velocity-ellipsoid semi-axes (eq. 10), longest first; the force ellipsoid's are their
+    /// reciprocals.
+    pub semi_axes: Vec<f64>,
+    /// Unit axis directions matching `semi_axes`.
+    pub axes: Vec<Vec<f64>>,
+    pub transmission: Vec<TransmissionDto>,
+}
+
+fn summary(row: &repo::RobotRow, s: &System) -> RobotSummary {
+    RobotSummary {
+        id: row.id.clone(),
+        name: row.name.clone(),
+        bundled: row.bundled,
+        joint_names: s.model.joint_names().to_vec(),
+        fingers: s.fingers.iter().map(|f| f.name.clone()).collect(),
+        created_at: row.created_at.clone(),
+        updated_at: row.updated_at.clone(),
+    }
+}
+
+fn detail(row: &repo::RobotRow, s: &System) -> RobotDetail {
+    let m = &s.model;
+    let qn = |k: usize| m.joint_names()[k].clone();
+    let joints = m
+        .joints()
+        .iter()
+        .map(|j| {
+            let act = j.actuation;
+            let independent = act.is_some() && j.mimic.is_none();
+            JointDto {
+                name: j.name.clone(),
+                kind: j.kind.type_name().into(),
+                parent: m.frame_name(j.parent).into(),
+                child: m.frame_name(j.child).into(),
+                axis: j.kind.axis().map(|a| [a.x, a.y, a.z]),
+                lower: if matches!(j.kind, JointKind::Fixed) {
+                    None
+                } else {
+                    inf_to_none(j.limits.lower)
+                },
+                upper: if matches!(j.kind, JointKind::Fixed) {
+                    None
+                } else {
+                    inf_to_none(j.limits.upper)
+                },
+                velocity: inf_to_none(j.limits.velocity),
+                effort: inf_to_none(j.limits.effort),
+                independent,
+                q_index: if independent {
+                    act.map(|a| a.q_index)
+                } else {
+                    None
+                },
+                mimic: match (j.mimic.is_some(), act) {
+                    (true, Some(a)) => Some(MimicDto {
+                        joint: qn(a.q_index),
+                        multiplier: a.multiplier,
+                        offset: a.offset,
+                    }),
+                    _ => None,
+                },
+            }
+        })
+        .collect();
+    RobotDetail {
+        id: row.id.clone(),
+        name: row.name.clone(),
+        bundled: row.bundled,
+        joint_names: m.joint_names().to_vec(),
+        arm_joints: s.arm_joints.iter().map(|&k| qn(k)).collect(),
+        hand_joints: s.hand_joints.iter().map(|&k| qn(k)).collect(),
+        joints,
+        frames: (0..m.n_frames())
+            .map(|i| m.frame_name(FrameId(i)).to_owned())
+            .collect(),
+        fingers: s
+            .fingers
+            .iter()
+            .map(|f| FingerDto {
+                name: f.name.clone(),
+                tip_frame: m.frame_name(f.tip).into(),
+                contact_radius: f.contact_radius,
+                joints: f.joints.iter().map(|&k| qn(k)).collect(),
+            })
+            .collect(),
+        thumb: s.fingers[s.thumb].name.clone(),
+        spread_pairs: s
+            .spread_pairs
+            .iter()
+            .map(|p| [p.lower_joint.clone(), p.upper_joint.clone()])
+            .collect(),
+        elbow_frames: s
+            .elbow_frames
+            .iter()
+            .map(|&f| m.frame_name(f).to_owned())
+            .collect(),
+        shoulder_frame: m.frame_name(s.shoulder_frame).into(),
+        wrist_frame: m.frame_name(s.wrist_frame).into(),
+        descriptor: serde_json::from_str(&row.descriptor).unwrap_or(serde_json::Value::Null),
+        created_at: row.created_at.clone(),
+        updated_at: row.updated_at.clone(),
+    }
+}
+
+// ------------------------------------------------------------------------------------ handlers
+
+
+/// List the arm-hand systems.
+#[utoipa::path(get, path = "/v1/robots", tag = "robots",
+    responses((status = 200, description = "All systems, bundled first", body = RobotList)))]
+async fn list_robots(State(state): State<AppState>) -> Result<Json<RobotList>, ApiError> {
+    let rows = repo::list(&state.db).await?;
+    let mut items = Vec::with_capacity(rows.len());
+    for row in rows {
+        let s = load_cached(&state.robots, row.clone()).await?;
+        items.push(summary(&row, &s));
+    }
+    Ok(Json(RobotList { items }))
+}
+
+/// One system: joints with limits (independent vs coupled), fingers and fingertip frames.
+#[utoipa::path(get, path = "/v1/robots/{id}", tag = "robots",
+    params(("id" = String, Path, description = "Robot id")),
+    responses(
+        (status = 200, description = "The system", body = RobotDetail),
+        (status = 404, description = "Unknown robot", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn get_robot(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<RobotDetail>, ApiError> {
+    let row = repo::get(&state.db, &id)
+        .await?
+        .ok_or_else(|| ApiError::not_found("robot", &id))?;
+    let s = load_cached(&state.robots, row.clone()).await?;
+    Ok(Json(detail(&row, &s)))
+}
+
+/// The system as one URDF (arm, mount joint `hand_mount_joint`, hand).
+#[utoipa::path(get, path = "/v1/robots/{id}/urdf", tag = "robots",
+    params(("id" = String, Path, description = "Robot id")),
+    responses(
+        (status = 200, description = "URDF XML", body = String, content_type = "application/xml"),
+        (status = 404, description = "Unknown robot", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn get_robot_urdf(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
+    let row = repo::get(&state.db, &id)
+        .await?
+        .ok_or_else(|| ApiError::not_found("robot", &id))?;
+    let text = match &row.hand_urdf {
+        None => row.arm_urdf.clone(),
+        Some(hand) => combined_urdf(&row, hand).map_err(ApiError::internal)?,
+    };
+    Ok(([(header::CONTENT_TYPE, "application/xml")], text).into_response())
+}
+
+fn combined_urdf(row: &repo::RobotRow, hand: &str) -> anyhow::Result<String> {
+    let desc: SystemDescriptor = serde_json::from_str(&row.descriptor)?;
+    let mount = desc
+        .mount
+        .ok_or_else(|| anyhow::anyhow!("stored system without mount"))?;
+    let mut arm = urdf_rs::read_from_string(&row.arm_urdf)?;
+    let hand = urdf_rs::read_from_string(hand)?;
+    let hand_root = kinematics::urdf::root_link(&hand)?;
+    arm.joints.push(urdf_rs::Joint {
+        name: "hand_mount_joint".into(),
+        joint_type: urdf_rs::JointType::Fixed,
+        origin: urdf_rs::Pose {
+            xyz: urdf_rs::Vec3(mount.xyz),
+            rpy: urdf_rs::Vec3(mount.rpy),
+        },
+        parent: urdf_rs::LinkName {
+            link: mount.parent_frame,
+        },
+        child: urdf_rs::LinkName { link: hand_root },
+        axis: urdf_rs::Axis::default(),
+        limit: urdf_rs::JointLimit::default(),
+        calibration: None,
+        dynamics: None,
+        mimic: None,
+        safety_controller: None,
+    });
+    arm.name = row.name.clone();
+    arm.links.extend(hand.links);
+    arm.joints.extend(hand.joints);
+    arm.materials.extend(hand.materials);
+    Ok(urdf_rs::write_to_string(&arm)?)
+}
+
+/// Register an arm-hand system (validated; nothing is stored on error).
+#[utoipa::path(post, path = "/v1/robots", tag = "robots", request_body = CreateRobot,
+    responses(
+        (status = 201, description = "Registered", body = RobotDetail),
+        (status = 400, description = "Malformed JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid URDF or descriptor; names the field and the joint or link", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn create_robot(
+    State(state): State<AppState>,
+    Json(body): Json<CreateRobot>,
+) -> Result<Response, ApiError> {
+    let desc: SystemDescriptor = serde_json::from_value(body.descriptor.clone())
+        .map_err(|e| ApiError::invalid_field("$.descriptor", e.to_string()))?;
+    let (arm, hand) = match (body.arm_urdf, body.hand_urdf, body.urdf) {
+        (Some(a), Some(h), None) => (a, Some(h)),
+        (None, None, Some(c)) => (c, None),
+        _ => {
+            return Err(ApiError::invalid_field(
+                "$.urdf",
+                "give either arm_urdf and hand_urdf, or urdf (one combined URDF)",
+            ));
+        }
+    };
+    // Build it once to validate (the same path that loads it later).
+    let desc_json = serde_json::to_string(&desc).map_err(ApiError::internal)?;
+    let probe = repo::RobotRow {
+        id: String::new(),
+        name: desc.name.clone(),
+        bundled: false,
+        descriptor: desc_json.clone(),
+        arm_urdf: arm.clone(),
+        hand_urdf: hand.clone(),
+        created_at: String::new(),
+        updated_at: String::new(),
+    };
+    let built = tokio::task::spawn_blocking(move || {
+        system_from_row(&probe).map_err(|e| {
+            let which = urdf_field_of(&e, &probe.arm_urdf, probe.hand_urdf.as_deref());
+            kin_error(e, which)
+        })
+    })
+    .await
+    .map_err(ApiError::internal)?;
+    let system = built?;
+    let id = uuid::Uuid::new_v4().to_string();
+    let row = repo::insert(
+        &state.db,
+        &repo::NewRobot {
+            id: &id,
+            name: &desc.name,
+            bundled: false,
+            descriptor: &desc_json,
+            arm_urdf: &arm,
+            hand_urdf: hand.as_deref(),
+        },
+    )
+    .await?;
+    let s = Arc::new(system);
+    state
+        .robots
+        .0
+        .write()
+        .expect("robot cache lock")
+        .insert(id.clone(), (row.updated_at.clone(), s.clone()));
+    let location = format!("/v1/robots/{id}");
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, location)],
+        Json(detail(&row, &s)),
+    )
+        .into_response())
+}
+
+/// Which URDF text a loader error is about: a text that does not parse, or the one whose link
+/// and joint names the message quotes (the hand's names when it does); default the arm.
+fn urdf_field_of(e: &KinematicsError, arm: &str, hand: Option<&str>) -> &'static str {
+    let Some(hand) = hand else { return "$.urdf" };
+    if matches!(
+        e,
+        KinematicsError::MalformedUrdf { .. } | KinematicsError::UrdfTooLarge { .. }
+    ) {
+        return if kinematics::urdf::parse_urdf(arm).is_ok() {
+            "$.hand_urdf"
+        } else {
+            "$.arm_urdf"
+        };
+    }
+    let msg = e.to_string();
+    let Ok(h) = kinematics::urdf::parse_urdf(hand) else {
+        return "$.hand_urdf";
+    };
+    let quoted = |n: &str| msg.contains(&format!("'{n}'"));
+    if h.links.iter().any(|l| quoted(&l.name)) || h.joints.iter().any(|j| quoted(&j.name)) {
+        "$.hand_urdf"
+    } else {
+        "$.arm_urdf"
+    }
+}
+
+/// Delete a registered system. Bundled systems are read-only (409); a system still referenced
+/// by other resources is refused (409).
+#[utoipa::path(delete, path = "/v1/robots/{id}", tag = "robots",
+    params(("id" = String, Path, description = "Robot id")),
+    responses(
+        (status = 204, description = "Deleted"),
+        (status = 404, description = "Unknown robot", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Bundled or still referenced", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn delete_robot(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    let row = repo::get(&state.db, &id)
+        .await?
+        .ok_or_else(|| ApiError::not_found("robot", &id))?;
+    if row.bundled {
+        return Err(ApiError::conflict(format!(
+            "robot {id} is bundled (from robots/) and read-only"
+        )));
+    }
+    match repo::delete(&state.db, &id).await {
+        Ok(true) => {
+            state
+                .robots
+                .0
+                .write()
+                .expect("robot cache lock")
+                .remove(&id);
+            Ok(StatusCode::NO_CONTENT)
+        }
+        Ok(false) => Err(ApiError::not_found("robot", &id)),
+        Err(e) if store::is_foreign_key_violation(&e) => Err(ApiError::conflict(format!(
+            "robot {id} is still referenced by other resources; delete those first"
+        ))),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Forward kinematics: world placement of every (or the named) frame.
+#[utoipa::path(post, path = "/v1/robots/{id}/fk", tag = "robots", request_body = FkRequest,
+    params(("id" = String, Path, description = "Robot id")),
+    responses(
+        (status = 200, description = "Frame placements", body = FkResponse),
+        (status = 404, description = "Unknown robot", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Bad joint vector or frame", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn robot_fk(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Json(body): Json<FkRequest>,
+) -> Result<Json<FkResponse>, ApiError> {
+    let s = system(&state, &id).await?;
+    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
+    let frames: Vec<FrameId> = match &body.frames {
+        None => (0..s.model.n_frames()).map(FrameId).collect(),
+        Some(names) => names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| frame_of(&s, n, &format!("$.frames[{i}]")))
+            .collect::<Result<_, _>>()?,
+    };
+    let mut data = Data::new(&s.model);
+    forward_kinematics(&s.model, &mut data, q.as_slice());
+    let frames = frames
+        .into_iter()
+        .map(|f| {
+            let x = data.frame(f);
+            let r = x.rotation;
+            FramePose {
+                name: s.model.frame_name(f).to_owned(),
+                position: x.translation.vector.into(),
+                orientation: [r.w, r.i, r.j, r.k],
+            }
+        })
+        .collect();
+    Ok(Json(FkResponse { frames }))
+}
+
+/// Geometric Jacobian of a frame point in the world frame (6 × n, linear then angular).
+#[utoipa::path(post, path = "/v1/robots/{id}/jacobian", tag = "robots", request_body = JacobianRequest,
+    params(("id" = String, Path, description = "Robot id")),
+    responses(
+        (status = 200, description = "The Jacobian", body = JacobianResponse),
+        (status = 404, description = "Unknown robot", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Bad joint vector, frame or point", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn robot_jacobian(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Json(body): Json<JacobianRequest>,
+) -> Result<Json<JacobianResponse>, ApiError> {
+    let s = system(&state, &id).await?;
+    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
+    let frame = frame_of(&s, &body.frame, "$.frame")?;
+    let point = body.point.unwrap_or([0.0; 3]);
+    finite_array(&point, "$.point")?;
+    let mut data = Data::new(&s.model);
+    forward_kinematics(&s.model, &mut data, q.as_slice());
+    let mut j = Matrix6xX::zeros(s.model.nq());
+    frame_jacobian(&s.model, &data, frame, &Vector3::from(point), &mut j);
+    let rows = (0..6).map(|r| j.row(r).iter().copied().collect()).collect();
+    Ok(Json(JacobianResponse {
+        frame: body.frame,
+        joint_names: s.model.joint_names().to_vec(),
+        rows,
+    }))
+}
+
+/// Validates an IK request into a target, seed and options.
+pub fn parse_ik(
+    s: &System,
+    body: &IkRequest,
+    base: &str,
+) -> Result<(IkTarget, Vec<f64>, IkOptions, u64), ApiError> {
+    let frame = match &body.frame {
+        Some(n) => frame_of(s, n, &format!("{base}.frame"))?,
+        None => s.wrist_frame,
+    };
+    let point = body.point.unwrap_or([0.0; 3]);
+    finite_array(&point, &format!("{base}.point"))?;
+    finite_array(&body.position, &format!("{base}.position"))?;
+    let rotation = match &body.orientation {
+        Some(q) => quaternion(q, &format!("{base}.orientation"))?,
+        None => UnitQuaternion::identity(),
+    };
+    let mut opts = IkOptions::default();
+    if body.orientation.is_none() {
+        opts.orientation_weight = 0.0;
+    }
+    let nonneg = |v: Option<f64>, name: &str, dflt: f64| -> Result<f64, ApiError> {
+        match v {
+            None => Ok(dflt),
+            Some(x) if x.is_finite() && x >= 0.0 => Ok(x),
+            Some(x) => Err(ApiError::invalid_field(
+                format!("{base}.{name}"),
+                format!("must be a finite number >= 0, got {x}"),
+            )),
+        }
+    };
+    opts.position_weight = nonneg(
+        body.position_weight,
+        "position_weight",
+        opts.position_weight,
+    )?;
+    opts.orientation_weight = nonneg(
+        body.orientation_weight,
+        "orientation_weight",
+        opts.orientation_weight,
+    )?;
+    if body.orientation.is_none() && opts.orientation_weight > 0.0 {
+        return Err(ApiError::invalid_field(
+            format!("{base}.orientation_weight"),
+            "needs an orientation target",
+        ));
+    }
+    if opts.position_weight == 0.0 && opts.orientation_weight == 0.0 {
+        return Err(ApiError::invalid_field(
+            format!("{base}.position_weight"),
+            "position and orientation weights cannot both be 0",
+        ));
+    }
+    opts.position_tolerance = nonneg(
+        body.position_tolerance,
+        "position_tolerance",
+        opts.position_tolerance,
+    )?;
+    opts.orientation_tolerance = nonneg(
+        body.orientation_tolerance,
+        "orientation_tolerance",
+        opts.orientation_tolerance,
+    )?;
+    let budget = nonneg(body.time_budget_ms, "time_budget_ms", 5.0)?;
+    if budget > MAX_IK_BUDGET_MS {
+        return Err(ApiError::invalid_field(
+            format!("{base}.time_budget_ms"),
+            format!("at most {MAX_IK_BUDGET_MS} ms"),
+        ));
+    }
+    opts.time_budget = Duration::from_secs_f64(budget / 1000.0);
+    if let Some(r) = body.max_restarts {
+        if r > 100_000 {
+            return Err(ApiError::invalid_field(
+                format!("{base}.max_restarts"),
+                "at most 100000",
+            ));
+        }
+        opts.max_restarts = r;
+    }
+    let neutral = s.model.neutral();
+    let seed = match &body.seed {
+        None => neutral,
+        Some(sd) => JointVector::from_named_with_defaults(
+            &s.model,
+            &sd.joint_names,
+            &sd.positions,
+            Some(&neutral),
+        )
+        .map_err(|e| {
+            let f = if matches!(
+                e,
+                KinematicsError::NonFiniteJointValue { .. } | KinematicsError::WrongLength { .. }
+            ) {
+                "positions"
+            } else {
+                "joint_names"
+            };
+            ApiError::invalid_field(format!("{base}.seed.{f}"), e.to_string())
+        })?
+        .into_vec(),
+    };
+    let target = IkTarget {
+        frame,
+        point_in_frame: Vector3::from(point),
+        pose: Isometry3::from_parts(Translation3::from(Vector3::from(body.position)), rotation),
+    };
+    Ok((target, seed, opts, body.random_seed.unwrap_or(0)))
+}
+
+/// Pose inverse kinematics (damped least squares with limits and random restarts). A target
+/// the solver cannot reach is still 200, with `success: false` and the best residuals.
+#[utoipa::path(post, path = "/v1/robots/{id}/ik", tag = "robots", request_body = IkRequest,
+    params(("id" = String, Path, description = "Robot id")),
+    responses(
+        (status = 200, description = "Solution or best attempt with residuals", body = IkResponse),
+        (status = 404, description = "Unknown robot", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Bad target, seed or options", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn robot_ik(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Json(body): Json<IkRequest>,
+) -> Result<Json<IkResponse>, ApiError> {
+    let s = system(&state, &id).await?;
+    let (target, seed, opts, rseed) = parse_ik(&s, &body, "$")?;
+    let out = tokio::task::spawn_blocking(move || solve_ik(&s, &target, &seed, &opts, rseed))
+        .await
+        .map_err(ApiError::internal)?;
+    Ok(Json(out))
+}
+
+/// One IK solve, as the API and the CLI report it.
+pub fn solve_ik(
+    s: &System,
+    target: &IkTarget,
+    seed: &[f64],
+    opts: &IkOptions,
+    random_seed: u64,
+) -> IkResponse {
+    let mut rng = ChaCha8Rng::seed_from_u64(random_seed);
+    let r = IkSolver::new(&s.model).solve(&s.model, target, seed, opts, &mut rng);
+    IkResponse {
+        success: r.success,
+        joint_names: s.model.joint_names().to_vec(),
+        positions: r.q,
+        position_error: r.position_error,
+        orientation_error: r.orientation_error,
+        iterations: r.iterations,
+        restarts: r.restarts,
+        elapsed_ms: r.elapsed.as_secs_f64() * 1000.0,
+    }
+}
+
+/// Manipulability (eq. 12), velocity/force ellipsoid axes (eq. 10-11) and transmission ratios
+/// along task directions (eq. 14-15) of a frame point.
+#[utoipa::path(post, path = "/v1/robots/{id}/manipulability", tag = "robots", request_body = ManipulabilityRequest,
+    params(("id" = String, Path, description = "Robot id")),
+    responses(
+        (status = 200, description = "Manipulability analysis", body = ManipulabilityResponse),
+        (status = 404, description = "Unknown robot", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Bad joint vector, frame or direction", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn robot_manipulability(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Json(body): Json<ManipulabilityRequest>,
+) -> Result<Json<ManipulabilityResponse>, ApiError> {
+    use kinematics::manipulability as mm;
+    let s = system(&state, &id).await?;
+    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
+    let frame = frame_of(&s, &body.frame, "$.frame")?;
+    let point = body.point.unwrap_or([0.0; 3]);
+    finite_array(&point, "$.point")?;
+    let task = body.task.unwrap_or(TaskRows::Linear);
+    let dim = if task == TaskRows::Full { 6 } else { 3 };
+    let mut errors = Vec::new();
+    for (i, d) in body.directions.iter().enumerate() {
+        if d.len() != dim {
+            errors.push(FieldError::new(
+                format!("$.directions[{i}]"),
+                format!("needs {dim} components for task {task:?}, got {}", d.len()),
+            ));
+        } else if d.iter().any(|x| !x.is_finite()) {
+            errors.push(FieldError::new(
+                format!("$.directions[{i}]"),
+                "components must be finite",
+            ));
+        } else if d.iter().map(|x| x * x).sum::<f64>() < 1e-18 {
+            errors.push(FieldError::new(
+                format!("$.directions[{i}]"),
+                "must not be the zero vector",
+            ));
+        }
+    }
+    if !errors.is_empty() {
+        return Err(ApiError::validation(errors));
+    }
+    let mut data = Data::new(&s.model);
+    forward_kinematics(&s.model, &mut data, q.as_slice());
+    let mut j = Matrix6xX::zeros(s.model.nq());
+    frame_jacobian(&s.model, &data, frame, &Vector3::from(point), &mut j);
+    let unit = |d: &[f64]| {
+        let n = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+        d.iter().map(|x| x / n).collect::<Vec<f64>>()
+    };
+    let out = match task {
+        TaskRows::Full => {
+            let e = mm::velocity_ellipsoid(&j);
+            let transmission = body
+                .directions
+                .iter()
+                .map(|d| {
+                    let v = Vector6::from_column_slice(&unit(d));
+                    TransmissionDto {
+                        direction: v.iter().copied().collect(),
+                        force_ratio: inf_to_none(mm::force_transmission_ratio(&j, &v)),
+                        velocity_ratio: mm::velocity_transmission_ratio(&j, &v),
+                    }
+                })
+                .collect();
+            ManipulabilityResponse {
+                manipulability: mm::manipulability(&j),
+                semi_axes: e.semi_axes.iter().copied().collect(),
+                axes: (0..6)
+                    .map(|k| e.directions.column(k).iter().copied().collect())
+                    .collect(),
+                transmission,
+            }
+        }
+        TaskRows::Linear | TaskRows::Angular => {
+            let block = j.fixed_rows::<3>(if task == TaskRows::Linear { 0 } else { 3 });
+            let e = mm::velocity_ellipsoid(&block);
+            let transmission = body
+                .directions
+                .iter()
+                .map(|d| {
+                    let v = Vector3::from_column_slice(&unit(d));
+                    TransmissionDto {
+                        direction: v.iter().copied().collect(),
+                        force_ratio: inf_to_none(mm::force_transmission_ratio(&block, &v)),
+                        velocity_ratio: mm::velocity_transmission_ratio(&block, &v),
+                    }
+                })
+                .collect();
+            ManipulabilityResponse {
+                manipulability: mm::manipulability(&block),
+                semi_axes: e.semi_axes.iter().copied().collect(),
+                axes: (0..3)
+                    .map(|k| e.directions.column(k).iter().copied().collect())
+                    .collect(),
+                transmission,
+            }
+        }
+    };
+    Ok(Json(out))
+}
+
+// ------------------------------------------------------------------------------------ CLI batch
+
+/// `reachgrasp ik --targets` input: a list of IK requests, or `{"targets": [...]}`.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub enum IkBatchFile {
+    List(Vec<IkRequest>),
+    Wrapped { targets: Vec<IkRequest> },
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+pub struct IkBatchStats {
+    pub count: usize,
+    pub solved: usize,
+    pub success_rate: f64,
+    pub median_ms: f64,
+    pub p95_ms: f64,
+    pub max_ms: f64,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+pub struct IkBatchReport {
+    pub robot: String,
+    pub solutions: Vec<IkResponse>,
+    pub stats: IkBatchStats,
+}
+
+/// Solves every target with the API's solver; target `i` without `random_seed` uses seed `i`.
+/// Validation errors name the target (`$[3].orientation`).
+pub fn ik_batch(robot: &str, s: &System, file: IkBatchFile) -> Result<IkBatchReport, ApiError> {
+    let targets = match file {
+        IkBatchFile::List(t) | IkBatchFile::Wrapped { targets: t } => t,
+    };
+    let mut solutions = Vec::with_capacity(targets.len());
+    for (i, t) in targets.iter().enumerate() {
+        let (target, seed, opts, rseed) = parse_ik(s, t, &format!("$[{i}]"))?;
+        let rseed = if t.random_seed.is_some() {
+            rseed
+        } else {
+            i as u64
+        };
+        solutions.push(solve_ik(s, &target, &seed, &opts, rseed));
+    }
+    let mut times: Vec<f64> = solutions.iter().map(|r| r.elapsed_ms).collect();
+    times.sort_by(f64::total_cmp);
+    let pct = |p: f64| {
+        if times.is_empty() {
+            0.0
+        } else {
+            times[((times.len() - 1) as f64 * p).round() as usize]
+        }
+    };
+    let solved = solutions.iter().filter(|r| r.success).count();
+    let count = solutions.len();
+    Ok(IkBatchReport {
+        robot: robot.to_owned(),
+        stats: IkBatchStats {
+            count,
+            solved,
+            success_rate: if count == 0 {
+                0.0
+            } else {
+                solved as f64 / count as f64
+            },
+            median_ms: pct(0.5),
+            p95_ms: pct(0.95),
+            max_ms: times.last().copied().unwrap_or(0.0),
+        },
+        solutions,
+    })
+}
+
+/// Resolves `--robot`: a descriptor file path, a bundled id (`robots/systems/<id>.toml`), or a
+/// registered id in the database.
+pub fn resolve_robot_for_cli(
+    config: &crate::config::Config,
+    robot: &str,
+) -> anyhow::Result<System> {
+    let as_path = FsPath::new(robot);
+    if as_path.is_file() {
+        return Ok(System::from_file(as_path)?);
+    }
+    let bundled = config.robots.join("systems").join(format!("{robot}.toml"));
+    if bundled.is_file() {
+        return Ok(System::from_file(&bundled)?);
+    }
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    let row = runtime.block_on(async {
+        let db = store::connect(&config.db).await?;
+        let row = repo::get(&db, robot).await?;
+        db.close().await;
+        anyhow::Ok(row)
+    })?;
+    let row = row.ok_or_else(|| {
+        anyhow::anyhow!(
+            "robot '{robot}' is neither a descriptor file, a bundled id nor a registered id"
+        )
+    })?;
+    Ok(system_from_row(&row)?)
+}
