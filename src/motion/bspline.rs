@@ -277,7 +277,7 @@ impl TensorBSpline {
                             let j = m / 2;
                             0.5 * (c(j) + c(j + 1))
                         } else {
-                            let j = (m + 1) / 2;
+                            let j = m.div_ceil(2);
                             (c(j - 1) + 6.0 * c(j) + c(j + 1)) / 8.0
                         };
                         out[base_new + m * stride_new] = v;
