@@ -3,11 +3,14 @@
 //!
 //! Pure computation (no I/O, no async, deterministic for a seed): [`kinematics`], [`human`],
 //! [`mapping`], [`motion`], [`grasp`], [`optim`]. The service shell around them: [`store`],
-//! [`api`], [`jobs`], [`bridge`], [`dashboard`]. Equation numbers refer to
+//! [`api`], [`jobs`], [`bridge`], [`dashboard`], wired together by [`app`] from a
+//! typed [`config`]. Equation numbers refer to
 //! `shared/reference/humanlike-grasping-paper.md`.
 
 pub mod api;
+pub mod app;
 pub mod bridge;
+pub mod config;
 pub mod dashboard;
 pub mod grasp;
 pub mod human;

@@ -1,1 +1,205 @@
 //! HTTP API: one router per resource, DTOs with utoipa schemas, problem+json errors.
+//!
+//! # Adding a resource (e.g. `robots`)
+//!
+//! 1. **Migration.** Add `migrations/000N_<resource>.sql` with your contract number (0002 robots,
+//!    0003 demonstrations, 0004 objects+grasps, 0005 mappings, 0006 models+trajectories,
+//!    0007 bridges+executions). Never edit an applied migration. Ids are `TEXT` UUIDs,
+//!    timestamps `TEXT` from [`crate::store::now`], numeric arrays `BLOB`s from
+//!    [`crate::store::blob`]; reference `jobs(id)` if your rows come from a job.
+//! 2. **Repository.** `src/store/<resource>.rs` with `sqlx::query`/`query_as` +
+//!    `#[derive(sqlx::FromRow)]` rows (never the `query!` macros). Multi-row writes use a
+//!    transaction: `let mut tx = pool.begin().await?; ...execute(&mut *tx)...; tx.commit().await?`.
+//! 3. **DTOs and handlers.** `src/api/<resource>.rs`:
+//!    ```ignore
+//!    use utoipa_axum::{router::OpenApiRouter, routes};
+//!    use super::{ApiError, AppState, Json, Path, Problem, Query};
+//!
+//!    #[derive(serde::Deserialize, utoipa::ToSchema)]
+//!    pub struct CreateRobot { pub name: String, pub urdf: String }
+//!
+//!    pub fn router() -> OpenApiRouter<AppState> {
+//!        OpenApiRouter::new()
+//!            .routes(routes!(list_robots, create_robot))   // same path, several methods
+//!            .routes(routes!(get_robot))
+//!    }
+//!
+//!    #[utoipa::path(post, path = "/v1/robots", tag = "robots", request_body = CreateRobot,
+//!        responses((status = 201, body = RobotDto),
+//!                  (status = 422, body = Problem, content_type = "application/problem+json")))]
+//!    async fn create_robot(State(s): State<AppState>, Json(body): Json<CreateRobot>)
+//!        -> Result<(StatusCode, Json<RobotDto>), ApiError> { ... }
+//!    ```
+//!    Always use [`Json`], [`Path`] and [`Query`] from this module (not axum's): their
+//!    rejections are problem+json with the JSONPath of the bad field. Handlers: extract → parse
+//!    into domain types → call the pure module → persist → DTO.
+//! 4. **Errors.** Keep one `#[non_exhaustive]` thiserror enum per layer and convert it at the
+//!    edge with `impl From<RobotError> for ApiError` in your api file: bad input →
+//!    [`ApiError::invalid_field`] / [`ApiError::validation`] (422, JSONPath like
+//!    `$.joints[2].position` in each [`FieldError`]), unknown id → [`ApiError::not_found`],
+//!    duplicates/state conflicts → [`ApiError::conflict`], bugs → [`ApiError::internal`] (logged,
+//!    never leaked). `?` on `sqlx::Error` gives 409 for unique violations and 500 otherwise.
+//! 5. **Register** your router in [`openapi_router`] (`.merge(robots::router())`) and add your
+//!    tag to [`ApiDoc`]. DTO schemas referenced by `utoipa::path` are collected automatically.
+//!    Then regenerate the committed spec: `cargo run -- openapi > openapi/openapi.json`
+//!    (the `openapi_document_is_up_to_date` test fails until you do).
+//! 6. **Long work** runs as a job, never inline in the handler: validate first, then
+//!    `state.jobs.submit("mapping", move |ctx| { ... })` and answer `202 Accepted` with the
+//!    [`JobRecord`](crate::jobs::JobRecord) and `Location: /v1/jobs/{id}`. The closure runs on
+//!    the blocking pool; its [`JobOutput`](crate::jobs::JobOutput) persists the result in the
+//!    transaction that marks the job succeeded. See [`crate::jobs`] for a full example.
+//!    Short CPU work (one IK, one grasp) can run inline with
+//!    `tokio::task::spawn_blocking(move || ...)`, so it never blocks an async worker.
+//! 7. **Shared state.** Need something process-wide (e.g. a loaded-robot cache)? Add a cloneable
+//!    field (`Arc<...>`) to [`AppState`] and initialise it in [`crate::app::App::build`].
+//! 8. **Tests.** Black-box tests in `tests/api/<resource>.rs` (add `mod <resource>;` to
+//!    `tests/api/main.rs`) using `helpers::spawn_app()`.
+
+pub mod error;
+pub mod extract;
+pub mod health;
+pub mod jobs;
+pub mod middleware;
+pub mod testing;
+
+use std::sync::Arc;
+
+use axum::Router;
+use axum::extract::DefaultBodyLimit;
+use axum::http::{Method, Request, Uri};
+use axum::response::IntoResponse;
+use sqlx::SqlitePool;
+use tokio::sync::watch;
+use tower::ServiceBuilder;
+use tower_http::catch_panic::CatchPanicLayer;
+use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
+use tower_http::trace::{DefaultOnResponse, TraceLayer};
+use tracing::Level;
+use utoipa::OpenApi;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_swagger_ui::SwaggerUi;
+
+pub use error::{ApiError, FieldError, Problem};
+pub use extract::{Json, Path, Query};
+
+use crate::config::Config;
+use crate::jobs::JobRunner;
+
+/// Everything a handler may need; cheap to clone.
+#[derive(Clone, Debug)]
+pub struct AppState {
+    pub db: SqlitePool,
+    pub config: Arc<Config>,
+    pub jobs: JobRunner,
+    /// Resolves when the service starts shutting down (ends long-lived streams).
+    pub shutdown: Shutdown,
+}
+
+/// A shutdown signal that many tasks can wait on.
+#[derive(Clone, Debug)]
+pub struct Shutdown(watch::Receiver<bool>);
+
+/// The trigger side of [`Shutdown`].
+#[derive(Debug)]
+pub struct ShutdownTrigger(watch::Sender<bool>);
+
+impl Shutdown {
+    pub fn new() -> (ShutdownTrigger, Shutdown) {
+        let (tx, rx) = watch::channel(false);
+        (ShutdownTrigger(tx), Shutdown(rx))
+    }
+
+    /// Resolves once shutdown has been triggered (at once if it already was).
+    pub async fn wait(&self) {
+        let mut rx = self.0.clone();
+        // An error means the trigger was dropped, which also means the service is stopping.
+        let _ = rx.wait_for(|stopping| *stopping).await;
+    }
+
+    pub fn is_triggered(&self) -> bool {
+        *self.0.borrow()
+    }
+}
+
+impl ShutdownTrigger {
+    pub fn trigger(&self) {
+        self.0.send_replace(true);
+    }
+}
+
+/// The OpenAPI document's static part; paths and schemas come from the routers.
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "reachgrasp",
+        description = "Humanlike, task-specific reaching and grasping for redundant robot arms \
+                       and low-complexity hands. Errors are RFC 7807 `application/problem+json` \
+                       documents whose `type` is `urn:reachgrasp:problem:<slug>`."
+    ),
+    tags(
+        (name = "health", description = "Liveness and readiness"),
+        (name = "jobs", description = "Long-running computations: status, progress (SSE), cancellation"),
+    ),
+    components(schemas(Problem, FieldError))
+)]
+pub struct ApiDoc;
+
+/// Every documented route, with its OpenAPI paths. Register new resources here.
+pub fn openapi_router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::with_openapi(ApiDoc::openapi())
+        .merge(health::router())
+        .merge(jobs::router())
+}
+
+/// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    openapi_router().split_for_parts().1
+}
+
+/// The complete application: documented routes, `/openapi.json`, Swagger UI at `/docs`,
+/// problem+json fallbacks, and the request layers (request id, tracing, panic catching,
+/// timeout, body limit, problem+json safety net).
+pub fn router(state: AppState) -> Router {
+    let (mut router, api) = openapi_router().split_for_parts();
+    router = router.merge(SwaggerUi::new("/docs").url("/openapi.json", api));
+    if state.config.test_jobs {
+        tracing::warn!("TEST-ONLY job routes are enabled (REACHGRASP_TEST_JOBS)");
+        router = router.merge(testing::router());
+    }
+    let layers = ServiceBuilder::new()
+        .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
+        .layer(
+            TraceLayer::new_for_http()
+                .make_span_with(|req: &Request<_>| {
+                    let request_id = req
+                        .headers()
+                        .get("x-request-id")
+                        .and_then(|v| v.to_str().ok())
+                        .unwrap_or("");
+                    tracing::info_span!("request", method = %req.method(), uri = %req.uri(),
+                                        request_id = %request_id)
+                })
+                .on_response(DefaultOnResponse::new().level(Level::INFO)),
+        )
+        .layer(PropagateRequestIdLayer::x_request_id())
+        .layer(CatchPanicLayer::custom(
+            |_: Box<dyn std::any::Any + Send>| {
+                ApiError::internal(anyhow::anyhow!("a request handler panicked")).into_response()
+            },
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            state.config.request_timeout(),
+            middleware::timeout,
+        ))
+        .layer(DefaultBodyLimit::max(state.config.body_limit))
+        .layer(axum::middleware::map_response(
+            middleware::problem_safety_net,
+        ));
+    router
+        .fallback(|uri: Uri| async move { ApiError::route_not_found(uri.path()) })
+        .method_not_allowed_fallback(|method: Method, uri: Uri| async move {
+            ApiError::method_not_allowed(method.as_str(), uri.path())
+        })
+        .layer(layers)
+        .with_state(state)
+}

@@ -1,0 +1,140 @@
+//! Process wiring: logging, store, job runner, listener, graceful shutdown.
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use anyhow::Context;
+use tokio::net::TcpListener;
+
+use crate::api::{self, AppState, Shutdown, ShutdownTrigger};
+use crate::config::Config;
+use crate::jobs::JobRunner;
+use crate::store;
+
+/// Installs the global tracing subscriber (text or JSON lines on stdout). Call once.
+pub fn init_tracing(config: &Config) -> anyhow::Result<()> {
+    let filter = tracing_subscriber::EnvFilter::try_new(&config.log)
+        .with_context(|| format!("invalid log filter {:?} (REACHGRASP_LOG)", config.log))?;
+    let builder = tracing_subscriber::fmt().with_env_filter(filter);
+    let result = if config.log_json {
+        builder.json().flatten_event(true).try_init()
+    } else {
+        builder.try_init()
+    };
+    result.map_err(|e| anyhow::anyhow!("cannot install the log subscriber: {e}"))
+}
+
+/// A built, bound application ready to serve.
+pub struct App {
+    listener: TcpListener,
+    state: AppState,
+    trigger: ShutdownTrigger,
+}
+
+impl App {
+    /// Opens the database (creating it, applying migrations), recovers interrupted jobs, and
+    /// binds the listener (port 0 picks a free port; see [`App::local_addr`]).
+    pub async fn build(config: Config) -> anyhow::Result<App> {
+        let db = store::connect(&config.db)
+            .await
+            .with_context(|| format!("cannot open the database {}", config.db.display()))?;
+        let jobs = JobRunner::start(db.clone(), config.job_concurrency()).await?;
+        if !config.robots.is_dir() {
+            // Robots can also be registered over the API, so a missing folder is not fatal.
+            tracing::warn!(robots = %config.robots.display(), "robots folder not found; starting without bundled robots");
+        }
+        let listener = TcpListener::bind(config.bind)
+            .await
+            .with_context(|| format!("cannot listen on {} (REACHGRASP_BIND)", config.bind))?;
+        let (trigger, shutdown) = Shutdown::new();
+        let state = AppState {
+            db,
+            config: Arc::new(config),
+            jobs,
+            shutdown,
+        };
+        Ok(App {
+            listener,
+            state,
+            trigger,
+        })
+    }
+
+    /// The bound address.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.listener
+            .local_addr()
+            .expect("a bound TCP listener has an address")
+    }
+
+    pub fn state(&self) -> &AppState {
+        &self.state
+    }
+
+    /// Serves until `signal` resolves, then stops accepting connections, lets in-flight requests
+    /// finish (ending SSE streams), asks running jobs to stop, and closes the database. Each of
+    /// the two waits is bounded by the configured shutdown grace.
+    pub async fn run_until(
+        self,
+        signal: impl Future<Output = ()> + Send + 'static,
+    ) -> anyhow::Result<()> {
+        let App {
+            listener,
+            state,
+            trigger,
+        } = self;
+        let addr = listener.local_addr()?;
+        tracing::info!(%addr, "listening");
+        let grace = state.config.shutdown_grace();
+        let shutdown = state.shutdown.clone();
+        let router = api::router(state.clone());
+        let server = axum::serve(listener, router).with_graceful_shutdown({
+            let shutdown = shutdown.clone();
+            async move { shutdown.wait().await }
+        });
+        let mut server = std::pin::pin!(server.into_future());
+        tokio::select! {
+            result = &mut server => result?,
+            () = signal => {
+                tracing::info!("shutting down: finishing in-flight requests");
+                trigger.trigger();
+                if tokio::time::timeout(grace, &mut server).await.is_err() {
+                    tracing::warn!("in-flight requests did not finish within the grace period");
+                }
+            }
+        }
+        state.jobs.shutdown(grace).await;
+        state.db.close().await;
+        tracing::info!("stopped");
+        Ok(())
+    }
+}
+
+/// Resolves on SIGINT (Ctrl-C) or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        if let Err(e) = tokio::signal::ctrl_c().await {
+            tracing::error!(error = %e, "cannot listen for Ctrl-C");
+            std::future::pending::<()>().await;
+        }
+    };
+    #[cfg(unix)]
+    let terminate = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(e) => {
+                tracing::error!(error = %e, "cannot listen for SIGTERM");
+                std::future::pending::<()>().await;
+            }
+        }
+    };
+    #[cfg(not(unix))]
+    let terminate = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {},
+        () = terminate => {},
+    }
+}

@@ -1,0 +1,108 @@
+//! Typed configuration, layered: built-in defaults < environment (`REACHGRASP_*`) < flags.
+//!
+//! The same struct is parsed by the CLI (every field is a global flag with an environment
+//! variable) and built in code by tests ([`Config::default`] equals the documented defaults).
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Default bind address.
+pub const DEFAULT_BIND: &str = "127.0.0.1:8080";
+/// Default database file.
+pub const DEFAULT_DB: &str = "./data/reachgrasp.db";
+/// Default robots folder.
+pub const DEFAULT_ROBOTS: &str = "./robots";
+/// Default log filter.
+pub const DEFAULT_LOG: &str = "info";
+/// Default request body limit: 32 MiB (URDFs, meshes and demonstrations can be large).
+pub const DEFAULT_BODY_LIMIT: usize = 32 * 1024 * 1024;
+/// Default request timeout in seconds (long work belongs in jobs, not requests).
+pub const DEFAULT_REQUEST_TIMEOUT_SECS: u64 = 60;
+/// Default graceful-shutdown grace period in seconds.
+pub const DEFAULT_SHUTDOWN_GRACE_SECS: u64 = 10;
+
+/// Service configuration.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Config {
+    /// Address to listen on (`0.0.0.0:8080` in the container; port 0 picks a free port).
+    #[arg(long, env = "REACHGRASP_BIND", default_value = DEFAULT_BIND, global = true)]
+    pub bind: SocketAddr,
+
+    /// SQLite database file; the file and its folder are created if missing.
+    #[arg(long, env = "REACHGRASP_DB", default_value = DEFAULT_DB, global = true)]
+    pub db: PathBuf,
+
+    /// Folder of robot descriptions (`arms/`, `hands/`, `systems/`); may be empty or missing.
+    #[arg(long, env = "REACHGRASP_ROBOTS", default_value = DEFAULT_ROBOTS, global = true)]
+    pub robots: PathBuf,
+
+    /// Log filter in `tracing` EnvFilter syntax, e.g. `info` or `reachgrasp=debug,tower_http=info`.
+    #[arg(long, env = "REACHGRASP_LOG", default_value = DEFAULT_LOG, global = true)]
+    pub log: String,
+
+    /// Log one JSON object per line instead of human-readable text.
+    #[arg(long, env = "REACHGRASP_LOG_JSON", global = true,
+          value_parser = clap::builder::BoolishValueParser::new())]
+    pub log_json: bool,
+
+    /// Largest accepted request body in bytes (larger bodies get 413).
+    #[arg(long, env = "REACHGRASP_BODY_LIMIT", default_value_t = DEFAULT_BODY_LIMIT, global = true)]
+    pub body_limit: usize,
+
+    /// Seconds a request may take before it is answered with 503 (jobs are not affected).
+    #[arg(long, env = "REACHGRASP_REQUEST_TIMEOUT", default_value_t = DEFAULT_REQUEST_TIMEOUT_SECS,
+          value_parser = clap::value_parser!(u64).range(1..), global = true)]
+    pub request_timeout_secs: u64,
+
+    /// Jobs running at once; further jobs wait queued. Default: the number of CPUs.
+    #[arg(long, env = "REACHGRASP_JOB_CONCURRENCY", global = true,
+          value_parser = clap::value_parser!(u64).range(1..=1024))]
+    pub job_concurrency: Option<u64>,
+
+    /// Seconds to wait at shutdown for in-flight requests and jobs before exiting.
+    #[arg(long, env = "REACHGRASP_SHUTDOWN_GRACE", default_value_t = DEFAULT_SHUTDOWN_GRACE_SECS,
+          global = true)]
+    pub shutdown_grace_secs: u64,
+
+    /// TEST ONLY: expose `POST /v1/_test/jobs/sleep` (a job that only sleeps). Never enable in a
+    /// deployment.
+    #[arg(long, env = "REACHGRASP_TEST_JOBS", hide = true, global = true,
+          value_parser = clap::builder::BoolishValueParser::new())]
+    pub test_jobs: bool,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            bind: DEFAULT_BIND.parse().expect("valid default bind address"),
+            db: PathBuf::from(DEFAULT_DB),
+            robots: PathBuf::from(DEFAULT_ROBOTS),
+            log: DEFAULT_LOG.to_owned(),
+            log_json: false,
+            body_limit: DEFAULT_BODY_LIMIT,
+            request_timeout_secs: DEFAULT_REQUEST_TIMEOUT_SECS,
+            job_concurrency: None,
+            shutdown_grace_secs: DEFAULT_SHUTDOWN_GRACE_SECS,
+            test_jobs: false,
+        }
+    }
+}
+
+impl Config {
+    pub fn request_timeout(&self) -> Duration {
+        Duration::from_secs(self.request_timeout_secs)
+    }
+
+    pub fn shutdown_grace(&self) -> Duration {
+        Duration::from_secs(self.shutdown_grace_secs)
+    }
+
+    /// The effective job concurrency (configured, else the number of CPUs).
+    pub fn job_concurrency(&self) -> usize {
+        match self.job_concurrency {
+            Some(n) => n as usize,
+            None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        }
+    }
+}

@@ -1,0 +1,135 @@
+//! Black-box test harness: the real application on an ephemeral loopback port with a fresh
+//! temporary database. Set `TEST_LOG=1` to see the service's logs.
+
+use std::sync::Once;
+use std::time::Duration;
+
+use reachgrasp::app::App;
+use reachgrasp::config::Config;
+use serde_json::Value;
+
+pub struct TestApp {
+    /// `http://127.0.0.1:<port>`, no trailing slash.
+    pub base_url: String,
+    pub client: reqwest::Client,
+    /// Keeps the temporary database folder alive for the test's duration.
+    pub _dir: tempfile::TempDir,
+}
+
+static TRACING: Once = Once::new();
+
+/// Starts the app with test defaults: temp DB, `127.0.0.1:0`, job concurrency 2, and the
+/// TEST-ONLY sleep-job route enabled.
+pub async fn spawn_app() -> TestApp {
+    spawn_app_with(|_| {}).await
+}
+
+/// Like [`spawn_app`], with `tweak` applied to the configuration first.
+pub async fn spawn_app_with(tweak: impl FnOnce(&mut Config)) -> TestApp {
+    TRACING.call_once(|| {
+        if std::env::var_os("TEST_LOG").is_some() {
+            let config = Config {
+                log: "debug".into(),
+                ..Config::default()
+            };
+            reachgrasp::app::init_tracing(&config).expect("tracing");
+        }
+    });
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut config = Config {
+        bind: "127.0.0.1:0".parse().unwrap(),
+        db: dir.path().join("db/test.db"),
+        robots: dir.path().join("robots-missing"),
+        job_concurrency: Some(2),
+        shutdown_grace_secs: 2,
+        test_jobs: true,
+        ..Config::default()
+    };
+    tweak(&mut config);
+    let app = App::build(config).await.expect("app builds");
+    let base_url = format!("http://{}", app.local_addr());
+    tokio::spawn(app.run_until(std::future::pending()));
+    TestApp {
+        base_url,
+        client: reqwest::Client::builder()
+            .timeout(Duration::from_secs(30))
+            .build()
+            .unwrap(),
+        _dir: dir,
+    }
+}
+
+impl TestApp {
+    pub fn url(&self, path: &str) -> String {
+        format!("{}{}", self.base_url, path)
+    }
+
+    pub async fn get(&self, path: &str) -> reqwest::Response {
+        self.client
+            .get(self.url(path))
+            .send()
+            .await
+            .expect("request")
+    }
+
+    pub async fn post_json(&self, path: &str, body: &Value) -> reqwest::Response {
+        self.client
+            .post(self.url(path))
+            .header("content-type", "application/json")
+            .body(body.to_string())
+            .send()
+            .await
+            .expect("request")
+    }
+
+    /// Starts a TEST-ONLY sleep job and returns its JSON.
+    pub async fn start_sleep_job(&self, steps: u32, step_ms: u64) -> Value {
+        let res = self
+            .post_json(
+                "/v1/_test/jobs/sleep",
+                &serde_json::json!({"steps": steps, "step_ms": step_ms}),
+            )
+            .await;
+        assert_eq!(res.status(), 202);
+        res.json().await.unwrap()
+    }
+
+    /// Polls `GET /v1/jobs/{id}` until `done(job)` or the deadline (panics then).
+    pub async fn wait_job(&self, id: &str, done: impl Fn(&Value) -> bool) -> Value {
+        for _ in 0..400 {
+            let job: Value = self
+                .get(&format!("/v1/jobs/{id}"))
+                .await
+                .json()
+                .await
+                .unwrap();
+            if done(&job) {
+                return job;
+            }
+            tokio::time::sleep(Duration::from_millis(25)).await;
+        }
+        panic!("job {id} did not reach the expected state within 10 s");
+    }
+}
+
+/// Asserts that `res` is problem+json with `status` and slug `kind`, and returns the document.
+pub async fn assert_problem(res: reqwest::Response, status: u16, kind: &str) -> Value {
+    assert_eq!(res.status().as_u16(), status, "status");
+    let ct = res
+        .headers()
+        .get("content-type")
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("")
+        .to_owned();
+    assert_eq!(ct, "application/problem+json");
+    let body: Value = res.json().await.expect("problem body is JSON");
+    assert_eq!(
+        body["type"],
+        format!("urn:reachgrasp:problem:{kind}"),
+        "{body}"
+    );
+    assert_eq!(body["status"], status);
+    assert!(body["title"].as_str().is_some_and(|t| !t.is_empty()));
+    assert!(body["detail"].as_str().is_some_and(|t| !t.is_empty()));
+    body
+}

@@ -1,0 +1,7 @@
+//! Black-box API tests: the real service on an ephemeral port with a temporary database.
+
+mod errors;
+mod health;
+mod helpers;
+mod jobs;
+mod openapi;
