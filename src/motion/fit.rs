@@ -206,7 +206,7 @@ fn spline_bound(
     {
         *c = alpha * (k * a + b);
     }
-    template.radial_bound(center, radius, goal_center, goal_radius)
+    super::nf::refined_radial_bound(template, center, radius, goal_center, goal_radius)
 }
 
 /// Choose `k` (given, or automatically) and the shrink `α ≤ 1` so that the certificate holds with

@@ -21,8 +21,8 @@ pub struct FlowOptions {
 impl Default for FlowOptions {
     fn default() -> Self {
         FlowOptions {
-            tolerance: 1e-9,
-            relative_error: 1e-7,
+            tolerance: 1e-8,
+            relative_error: 1e-6,
             max_steps: 20_000,
             max_step_fraction: 0.02,
         }

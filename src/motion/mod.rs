@@ -9,6 +9,18 @@
 //! demonstrated velocity directions. Every model carries a closed-form convergence
 //! [`Certificate`]. [`MotionModel::trajectory`] integrates the flow, back-projects it with the
 //! exact start and goal kept, and times it; [`ControlParams::control`] is the closed-loop law.
+//!
+//! Feeding the mapping's output: one [`JointTrajectory`] per mapped demonstration, `times` the
+//! resampled frame times and `positions` the robot's independent joint values per frame
+//! (row-major, in `Model::joint_names()` order); [`JointLimits`] from the model's limits (the
+//! acceleration limits come from the system descriptor or a configured default); groups =
+//! `[system.arm joint indices, system.hand joint indices]`. The API layer keeps the joint names
+//! and checks them; this module works on indices only.
+//!
+//! Deviation from DESIGN §5, with reasons: `φ` is evaluated in PCA coordinates scaled by the
+//! workspace diameter (see [`NavigationFunction`]); the certificate's goal region is a ball
+//! around the demonstrated final points (not the whole data), which keeps the bound useful; the
+//! spline fit leaves out points near their own goal (`TrainOptions::goal_exclusion`).
 
 // Numeric kernels index several parallel fixed-size arrays with one loop variable; iterator
 // chains over 3-5 zipped arrays read worse than the formulas they implement.

@@ -122,11 +122,11 @@ impl Default for TrainOptions {
             groups: Vec::new(),
             components: Components::default(),
             spline_intervals: 6,
-            regularisation: 1.0,
+            regularisation: 3.0,
             goal_exclusion: 0.25,
             k: KChoice::Auto,
             workspace_margin: 1.5,
-            goal_margin: 1.5,
+            goal_margin: 1.25,
             held_out: Vec::new(),
             flow: FlowOptions::default(),
         }

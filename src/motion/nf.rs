@@ -51,6 +51,31 @@ pub struct Certificate {
     pub workspace_radius: f64,
 }
 
+/// Coefficient budget for refining the spline before bounding it.
+const REFINE_BUDGET: usize = 60_000;
+
+/// [`TensorBSpline::radial_bound`] after refining the grid (up to two halvings, within a
+/// coefficient budget); the bound of the finer representation is the tighter one.
+pub(crate) fn refined_radial_bound(
+    spline: &TensorBSpline,
+    center: &[f64],
+    radius: f64,
+    goal_center: &[f64],
+    goal_radius: f64,
+) -> f64 {
+    let mut best = spline.radial_bound(center, radius, goal_center, goal_radius);
+    let mut current = spline.clone();
+    for _ in 0..2 {
+        let next = TensorBSpline::coefficient_count(current.dim(), 2 * current.intervals());
+        if next > REFINE_BUDGET {
+            break;
+        }
+        current = current.refined();
+        best = best.min(current.radial_bound(center, radius, goal_center, goal_radius));
+    }
+    best
+}
+
 impl NavigationFunction {
     pub fn dim(&self) -> usize {
         self.center.len()
@@ -127,7 +152,7 @@ impl NavigationFunction {
     /// certificate.
     ///
     /// Spline part: [`TensorBSpline::radial_bound`] (per knot cell, from the coefficient
-    /// differences; never worse than `(R + r_g)·sqrt(Σ D_i²)`). Workspace part:
+    /// differences, on a refined grid; never worse than `(R + r_g)·sqrt(Σ D_i²)`). Workspace part:
     /// `(y − y_d)·∇log β_0 = −2(y − y_d)·(y − c)/(R² − ρ²)` with `ρ = ‖y − c‖`; since
     /// `‖y_d − c‖ ≤ ρ_g = ‖g − c‖ + r_g` the numerator is at most `2(ρ_g ρ − ρ²)`, positive only
     /// for `ρ < ρ_g`, where it is at most `ρ_g²/2` and the denominator at least `R² − ρ_g²`.
@@ -141,7 +166,7 @@ impl NavigationFunction {
             .sum::<f64>()
             .sqrt();
         let reach = offset + rg;
-        let spline_bound = self.spline.radial_bound(&self.center, r, goal_center, rg);
+        let spline_bound = refined_radial_bound(&self.spline, &self.center, r, goal_center, rg);
         let workspace_bound = reach * reach / (2.0 * (r * r - reach * reach));
         let bound = spline_bound + workspace_bound;
         let holds = reach < r && bound < 2.0 * self.k;

@@ -92,6 +92,7 @@ fn certified_flow_converges_for_1000_random_start_goal_pairs() {
             .chunks_exact(d)
             .map(|r| r.iter().map(|x| x * x).sum::<f64>().sqrt())
             .fold(0.0, f64::max);
+        let mut steps = 0;
         for _ in 0..1000 {
             let y0 = ball_sample(&mut rng, &m.nf.center, 0.98 * m.nf.radius);
             let yd = ball_sample(&mut rng, &c.goal_center, c.goal_radius);
@@ -106,7 +107,9 @@ fn certified_flow_converges_for_1000_random_start_goal_pairs() {
                 assert!(w[1] < w[0], "γ rose from {} to {}", w[0], w[1]);
             }
             assert!(path.steps < flow_opts.max_steps);
+            steps += path.steps;
         }
+        println!("group {}: mean flow steps {}", fit.group, steps / 1000);
     }
 }
 
