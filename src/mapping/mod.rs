@@ -9,7 +9,9 @@ mod nlp;
 pub mod objective;
 pub mod registration;
 pub mod solve;
-// pub mod trajectory;
+#[cfg(test)]
+mod tests;
+pub mod trajectory;
 
 pub use goals::{CatmullRom4, FingerGoal, MAX_FINGERS};
 pub use objective::{
@@ -17,9 +19,7 @@ pub use objective::{
 };
 pub use registration::{ArmPoints, BodyAxes, Registration, RegistrationSpec, RobotAnchor, Scale};
 pub use solve::{FrameMetrics, Mapper, SolverOptions};
-/*pub use trajectory::{
-    BatchItem, Cancelled, MappedTrajectory, map_batch, registration_for,
-};*/
+pub use trajectory::{BatchItem, Cancelled, MappedTrajectory, map_batch, registration_for};
 
 /// Everything that can go wrong in the mapping layer; the API turns it into 4xx problem+json.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

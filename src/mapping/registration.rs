@@ -53,10 +53,13 @@ pub enum RegistrationSpec {
 }
 
 impl Default for RegistrationSpec {
+    /// Shoulder-aligned with `auto` scale: the human reach is stretched to the robot's, so the
+    /// task lands in the same part of the robot's workspace as it was in the subject's (at scale
+    /// 1 a big arm such as the WAM has to fold up next to its own base, far from humanlike).
     fn default() -> Self {
         Self::ShoulderAligned {
             subject_axes: BodyAxes::default(),
-            scale: Scale::One,
+            scale: Scale::Auto,
         }
     }
 }
@@ -271,7 +274,11 @@ mod tests {
             arm(Point3::new(1.0, 2.0, 1.4)),
             arm(Point3::new(1.02, 2.0, 1.42)),
         ];
-        let reg = Registration::resolve(&RegistrationSpec::default(), &frames, &robot()).unwrap();
+        let spec = RegistrationSpec::ShoulderAligned {
+            subject_axes: BodyAxes::default(),
+            scale: Scale::One,
+        };
+        let reg = Registration::resolve(&spec, &frames, &robot()).unwrap();
         let mean = Point3::new(1.01, 2.0, 1.41);
         assert!((reg.point(&mean) - robot().shoulder).norm() < 1e-12);
         // Same axes on both sides: a pure translation.

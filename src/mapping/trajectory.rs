@@ -113,7 +113,6 @@ impl Mapper {
         }
         Some(Ok(out))
     }
-
 }
 
 fn check_frame(k: usize, f: &HumanFrame) -> Result<(), MappingError> {
@@ -124,7 +123,8 @@ fn check_frame(k: usize, f: &HumanFrame) -> Result<(), MappingError> {
         ("elbow", finite(f.elbow.coords.as_slice())),
         (
             "wrist",
-            finite(f.wrist.translation.vector.as_slice()) && finite(f.wrist.rotation.coords.as_slice()),
+            finite(f.wrist.translation.vector.as_slice())
+                && finite(f.wrist.rotation.coords.as_slice()),
         ),
         (
             "fingertips",
@@ -220,7 +220,12 @@ pub fn map_batch(
                                 return mine;
                             }
                             let item = items[i];
-                            let r = mapper.map_cancellable(item.frames, item.registration, robot, cancel);
+                            let r = mapper.map_cancellable(
+                                item.frames,
+                                item.registration,
+                                robot,
+                                cancel,
+                            );
                             match r {
                                 Some(r) => {
                                     mine.push((i, r));
@@ -249,5 +254,8 @@ pub fn map_batch(
             total,
         });
     }
-    Ok(results.into_iter().map(|r| r.expect("checked above")).collect())
+    Ok(results
+        .into_iter()
+        .map(|r| r.expect("checked above"))
+        .collect())
 }
