@@ -106,3 +106,54 @@ impl Config {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Debug, Parser)]
+    struct Cli {
+        #[command(flatten)]
+        config: Config,
+    }
+
+    fn parse(args: &[&str]) -> Result<Config, clap::Error> {
+        Cli::try_parse_from(std::iter::once("reachgrasp").chain(args.iter().copied()))
+            .map(|c| c.config)
+    }
+
+    #[test]
+    fn flags_override_defaults_and_are_checked() {
+        let c = parse(&[
+            "--bind",
+            "0.0.0.0:9000",
+            "--db",
+            "/tmp/x.db",
+            "--job-concurrency",
+            "3",
+            "--body-limit",
+            "1024",
+        ])
+        .unwrap();
+        assert_eq!(c.bind.port(), 9000);
+        assert_eq!(c.db, PathBuf::from("/tmp/x.db"));
+        assert_eq!(c.job_concurrency(), 3);
+        assert_eq!(c.body_limit, 1024);
+        assert!(parse(&["--bind", "not-an-address"]).is_err());
+        assert!(parse(&["--job-concurrency", "0"]).is_err());
+        assert!(parse(&["--request-timeout-secs", "0"]).is_err());
+    }
+
+    #[test]
+    fn the_default_struct_equals_the_documented_cli_defaults() {
+        // Only meaningful without REACHGRASP_* in the environment (as in CI).
+        if std::env::vars().any(|(k, _)| k.starts_with("REACHGRASP_")) {
+            return;
+        }
+        let parsed = parse(&[]).unwrap();
+        let default = Config::default();
+        assert_eq!(format!("{parsed:?}"), format!("{default:?}"));
+        assert!(default.job_concurrency() >= 1);
+    }
+}

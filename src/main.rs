@@ -1,5 +1,5 @@
 //! The `reachgrasp` binary: `serve` (the default) runs the HTTP service; `openapi` prints the
-//! OpenAPI document.
+//! OpenAPI document; `synth` prints a synthetic demonstration study.
 
 use clap::{Parser, Subcommand};
 use reachgrasp::app::{App, init_tracing, shutdown_signal};
@@ -34,6 +34,38 @@ enum Command {
         #[arg(long)]
         targets: std::path::PathBuf,
     },
+    /// Generate a seeded synthetic demonstration study and print it as JSON on stdout: an array
+    /// of upload documents (each one a valid `POST /v1/demonstrations` body), or with
+    /// `--summary` the ingest summary of each.
+    Synth(SynthArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct SynthArgs {
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    #[arg(long, default_value_t = 5)]
+    subjects: usize,
+    /// Object positions (1 to 5).
+    #[arg(long, default_value_t = 5)]
+    positions: usize,
+    #[arg(long, default_value_t = 10)]
+    trials: usize,
+    /// Comma-separated objects: ball, bottle, kitchen_timer, pencil, sunglasses (default all).
+    #[arg(long, value_delimiter = ',')]
+    objects: Vec<String>,
+    /// Every object at every position (default: objects counterbalanced over positions).
+    #[arg(long)]
+    full_factorial: bool,
+    /// Leave out the sensor noise.
+    #[arg(long)]
+    no_noise: bool,
+    /// Common resampling rate written into each document's `sync`, Hz.
+    #[arg(long, default_value_t = 120.0)]
+    rate_hz: f64,
+    /// Print `{external_id, subject, object, summary}` per demonstration instead of the streams.
+    #[arg(long)]
+    summary: bool,
 }
 
 fn main() -> anyhow::Result<()> {
@@ -45,7 +77,58 @@ fn main() -> anyhow::Result<()> {
             Ok(())
         }
         Command::Ik { robot, targets } => ik(&cli.config, &robot, &targets),
+        Command::Synth(args) => synth(args),
     }
+}
+
+fn synth(args: SynthArgs) -> anyhow::Result<()> {
+    use reachgrasp::human::{ObjectKind, StudyConfig, generate_study, ingest};
+    use std::io::Write;
+    let objects = if args.objects.is_empty() {
+        ObjectKind::ALL.to_vec()
+    } else {
+        args.objects
+            .iter()
+            .map(|o| {
+                serde_json::from_value(serde_json::Value::String(o.trim().to_owned()))
+                    .map_err(|_| anyhow::anyhow!("unknown object `{o}`"))
+            })
+            .collect::<anyhow::Result<_>>()?
+    };
+    let cfg = StudyConfig {
+        seed: args.seed,
+        subjects: args.subjects,
+        positions: args.positions,
+        trials: args.trials,
+        objects,
+        full_factorial: args.full_factorial,
+        noise: !args.no_noise,
+        rate_hz: args.rate_hz,
+    };
+    let study = generate_study(&cfg)?;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    if args.summary {
+        let rows = study
+            .iter()
+            .map(|input| {
+                let demo = ingest(input)?;
+                Ok(serde_json::json!({
+                    "external_id": demo.labels.external_id,
+                    "subject": demo.subject.id,
+                    "object": demo.object.name,
+                    "position_index": demo.labels.position_index,
+                    "trial": demo.labels.trial,
+                    "summary": demo.summary,
+                }))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        serde_json::to_writer(&mut out, &rows)?;
+    } else {
+        serde_json::to_writer(&mut out, &study)?;
+    }
+    writeln!(out)?;
+    out.flush()?;
+    Ok(())
 }
 
 fn serve(config: Config) -> anyhow::Result<()> {

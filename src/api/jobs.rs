@@ -142,17 +142,17 @@ async fn job_events(
     let live = state.jobs.subscribe(id);
     let start = match live {
         Some(rx) => Step::Live(rx),
-        None => Step::Last(state.jobs.get(id).await?),
+        None => Step::Last(Box::new(state.jobs.get(id).await?)),
     };
     let stream = events(start, state.jobs.clone(), state.shutdown.clone());
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
 }
 
 enum Step {
-    /// Follow the live job; `true` once its current value has been sent.
+    /// Follow the live job.
     Live(watch::Receiver<JobRecord>),
     /// Send this record, then end.
-    Last(JobRecord),
+    Last(Box<JobRecord>),
     Done,
 }
 

@@ -55,3 +55,79 @@ pub async fn problem_safety_net(res: Response) -> Response {
     }
     Response::from_parts(parts, Body::new(problem_body))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::Router;
+    use axum::http::StatusCode;
+    use axum::routing::get;
+    use tower::ServiceExt;
+
+    async fn body_json(res: Response) -> serde_json::Value {
+        let bytes = axum::body::to_bytes(res.into_body(), 1 << 16)
+            .await
+            .unwrap();
+        serde_json::from_slice(&bytes).unwrap()
+    }
+
+    #[tokio::test]
+    async fn a_slow_handler_is_answered_with_a_timeout_problem() {
+        let app = Router::new()
+            .route(
+                "/slow",
+                get(|| async {
+                    tokio::time::sleep(Duration::from_secs(30)).await;
+                    "late"
+                }),
+            )
+            .route("/fast", get(|| async { "ok" }))
+            .layer(axum::middleware::from_fn_with_state(
+                Duration::from_millis(50),
+                timeout,
+            ));
+        let res = app
+            .clone()
+            .oneshot(Request::get("/slow").body(Body::empty()).unwrap())
+            .await
+            .unwrap();
+        assert_eq!(res.status(), StatusCode::SERVICE_UNAVAILABLE);
+        assert_eq!(res.headers()[header::CONTENT_TYPE], PROBLEM_JSON);
+        assert_eq!(
+            body_json(res).await["type"],
+            "urn:reachgrasp:problem:timeout"
+        );
+        let res = app
+            .oneshot(Request::get("/fast").body(Body::empty()).unwrap())
+            .await
+            .unwrap();
+        assert_eq!(res.status(), StatusCode::OK);
+    }
+
+    #[tokio::test]
+    async fn plain_text_errors_are_rewritten_as_problems_keeping_status_and_text() {
+        let app = Router::new()
+            .route(
+                "/teapot",
+                get(|| async { (StatusCode::CONFLICT, "already there") }),
+            )
+            .route("/ok", get(|| async { (StatusCode::CREATED, "made") }))
+            .layer(axum::middleware::map_response(problem_safety_net));
+        let res = app
+            .clone()
+            .oneshot(Request::get("/teapot").body(Body::empty()).unwrap())
+            .await
+            .unwrap();
+        assert_eq!(res.status(), StatusCode::CONFLICT);
+        assert_eq!(res.headers()[header::CONTENT_TYPE], PROBLEM_JSON);
+        let p = body_json(res).await;
+        assert_eq!(p["type"], "urn:reachgrasp:problem:conflict");
+        assert_eq!(p["detail"], "already there");
+        let res = app
+            .oneshot(Request::get("/ok").body(Body::empty()).unwrap())
+            .await
+            .unwrap();
+        assert_eq!(res.status(), StatusCode::CREATED);
+        assert_ne!(res.headers()[header::CONTENT_TYPE], PROBLEM_JSON);
+    }
+}

@@ -55,6 +55,7 @@
 //! 8. **Tests.** Black-box tests in `tests/api/<resource>.rs` (add `mod <resource>;` to
 //!    `tests/api/main.rs`) using `helpers::spawn_app()`.
 
+pub mod demonstrations;
 pub mod error;
 pub mod extract;
 pub mod health;
@@ -143,6 +144,7 @@ impl ShutdownTrigger {
         (name = "health", description = "Liveness and readiness"),
         (name = "jobs", description = "Long-running computations: status, progress (SSE), cancellation"),
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
+        (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -154,6 +156,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(health::router())
         .merge(jobs::router())
         .merge(robots::router())
+        .merge(demonstrations::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).

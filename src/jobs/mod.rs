@@ -424,6 +424,14 @@ impl JobRunner {
         if self.inner.shutting_down.load(Ordering::Acquire) {
             return Err(RunnerError::ShuttingDown);
         }
+        // Take a place in the semaphore's FIFO queue now (the first poll registers the waiter),
+        // so jobs start in submission order whatever order their tasks are scheduled in.
+        let mut permit: PermitFuture = Box::pin(self.inner.permits.clone().acquire_owned());
+        let ready = futures::poll!(permit.as_mut());
+        let permit = match ready {
+            std::task::Poll::Ready(p) => Box::pin(std::future::ready(p)) as PermitFuture,
+            std::task::Poll::Pending => permit,
+        };
         let record = JobRecord {
             id: Uuid::new_v4(),
             kind: kind.to_owned(),
@@ -451,7 +459,7 @@ impl JobRunner {
         );
         let span = tracing::info_span!("job", id = %record.id, kind = %record.kind);
         let inner = self.inner.clone();
-        tokio::spawn(drive(inner, record.id, work, cancel, events).instrument(span));
+        tokio::spawn(drive(inner, record.id, permit, work, cancel, events).instrument(span));
         Ok(record)
     }
 
@@ -585,9 +593,18 @@ impl Finish {
 
 const INTERNAL_MESSAGE: &str = "internal error; see the server logs";
 
+type PermitFuture = std::pin::Pin<
+    Box<
+        dyn std::future::Future<
+                Output = Result<tokio::sync::OwnedSemaphorePermit, tokio::sync::AcquireError>,
+            > + Send,
+    >,
+>;
+
 async fn drive<F>(
     inner: Arc<Inner>,
     id: Uuid,
+    permit: PermitFuture,
     work: F,
     cancel: Arc<CancelState>,
     events: watch::Sender<JobRecord>,
@@ -596,7 +613,7 @@ async fn drive<F>(
 {
     let pool = inner.pool.clone();
     let permit = tokio::select! {
-        permit = inner.permits.clone().acquire_owned() => permit.ok(),
+        permit = permit => permit.ok(),
         () = cancel.requested() => None,
     };
     let finish = match permit {

@@ -1,1 +1,66 @@
 //! Human to humanlike robot motion mapping (paper eq. 1-7).
+//!
+//! Per frame: register the human data into the robot base frame ([`registration`]), assign the
+//! fingertip goals ([`goals`]), and minimise `F = w_x·P + w_o·Σ d_o + w_D·D` (eq. 1-5) over the
+//! independent joint coordinates inside the joint limits (eq. 6-7).
+
+pub mod goals;
+mod nlp;
+pub mod objective;
+pub mod registration;
+pub mod solve;
+#[cfg(test)]
+mod tests;
+pub mod trajectory;
+
+pub use goals::{CatmullRom4, FingerGoal, MAX_FINGERS};
+pub use objective::{
+    Evaluator, FrameGoals, MappingModel, Objective, Term, Weights, quaternion_distance,
+};
+pub use registration::{ArmPoints, BodyAxes, Registration, RegistrationSpec, RobotAnchor, Scale};
+pub use solve::{FrameMetrics, Mapper, SolverOptions};
+pub use trajectory::{BatchItem, Cancelled, MappedTrajectory, map_batch, registration_for};
+
+/// Everything that can go wrong in the mapping layer; the API turns it into 4xx problem+json.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum MappingError {
+    #[error("the demonstration has no frames")]
+    EmptyDemonstration,
+    #[error("frame {frame}: {field} is not finite")]
+    NonFinite { frame: usize, field: &'static str },
+    #[error(
+        "frame {frame}: the human {segment} has length {length} m; the arm cannot be registered"
+    )]
+    DegenerateArm {
+        frame: usize,
+        segment: &'static str,
+        length: f64,
+    },
+    #[error("registration: {reason}")]
+    InvalidRegistration { reason: String },
+    #[error("scale must be a positive finite number, got {value}")]
+    InvalidScale { value: f64 },
+    #[error("weight `{field}` must be finite and non-negative, got {value}")]
+    InvalidWeight { field: &'static str, value: f64 },
+    #[error("at least one weight must be positive")]
+    AllWeightsZero,
+    #[error("solver option `{field}` is invalid: {value}")]
+    InvalidOption { field: &'static str, value: f64 },
+    #[error("frame {frame}: time {t} does not increase past the previous frame's {previous}")]
+    NonIncreasingTime { frame: usize, t: f64, previous: f64 },
+    #[error(
+        "joint `{joint}`: its limits and those of the joints it drives leave no range ({lower} > {upper})"
+    )]
+    EmptyJointRange {
+        joint: String,
+        lower: f64,
+        upper: f64,
+    },
+    #[error("spread pair `{lower}` <= `{upper}` can never hold")]
+    InfeasibleSpreadPair { lower: String, upper: String },
+    #[error("spread pairs: {reason}")]
+    UnsupportedSpreadPairs { reason: String },
+    #[error("hand with {fingers} fingers and thumb {thumb} is not supported (1..=5 fingers)")]
+    UnsupportedHand { fingers: usize, thumb: usize },
+}

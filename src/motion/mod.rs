@@ -1,1 +1,54 @@
-//! Low-dimensional humanlike motion: PCA, B-splines, navigation functions, flow, time scaling (eq. 8-9).
+//! Low-dimensional humanlike motion: PCA, B-splines, navigation functions, flow, time scaling
+//! (paper §III-B, eq. 8-9; DESIGN §5 "PCA + NF").
+//!
+//! Pipeline: [`train`] takes demonstrated joint trajectories (the mapping's output: per frame the
+//! robot's independent joint positions) and per-joint limits, splits the joints into groups (arm,
+//! hand), and for each group learns a PCA manifold ([`Pca`]) and, in its coordinates `y`, a
+//! navigation function ([`NavigationFunction`]) `φ = γ/(γ^k + β)^{1/k}` whose fictitious obstacle
+//! `β = β_0·exp(s(y))` carries a tensor-product cubic B-spline `s` ([`TensorBSpline`]) fitted to the
+//! demonstrated velocity directions. Every model carries a closed-form convergence
+//! [`Certificate`]. [`MotionModel::trajectory`] integrates the flow, back-projects it with the
+//! exact start and goal kept, and times it; [`ControlParams::control`] is the closed-loop law.
+//!
+//! Feeding the mapping's output: one [`JointTrajectory`] per mapped demonstration, `times` the
+//! resampled frame times and `positions` the robot's independent joint values per frame
+//! (row-major, in `Model::joint_names()` order); [`JointLimits`] from the model's limits (the
+//! acceleration limits come from the system descriptor or a configured default); groups =
+//! `[system.arm joint indices, system.hand joint indices]`. The API layer keeps the joint names
+//! and checks them; this module works on indices only.
+//!
+//! Deviation from DESIGN §5, with reasons: `φ` is evaluated in PCA coordinates scaled by the
+//! workspace diameter (see [`NavigationFunction`]); the certificate's goal region is a ball
+//! around the demonstrated final points (not the whole data), which keeps the bound useful; the
+//! spline fit leaves out points near their own goal (`TrainOptions::goal_exclusion`).
+
+// Numeric kernels index several parallel fixed-size arrays with one loop variable; iterator
+// chains over 3-5 zipped arrays read worse than the formulas they implement.
+#![allow(clippy::needless_range_loop)]
+
+mod bspline;
+mod control;
+mod error;
+mod fit;
+mod flow;
+mod model;
+mod nf;
+mod pca;
+pub mod synthetic;
+#[cfg(test)]
+mod tests;
+mod timing;
+
+pub use bspline::{MAX_DIM, TensorBSpline};
+pub use control::ControlParams;
+pub use error::MotionError;
+pub use fit::SplineFit;
+pub use flow::{FlowOptions, FlowPath, integrate_flow};
+pub use model::{
+    Baseline, DurationModel, HeldOutReport, JointLimits, JointTrajectory, KChoice, ManifoldFit,
+    ManifoldModel, MotionModel, PhaseMap, TrainOptions, TrainReport, Trajectory, TrajectoryOptions,
+    TrajectoryPoint, arc_length_deviation, train,
+};
+pub use nf::{Certificate, NavigationFunction};
+pub use pca::{Components, Pca};
+pub use timing::{MinimumJerk, NaturalCubic, Pchip};

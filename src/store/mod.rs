@@ -6,6 +6,7 @@
 //! result reference in one transaction.
 
 pub mod blob;
+pub mod demonstrations;
 pub mod jobs;
 pub mod robots;
 

@@ -1,8 +1,10 @@
 //! Black-box API tests: the real service on an ephemeral port with a temporary database.
 
+mod demonstrations;
 mod errors;
 mod health;
 mod helpers;
 mod jobs;
 mod openapi;
+mod process;
 mod robots;

@@ -1,0 +1,52 @@
+//! Motion model benchmarks: training on the default-size synthetic study (250 demonstrations of
+//! 100 frames, arm 7 + hand 4 joints; target ≤ 2 s), one trajectory (≤ 2 ms) and one
+//! evaluation of the closed-loop law (≤ 5 µs).
+
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use reachgrasp::motion::synthetic::{SyntheticStudy, curved_study};
+use reachgrasp::motion::{Components, TrainOptions, TrajectoryOptions, train};
+
+fn bench(c: &mut Criterion) {
+    let data = curved_study(&SyntheticStudy {
+        trials_per_position: 50,
+        frames: 100,
+        ..SyntheticStudy::default()
+    });
+    assert_eq!(data.demos.len(), 250);
+    let opts = TrainOptions {
+        groups: data.groups.clone(),
+        components: Components::VarianceThreshold(0.97),
+        ..TrainOptions::default()
+    };
+    let mut group = c.benchmark_group("motion");
+    group.sample_size(10);
+    group.bench_function("train_250_demos", |b| {
+        b.iter(|| train(black_box(&data.demos), &data.limits, &opts).unwrap())
+    });
+    group.finish();
+
+    let (model, _) = train(&data.demos, &data.limits, &opts).unwrap();
+    let n = model.n_joints;
+    let start = data.demos[0].frame(0, n).to_vec();
+    let goal = data.demos[137].frame(99, n).to_vec();
+    let topts = TrajectoryOptions::default();
+    c.bench_function("trajectory", |b| {
+        b.iter(|| {
+            model
+                .trajectory(black_box(&start), black_box(&goal), &topts)
+                .unwrap()
+        })
+    });
+
+    let params = model.control_params((0..n).map(|j| format!("j{j}")).collect(), 2.0, 2.0);
+    let q = data.demos[3].frame(40, n).to_vec();
+    let mut u = vec![0.0; n];
+    c.bench_function("control_law", |b| {
+        b.iter(|| params.control(black_box(&q), black_box(&goal), &mut u))
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

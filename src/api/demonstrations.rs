@@ -1,0 +1,618 @@
+//! `/v1/demonstrations`: upload (JSON or multipart CSV), list, inspect, derived frames, delete,
+//! and the synthetic study generator as a job.
+
+use axum::extract::{FromRequest, Multipart, Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+use utoipa::{IntoParams, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+use uuid::Uuid;
+
+use super::{ApiError, AppState, Json, Path, Problem, Query};
+use crate::human::{
+    self, Demonstration, DemonstrationInput, GloveCalibration, GloveStream, HumanError,
+    IngestSummary, Labels, ObjectSpec, StudyConfig, Subject, SyncOptions, TrackerStream,
+    unpack_frames,
+};
+use crate::jobs::{JobContext, JobError, JobOutput, JobRecord, ResultRef};
+use crate::store::demonstrations::{self as repo, Deleted, DemonstrationFilter, DemonstrationRow};
+use crate::store::{blob, is_unique_violation, now};
+
+/// Largest page of [`list_demonstrations`].
+pub const MAX_PAGE: u32 = 500;
+const DEFAULT_PAGE: u32 = 50;
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(list_demonstrations, create_demonstration))
+        .routes(routes!(generate_synthetic))
+        .routes(routes!(get_demonstration, delete_demonstration))
+        .routes(routes!(get_frames))
+}
+
+impl From<HumanError> for ApiError {
+    fn from(e: HumanError) -> Self {
+        match e {
+            HumanError::MalformedStorage { .. } => ApiError::internal(anyhow::Error::new(e)),
+            e => {
+                let path = e.path();
+                let path = if path.is_empty() {
+                    "$".to_string()
+                } else {
+                    format!("$.{path}")
+                };
+                ApiError::invalid_field(path, e.to_string())
+            }
+        }
+    }
+}
+
+/// A demonstration upload (canonical JSON; see `reachgrasp::human::demo` for every field).
+#[derive(Debug, Deserialize, ToSchema)]
+pub struct DemonstrationUpload {
+    /// `{id, stature_m, hand_length_m, hand_breadth_m, handedness: "right"|"left"}`.
+    #[schema(value_type = Object)]
+    pub subject: Subject,
+    /// `{name, shape: {type: sphere|cylinder|box|capsule, ...}, pose: {position, orientation}}`.
+    #[schema(value_type = Object)]
+    pub object: ObjectSpec,
+    /// `{task, position_index, trial, synthetic, external_id}`.
+    #[schema(value_type = Object)]
+    pub labels: Labels,
+    /// `{t: [s], shoulder: [[x,y,z]], elbow, wrist, wrist_orientation: [[w,x,y,z]]}`, metres.
+    #[schema(value_type = Object)]
+    pub tracker: TrackerStream,
+    /// `{t, angles: [[22 radians]]}` or `{t, raw: [[22]], calibration: {gain: [22], offset: [22]}}`.
+    #[schema(value_type = Object)]
+    pub glove: GloveStream,
+    /// `{glove_offset_s: 0, rate_hz: 120, max_gap_s: 0.1}`.
+    #[serde(default)]
+    #[schema(value_type = Object)]
+    pub sync: SyncOptions,
+}
+
+impl From<DemonstrationUpload> for DemonstrationInput {
+    fn from(u: DemonstrationUpload) -> Self {
+        DemonstrationInput {
+            subject: u.subject,
+            object: u.object,
+            labels: u.labels,
+            tracker: u.tracker,
+            glove: u.glove,
+            sync: u.sync,
+        }
+    }
+}
+
+/// Multipart form of an upload: a JSON `meta` part and one CSV file per stream.
+#[derive(Debug, ToSchema)]
+#[allow(dead_code)] // documents the form; the handler reads the parts directly
+pub struct DemonstrationForm {
+    /// JSON: `{subject, object, labels, sync?, calibration?}`; with a `calibration` the glove CSV
+    /// holds raw sensor values.
+    #[schema(value_type = Object)]
+    meta: String,
+    /// CSV `t,shoulder_x,shoulder_y,shoulder_z,elbow_x,...,wrist_z,qw,qx,qy,qz`.
+    #[schema(content_media_type = "text/csv")]
+    tracker: String,
+    /// CSV `t` and the 22 glove channel names (radians, or raw values with a calibration).
+    #[schema(content_media_type = "text/csv")]
+    glove: String,
+}
+
+#[derive(Debug, Deserialize)]
+struct FormMeta {
+    subject: Subject,
+    object: ObjectSpec,
+    labels: Labels,
+    #[serde(default)]
+    sync: SyncOptions,
+    #[serde(default)]
+    calibration: Option<GloveCalibration>,
+}
+
+/// Key figures of an ingested demonstration.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct SummaryDto {
+    /// Time of the first frame on the tracker clock, s.
+    pub start_s: f64,
+    pub duration_s: f64,
+    pub frames: usize,
+    /// Common resampling rate, Hz.
+    pub rate_hz: f64,
+    pub tracker_samples: usize,
+    pub glove_samples: usize,
+    /// Mean raw stream rates, Hz.
+    pub tracker_rate_hz: f64,
+    pub glove_rate_hz: f64,
+}
+
+impl From<IngestSummary> for SummaryDto {
+    fn from(s: IngestSummary) -> Self {
+        SummaryDto {
+            start_s: s.start_s,
+            duration_s: s.duration_s,
+            frames: s.frames,
+            rate_hz: s.rate_hz,
+            tracker_samples: s.tracker_samples,
+            glove_samples: s.glove_samples,
+            tracker_rate_hz: s.tracker_rate_hz,
+            glove_rate_hz: s.glove_rate_hz,
+        }
+    }
+}
+
+/// A stored demonstration (without its frames; see `frames_href`).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct DemonstrationDto {
+    pub id: String,
+    pub external_id: Option<String>,
+    /// The synthetic-study job that produced it, if any.
+    pub job_id: Option<String>,
+    #[schema(value_type = Object)]
+    pub subject: Subject,
+    #[schema(value_type = Object)]
+    pub object: ObjectSpec,
+    pub task: String,
+    pub position_index: u32,
+    pub trial: u32,
+    pub synthetic: bool,
+    pub summary: SummaryDto,
+    pub created_at: String,
+    pub frames_href: String,
+}
+
+impl TryFrom<&DemonstrationRow> for DemonstrationDto {
+    type Error = ApiError;
+    fn try_from(r: &DemonstrationRow) -> Result<Self, ApiError> {
+        Ok(DemonstrationDto {
+            id: r.id.clone(),
+            external_id: r.external_id.clone(),
+            job_id: r.job_id.clone(),
+            subject: r.subject()?,
+            object: r.object()?,
+            task: r.task.clone(),
+            position_index: r.position_index as u32,
+            trial: r.trial as u32,
+            synthetic: r.synthetic,
+            summary: r.summary()?.into(),
+            created_at: r.created_at.clone(),
+            frames_href: format!("/v1/demonstrations/{}/frames", r.id),
+        })
+    }
+}
+
+/// A page of demonstrations, newest first.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct DemonstrationList {
+    pub items: Vec<DemonstrationDto>,
+    pub total: i64,
+    pub limit: u32,
+    pub offset: u32,
+}
+
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct ListQuery {
+    /// Only this subject id.
+    pub subject: Option<String>,
+    /// Only this object name (`ball`, `bottle`, ...).
+    pub object: Option<String>,
+    /// Only synthetic (`true`) or only recorded (`false`) demonstrations.
+    pub synthetic: Option<bool>,
+    /// Only those produced by this synthetic-study job.
+    pub job_id: Option<Uuid>,
+    /// Page size, 1 to 500 (default 50).
+    pub limit: Option<u32>,
+    /// Demonstrations to skip (default 0).
+    pub offset: Option<u32>,
+}
+
+/// A pose: position (m) and orientation quaternion `[w, x, y, z]`.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct PoseDto {
+    pub position: [f64; 3],
+    pub orientation: [f64; 4],
+}
+
+impl PoseDto {
+    fn new(p: &nalgebra::Isometry3<f64>) -> Self {
+        let q = p.rotation.quaternion();
+        let v = p.translation.vector;
+        PoseDto {
+            position: [v.x, v.y, v.z],
+            orientation: [q.w, q.i, q.j, q.k],
+        }
+    }
+}
+
+/// Derived human kinematics of one frame, tracker frame, metres.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct FrameDto {
+    pub t: f64,
+    pub shoulder: [f64; 3],
+    pub elbow: [f64; 3],
+    pub wrist: PoseDto,
+    /// Thumb, index, middle, ring, little: tip position and distal-phalanx frame
+    /// (`x` along the phalanx, `z` palmar).
+    pub fingertips: Vec<PoseDto>,
+    /// The 22 resampled glove angles (radians), channel order of the glove format.
+    pub glove: Vec<f64>,
+}
+
+/// The derived frames of a demonstration.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct FramesDto {
+    pub id: String,
+    /// Rate of the returned frames (the stored rate divided by `every`), Hz.
+    pub rate_hz: f64,
+    pub every: u32,
+    /// Channel names of `glove`.
+    pub glove_channels: Vec<String>,
+    pub frames: Vec<FrameDto>,
+}
+
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct FramesQuery {
+    /// Keep every n-th frame (decimation), 1 to 1000 (default 1).
+    pub every: Option<u32>,
+}
+
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct DeleteQuery {
+    /// Also delete the mappings that use the demonstration (default false: 409 while in use).
+    pub cascade: Option<bool>,
+}
+
+/// Synthetic study request; every field is optional (the defaults reproduce the paper's design:
+/// 5 subjects × 5 positions × 10 trials, objects counterbalanced over positions).
+#[derive(Debug, Deserialize, ToSchema)]
+pub struct SyntheticRequest {
+    /// `{seed: 1, subjects: 5, positions: 5, trials: 10, objects: ["ball", "bottle",
+    /// "kitchen_timer", "pencil", "sunglasses"], full_factorial: false, noise: true,
+    /// rate_hz: 120}`.
+    #[serde(flatten)]
+    #[schema(value_type = Object)]
+    pub config: StudyConfig,
+}
+
+fn row_not_found(id: &str) -> ApiError {
+    ApiError::not_found("demonstration", id)
+}
+
+async fn ingest_blocking(input: DemonstrationInput) -> Result<Demonstration, ApiError> {
+    tokio::task::spawn_blocking(move || human::ingest(&input))
+        .await
+        .map_err(|e| ApiError::internal(anyhow::anyhow!("ingest task failed: {e}")))?
+        .map_err(ApiError::from)
+}
+
+fn created(dto: DemonstrationDto, status: StatusCode) -> Response {
+    let mut headers = HeaderMap::new();
+    if let Ok(v) = HeaderValue::from_str(&format!("/v1/demonstrations/{}", dto.id)) {
+        headers.insert(header::LOCATION, v);
+    }
+    (status, headers, Json(dto)).into_response()
+}
+
+async fn read_form(mut form: Multipart) -> Result<DemonstrationInput, ApiError> {
+    let (mut meta, mut tracker, mut glove) = (None, None, None);
+    while let Some(field) = form
+        .next_field()
+        .await
+        .map_err(|e| ApiError::bad_request(format!("malformed multipart body: {e}")))?
+    {
+        let name = field.name().unwrap_or_default().to_string();
+        let text = field
+            .text()
+            .await
+            .map_err(|e| ApiError::bad_request(format!("multipart part `{name}`: {e}")))?;
+        match name.as_str() {
+            "meta" => meta = Some(text),
+            "tracker" => tracker = Some(text),
+            "glove" => glove = Some(text),
+            _ => {}
+        }
+    }
+    let missing = |part: &str| {
+        ApiError::invalid_field(part, format!("the multipart part `{part}` is missing"))
+    };
+    let meta: FormMeta = serde_json::from_str(&meta.ok_or_else(|| missing("meta"))?)
+        .map_err(|e| ApiError::invalid_field("meta", format!("invalid JSON: {e}")))?;
+    let tracker = human::csv::parse_tracker_csv(&tracker.ok_or_else(|| missing("tracker"))?)?;
+    let glove =
+        human::csv::parse_glove_csv(&glove.ok_or_else(|| missing("glove"))?, meta.calibration)?;
+    Ok(DemonstrationInput {
+        subject: meta.subject,
+        object: meta.object,
+        labels: meta.labels,
+        tracker,
+        glove,
+        sync: meta.sync,
+    })
+}
+
+/// Upload a demonstration (JSON, or multipart with `meta` JSON plus `tracker` and `glove` CSV
+/// files). The streams are validated, put on one clock, resampled and the human kinematics
+/// derived; bad input is a 422 naming the stream, sample index and field, and nothing is stored.
+/// Re-uploading with the same `labels.external_id` returns the existing record with 200.
+#[utoipa::path(post, path = "/v1/demonstrations", tag = "demonstrations",
+    request_body(content(
+        (DemonstrationUpload = "application/json"),
+        (DemonstrationForm = "multipart/form-data"),
+    )),
+    responses(
+        (status = 201, description = "Stored; `Location` names it", body = DemonstrationDto),
+        (status = 200, description = "Already stored under this `external_id`", body = DemonstrationDto),
+        (status = 400, description = "Malformed body", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "Body over the size limit", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Neither JSON nor multipart", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid streams or metadata", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn create_demonstration(
+    State(state): State<AppState>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let is_multipart = req
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("multipart/form-data"));
+    let input: DemonstrationInput = if is_multipart {
+        let form = Multipart::from_request(req, &state)
+            .await
+            .map_err(|e| ApiError::bad_request(format!("malformed multipart body: {e}")))?;
+        read_form(form).await?
+    } else {
+        Json::<DemonstrationUpload>::from_request(req, &state)
+            .await?
+            .0
+            .into()
+    };
+    if let Some(ext) = &input.labels.external_id {
+        let mut conn = state.db.acquire().await?;
+        if let Some(row) = repo::get_by_external_id(&mut conn, ext).await? {
+            return Ok(created(DemonstrationDto::try_from(&row)?, StatusCode::OK));
+        }
+    }
+    let demo = ingest_blocking(input).await?;
+    let id = Uuid::new_v4().to_string();
+    let mut tx = state.db.begin().await?;
+    match repo::insert(&mut tx, &id, None, &demo, &now()).await {
+        Ok(()) => tx.commit().await?,
+        Err(e) if is_unique_violation(&e) => {
+            // A concurrent upload with the same external id won the race: return its record.
+            drop(tx);
+            let ext = demo.labels.external_id.as_deref().unwrap_or_default();
+            let mut conn = state.db.acquire().await?;
+            let row = repo::get_by_external_id(&mut conn, ext)
+                .await?
+                .ok_or_else(|| ApiError::conflict("a demonstration with this id already exists"))?;
+            return Ok(created(DemonstrationDto::try_from(&row)?, StatusCode::OK));
+        }
+        Err(e) => return Err(e.into()),
+    }
+    let row = repo::get(&state.db, &id)
+        .await?
+        .ok_or_else(|| row_not_found(&id))?;
+    Ok(created(
+        DemonstrationDto::try_from(&row)?,
+        StatusCode::CREATED,
+    ))
+}
+
+/// List demonstrations, newest first, filtered by subject, object, synthetic flag or job.
+#[utoipa::path(get, path = "/v1/demonstrations", tag = "demonstrations", params(ListQuery),
+    responses(
+        (status = 200, description = "A page of demonstrations", body = DemonstrationList),
+        (status = 400, description = "Bad query parameter", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn list_demonstrations(
+    State(state): State<AppState>,
+    Query(q): Query<ListQuery>,
+) -> Result<Json<DemonstrationList>, ApiError> {
+    let limit = q.limit.unwrap_or(DEFAULT_PAGE);
+    if !(1..=MAX_PAGE).contains(&limit) {
+        return Err(ApiError::invalid_parameter(
+            "limit",
+            format!("must be between 1 and {MAX_PAGE}, got {limit}"),
+        ));
+    }
+    let offset = q.offset.unwrap_or(0);
+    let filter = DemonstrationFilter {
+        subject: q.subject,
+        object: q.object,
+        synthetic: q.synthetic,
+        job_id: q.job_id.map(|j| j.to_string()),
+        limit,
+        offset,
+    };
+    let (rows, total) = repo::list(&state.db, &filter).await?;
+    let items = rows
+        .iter()
+        .map(DemonstrationDto::try_from)
+        .collect::<Result<_, _>>()?;
+    Ok(Json(DemonstrationList {
+        items,
+        total,
+        limit,
+        offset,
+    }))
+}
+
+/// One demonstration: metadata and ingest summary.
+#[utoipa::path(get, path = "/v1/demonstrations/{id}", tag = "demonstrations",
+    params(("id" = Uuid, Path, description = "Demonstration id")),
+    responses(
+        (status = 200, description = "The demonstration", body = DemonstrationDto),
+        (status = 400, description = "Malformed id", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "Unknown demonstration", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn get_demonstration(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+) -> Result<Json<DemonstrationDto>, ApiError> {
+    let id = id.to_string();
+    let row = repo::get(&state.db, &id)
+        .await?
+        .ok_or_else(|| row_not_found(&id))?;
+    Ok(Json(DemonstrationDto::try_from(&row)?))
+}
+
+/// The derived kinematics of every frame (or of every n-th frame).
+#[utoipa::path(get, path = "/v1/demonstrations/{id}/frames", tag = "demonstrations",
+    params(("id" = Uuid, Path, description = "Demonstration id"), FramesQuery),
+    responses(
+        (status = 200, description = "Derived frames", body = FramesDto),
+        (status = 400, description = "Bad parameter", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "Unknown demonstration", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn get_frames(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+    Query(q): Query<FramesQuery>,
+) -> Result<Json<FramesDto>, ApiError> {
+    let every = q.every.unwrap_or(1);
+    if !(1..=1000).contains(&every) {
+        return Err(ApiError::invalid_parameter(
+            "every",
+            format!("must be between 1 and 1000, got {every}"),
+        ));
+    }
+    let id = id.to_string();
+    let row = repo::get(&state.db, &id)
+        .await?
+        .ok_or_else(|| row_not_found(&id))?;
+    let bytes = repo::frames(&state.db, &id)
+        .await?
+        .ok_or_else(|| row_not_found(&id))?;
+    let array =
+        blob::decode::<f64>(&bytes).map_err(|e| ApiError::internal(anyhow::Error::new(e)))?;
+    let (frames, glove) = unpack_frames(&array.data)?;
+    let summary = row.summary()?;
+    let frames = frames
+        .iter()
+        .zip(&glove)
+        .step_by(every as usize)
+        .map(|(f, g)| FrameDto {
+            t: f.t,
+            shoulder: f.shoulder.coords.into(),
+            elbow: f.elbow.coords.into(),
+            wrist: PoseDto::new(&f.wrist),
+            fingertips: f.fingertips.iter().map(PoseDto::new).collect(),
+            glove: g.to_vec(),
+        })
+        .collect();
+    Ok(Json(FramesDto {
+        id,
+        rate_hz: summary.rate_hz / f64::from(every),
+        every,
+        glove_channels: human::GLOVE_CHANNELS
+            .iter()
+            .map(|c| c.to_string())
+            .collect(),
+        frames,
+    }))
+}
+
+/// Delete a demonstration. While a mapping uses it the answer is 409, unless `cascade=true`,
+/// which deletes those mappings too.
+#[utoipa::path(delete, path = "/v1/demonstrations/{id}", tag = "demonstrations",
+    params(("id" = Uuid, Path, description = "Demonstration id"), DeleteQuery),
+    responses(
+        (status = 204, description = "Deleted"),
+        (status = 404, description = "Unknown demonstration", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Used by a mapping", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn delete_demonstration(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+    Query(q): Query<DeleteQuery>,
+) -> Result<StatusCode, ApiError> {
+    let id = id.to_string();
+    match repo::delete(&state.db, &id, q.cascade.unwrap_or(false)).await? {
+        Deleted::Yes { .. } => Ok(StatusCode::NO_CONTENT),
+        Deleted::NotFound => Err(row_not_found(&id)),
+        Deleted::InUse { mappings } => Err(ApiError::conflict(format!(
+            "demonstration {id} is used by mapping(s) {}; delete them first or pass cascade=true",
+            mappings.join(", ")
+        ))),
+    }
+}
+
+/// Generate a synthetic study as a job (202). Each demonstration goes through the same ingest
+/// path as uploads and is labelled synthetic; its `external_id` is derived from the seed and the
+/// trial, so repeating a request stores nothing twice. List the result with
+/// `GET /v1/demonstrations?job_id={job}`.
+#[utoipa::path(post, path = "/v1/demonstrations/synthetic", tag = "demonstrations",
+    request_body = SyntheticRequest,
+    responses(
+        (status = 202, description = "Job accepted; `Location` names it", body = JobRecord),
+        (status = 422, description = "Invalid study parameters", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn generate_synthetic(
+    State(state): State<AppState>,
+    Json(req): Json<SyntheticRequest>,
+) -> Result<Response, ApiError> {
+    let cfg = req.config;
+    cfg.validate().map_err(|e| match e {
+        HumanError::InvalidParameter {
+            field,
+            reason,
+            value,
+        } => ApiError::invalid_field(format!("$.{field}"), format!("{reason} (got {value})")),
+        e => e.into(),
+    })?;
+    let job = state
+        .jobs
+        .submit("synthetic_demonstrations", move |ctx: JobContext| {
+            run_study(&ctx, &cfg)
+        })
+        .await?;
+    let mut headers = HeaderMap::new();
+    if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
+        headers.insert(header::LOCATION, v);
+    }
+    Ok((StatusCode::ACCEPTED, headers, Json(job)).into_response())
+}
+
+fn run_study(ctx: &JobContext, cfg: &StudyConfig) -> Result<JobOutput, JobError> {
+    let trials = cfg.trials();
+    let n = trials.len();
+    let mut demos = Vec::with_capacity(n);
+    for (i, spec) in trials.iter().enumerate() {
+        ctx.check_cancelled()?;
+        let input = human::synth::generate_trial(spec, cfg.seed).map_err(JobError::failed)?;
+        demos.push(human::ingest(&input).map_err(JobError::failed)?);
+        ctx.progress((i + 1) as f64 / n as f64, format!("trial {} of {n}", i + 1));
+    }
+    Ok(JobOutput::persist_with(move |job_id, tx| {
+        Box::pin(async move {
+            let created_at = now();
+            let (mut first, mut stored) = (None, 0usize);
+            for demo in &demos {
+                let ext = demo.labels.external_id.as_deref().unwrap_or_default();
+                if let Some(row) = repo::get_by_external_id(&mut **tx, ext).await? {
+                    first.get_or_insert(row.id);
+                    continue;
+                }
+                let id = Uuid::new_v4().to_string();
+                repo::insert(&mut **tx, &id, Some(&job_id.to_string()), demo, &created_at).await?;
+                first.get_or_insert(id);
+                stored += 1;
+            }
+            tracing::info!(stored, total = demos.len(), "synthetic study stored");
+            let first = first.ok_or_else(|| anyhow::anyhow!("the study produced nothing"))?;
+            Ok(ResultRef::new("demonstrations", first))
+        })
+    })
+    .with_message(format!(
+        "{n} demonstrations generated; new ones are listed by GET /v1/demonstrations?job_id={}, \
+         all synthetic ones by ?synthetic=true",
+        ctx.id()
+    )))
+}

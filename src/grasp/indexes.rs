@@ -1,0 +1,475 @@
+//! Manipulability, transmission ratios, compatibility indexes and grasp quality measures
+//! (paper eq. 10-21). Pure functions on matrices; callers own the buffers.
+
+use nalgebra::{DMatrix, Matrix3, Matrix3xX, Point3, SymmetricEigen, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// What a task direction must transmit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Transmission {
+    /// Force transmission ratio α (eq. 14 / 17).
+    Force,
+    /// Velocity transmission ratio β (eq. 15 / 18).
+    Velocity,
+}
+
+/// Whether the ratio along the direction is to be made large (fast motion / large force) or
+/// small (fine control); the paper notes both are meaningful (§IV, Fig. 6 discussion).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Goal {
+    /// Make the ratio large.
+    Maximize,
+    /// Make the ratio small.
+    Minimize,
+}
+
+/// A unit task direction (world frame) with its transmission kind and goal.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TaskDirection {
+    /// Unit vector `d`.
+    pub direction: Vector3<f64>,
+    /// Force or velocity.
+    pub kind: Transmission,
+    /// Maximise or minimise.
+    pub goal: Goal,
+}
+
+impl TaskDirection {
+    fn sign(&self) -> f64 {
+        match self.goal {
+            Goal::Maximize => 1.0,
+            Goal::Minimize => -1.0,
+        }
+    }
+}
+
+/// Floor on eigenvalues of `J Jᵀ` when it is inverted: a rank-deficient Jacobian (a hand with
+/// fewer independent joints than task coordinates) has zero velocity ratio along unreachable
+/// directions; the floor keeps β finite (≈ √floor there) instead of NaN.
+pub const EIGEN_FLOOR: f64 = 1e-12;
+
+/// Yoshikawa manipulability `√det(J Jᵀ)` (eq. 12) of a k × n Jacobian.
+pub fn manipulability(j: &DMatrix<f64>) -> f64 {
+    let m = j * j.transpose();
+    m.determinant().max(0.0).sqrt()
+}
+
+/// `M = J_v J_vᵀ` for the 3 × n translational block.
+pub fn transmission_matrix(jv: &Matrix3xX<f64>) -> Matrix3<f64> {
+    jv * jv.transpose()
+}
+
+fn inverse_floored(m: &Matrix3<f64>) -> Matrix3<f64> {
+    let e = SymmetricEigen::new(*m);
+    let mut inv = Matrix3::zeros();
+    for k in 0..3 {
+        let v = e.eigenvectors.column(k);
+        inv += v * v.transpose() / e.eigenvalues[k].max(EIGEN_FLOOR);
+    }
+    inv
+}
+
+/// Force ratio `α = (dᵀ M d)^{-1/2}` (eq. 14, 17) or velocity ratio `β = (dᵀ M⁻¹ d)^{-1/2}`
+/// (eq. 15, 18) along unit `d`, with `M = J Jᵀ`.
+pub fn transmission_ratio(m: &Matrix3<f64>, d: &Vector3<f64>, kind: Transmission) -> f64 {
+    match kind {
+        Transmission::Force => d.dot(&(m * d)).max(EIGEN_FLOOR).powf(-0.5),
+        Transmission::Velocity => d.dot(&(inverse_floored(m) * d)).powf(-0.5),
+    }
+}
+
+/// Compatibility index `Π r_k^{-s_k}` (eq. 16 for the arm, eq. 19 for the hand), `s_k = +1` for
+/// a maximised ratio (the paper's definition) and `−1` for a minimised one, so that minimising
+/// the index serves every direction's goal. 1 for no directions.
+pub fn compatibility_index(m: &Matrix3<f64>, dirs: &[TaskDirection]) -> f64 {
+    dirs.iter()
+        .map(|t| transmission_ratio(m, &t.direction, t.kind).powf(-t.sign()))
+        .product()
+}
+
+/// Gradient of [`compatibility_index`] with respect to q, given `J_v` (3 × n) and its partial
+/// derivatives `dj[i] = ∂J_v/∂q_i` (3 × n each). Uses `∂(dᵀMd) = 2 (J_vᵀd)·(∂J_vᵀd)` and
+/// `∂(dᵀM⁻¹d) = −2 (J_vᵀw)·(∂J_vᵀw)`, `w = M⁻¹d`. Writes into `grad` (length n).
+pub fn compatibility_index_gradient(
+    jv: &Matrix3xX<f64>,
+    dj: &[Matrix3xX<f64>],
+    dirs: &[TaskDirection],
+    grad: &mut [f64],
+) -> f64 {
+    let m = transmission_matrix(jv);
+    let minv = inverse_floored(&m);
+    let tc = compatibility_index(&m, dirs);
+    grad.iter_mut().for_each(|g| *g = 0.0);
+    for t in dirs {
+        let d = &t.direction;
+        // ∂ ln r / ∂q_i, r = α or β, then ∂TC = TC · Σ (−s) ∂ln r.
+        let (w, denom, factor) = match t.kind {
+            Transmission::Force => (*d, d.dot(&(m * d)).max(EIGEN_FLOOR), -1.0),
+            Transmission::Velocity => {
+                let w = minv * d;
+                (w, d.dot(&w), 1.0)
+            }
+        };
+        let jtw = jv.transpose() * w;
+        for (i, g) in grad.iter_mut().enumerate() {
+            let djtw = dj[i].transpose() * w;
+            let dln = factor * jtw.dot(&djtw) / denom;
+            *g += tc * (-t.sign()) * dln;
+        }
+    }
+    tc
+}
+
+/// Principal axes of the velocity ellipsoid `ẋᵀ M⁻¹ ẋ ≤ 1` (eq. 10) and of the force ellipsoid
+/// `fᵀ M f ≤ 1` (eq. 11) for `M = J Jᵀ`. The two share directions with reciprocal lengths.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Ellipsoids {
+    /// Unit axis directions (world), sorted by decreasing velocity semi-axis.
+    pub axes: [[f64; 3]; 3],
+    /// Velocity-ellipsoid semi-axis lengths `√λ_k`.
+    pub velocity_semi_axes: [f64; 3],
+    /// Force-ellipsoid semi-axis lengths `1/√λ_k`.
+    pub force_semi_axes: [f64; 3],
+}
+
+impl Ellipsoids {
+    /// Axes of `M = J Jᵀ`.
+    pub fn of(m: &Matrix3<f64>) -> Self {
+        let e = SymmetricEigen::new(*m);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| e.eigenvalues[b].total_cmp(&e.eigenvalues[a]));
+        let mut axes = [[0.0; 3]; 3];
+        let mut vel = [0.0; 3];
+        let mut force = [0.0; 3];
+        for (k, &i) in order.iter().enumerate() {
+            let v = e.eigenvectors.column(i);
+            axes[k] = [v[0], v[1], v[2]];
+            let lam = e.eigenvalues[i].max(0.0);
+            vel[k] = lam.sqrt();
+            force[k] = lam.max(EIGEN_FLOOR).powf(-0.5);
+        }
+        Ellipsoids {
+            axes,
+            velocity_semi_axes: vel,
+            force_semi_axes: force,
+        }
+    }
+
+    /// Major axis of the velocity ellipsoid.
+    pub fn velocity_major(&self) -> Vector3<f64> {
+        Vector3::from(self.axes[0])
+    }
+
+    /// Major axis of the force ellipsoid (the velocity ellipsoid's minor axis).
+    pub fn force_major(&self) -> Vector3<f64> {
+        Vector3::from(self.axes[2])
+    }
+}
+
+/// Grasp matrix of hard-finger point contacts (6 × 3k): contact `i` maps its contact force
+/// `f_i` to the object wrench `[f_i; (c_i − C_G) × f_i]` about the centroid.
+pub fn grasp_matrix(contacts: &[Point3<f64>], centroid: &Point3<f64>, out: &mut DMatrix<f64>) {
+    let k = contacts.len();
+    assert_eq!(
+        out.shape(),
+        (6, 3 * k),
+        "grasp matrix buffer must be 6 x 3k"
+    );
+    out.fill(0.0);
+    for (i, c) in contacts.iter().enumerate() {
+        let r = c - centroid;
+        for a in 0..3 {
+            out[(a, 3 * i + a)] = 1.0;
+        }
+        let skew = r.cross_matrix();
+        out.view_mut((3, 3 * i), (3, 3)).copy_from(&skew);
+    }
+}
+
+/// Hand-object Jacobian `H = (Gᵀ)⁺ J_h` (6 × n_h): object twist produced by hand joint rates
+/// with the contacts sticking. `jh` is 3k × n_h (contact point linear Jacobians, stacked).
+pub fn hand_object_jacobian(g: &DMatrix<f64>, jh: &DMatrix<f64>) -> DMatrix<f64> {
+    let gt = g.transpose();
+    let pinv = gt
+        .pseudo_inverse(1e-10)
+        .unwrap_or_else(|_| DMatrix::zeros(g.nrows(), g.ncols()));
+    pinv * jh
+}
+
+/// The translational 3 × n block of `H`, for the hand ratios (eq. 17-18) along 3-D directions.
+pub fn translational_block(h: &DMatrix<f64>) -> Matrix3xX<f64> {
+    let mut out = Matrix3xX::zeros(h.ncols());
+    out.copy_from(&h.rows(0, 3));
+    out
+}
+
+/// `Q_DC = ‖C_G − C_C‖` (eq. 20), `C_C` the centroid of the contact points.
+pub fn q_dc(contacts: &[Point3<f64>], centroid: &Point3<f64>) -> f64 {
+    if contacts.is_empty() {
+        return 0.0;
+    }
+    let cc = contacts.iter().fold(Vector3::zeros(), |a, c| a + c.coords) / contacts.len() as f64;
+    (centroid.coords - cc).norm()
+}
+
+/// Gradient of [`q_dc`] with respect to each contact point (written into `out`, one per
+/// contact). Zero where `Q_DC = 0` (a subgradient).
+pub fn q_dc_point_gradient(
+    contacts: &[Point3<f64>],
+    centroid: &Point3<f64>,
+    out: &mut [Vector3<f64>],
+) -> f64 {
+    let k = contacts.len() as f64;
+    let cc = contacts.iter().fold(Vector3::zeros(), |a, c| a + c.coords) / k;
+    let diff = cc - centroid.coords;
+    let q = diff.norm();
+    let g = if q > 1e-15 {
+        diff / (q * k)
+    } else {
+        Vector3::zeros()
+    };
+    out.iter_mut().for_each(|o| *o = g);
+    q
+}
+
+/// Area of the contact polygon (eq. 21): the triangle for three contacts; for more, the
+/// polygon through the contacts in finger order, measured as the norm of its vector area
+/// `½‖Σ c_i × c_{i+1}‖` (exact for a planar simple polygon, smooth otherwise). 0 below three.
+pub fn q_agp(contacts: &[Point3<f64>]) -> f64 {
+    vector_area(contacts).norm()
+}
+
+fn vector_area(c: &[Point3<f64>]) -> Vector3<f64> {
+    let k = c.len();
+    if k < 3 {
+        return Vector3::zeros();
+    }
+    // About the first contact, so that the result does not depend on the world origin.
+    let o = c[0].coords;
+    let mut v = Vector3::zeros();
+    for i in 0..k {
+        v += (c[i].coords - o).cross(&(c[(i + 1) % k].coords - o));
+    }
+    0.5 * v
+}
+
+/// Gradient of [`q_agp`] with respect to each contact: `½ û × (c_{i−1} − c_{i+1})`.
+pub fn q_agp_point_gradient(contacts: &[Point3<f64>], out: &mut [Vector3<f64>]) -> f64 {
+    let k = contacts.len();
+    let v = vector_area(contacts);
+    let a = v.norm();
+    if k < 3 || a < 1e-15 {
+        out.iter_mut().for_each(|o| *o = Vector3::zeros());
+        return a;
+    }
+    let u = v / a;
+    for i in 0..k {
+        let prev = contacts[(i + k - 1) % k].coords;
+        let next = contacts[(i + 1) % k].coords;
+        out[i] = 0.5 * u.cross(&(prev - next));
+    }
+    a
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix3xX;
+
+    fn dirs(d: Vector3<f64>, kind: Transmission, goal: Goal) -> Vec<TaskDirection> {
+        vec![TaskDirection {
+            direction: d.normalize(),
+            kind,
+            goal,
+        }]
+    }
+
+    #[test]
+    fn ratios_of_a_diagonal_jacobian_are_the_closed_forms() {
+        // J = diag(a, b, c) (3 × 3): M = diag(a², b², c²); α along x = 1/a, β along x = a.
+        let jv = Matrix3xX::from_column_slice(&[2.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0]);
+        let m = transmission_matrix(&jv);
+        let x = Vector3::x();
+        assert!((transmission_ratio(&m, &x, Transmission::Force) - 0.5).abs() < 1e-12);
+        assert!((transmission_ratio(&m, &x, Transmission::Velocity) - 2.0).abs() < 1e-12);
+        let dj = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![2.0, 0.5, 1.0]));
+        assert!((manipulability(&dj) - 1.0).abs() < 1e-12);
+        // The product α β along any direction of a diagonal M... along an eigenvector it is 1.
+        let y = Vector3::y();
+        let a = transmission_ratio(&m, &y, Transmission::Force);
+        let b = transmission_ratio(&m, &y, Transmission::Velocity);
+        assert!((a * b - 1.0).abs() < 1e-12);
+        // TC (eq. 16) with one force and one velocity direction: 1/(α_x β_y).
+        let tc = compatibility_index(
+            &m,
+            &[
+                TaskDirection {
+                    direction: x,
+                    kind: Transmission::Force,
+                    goal: Goal::Maximize,
+                },
+                TaskDirection {
+                    direction: y,
+                    kind: Transmission::Velocity,
+                    goal: Goal::Maximize,
+                },
+            ],
+        );
+        assert!((tc - 1.0 / (0.5 * 0.5)).abs() < 1e-12);
+        let ell = Ellipsoids::of(&m);
+        assert!((ell.velocity_major().x.abs() - 1.0).abs() < 1e-12);
+        assert!((ell.force_major().y.abs() - 1.0).abs() < 1e-12);
+        assert!((ell.velocity_semi_axes[0] - 2.0).abs() < 1e-12);
+        assert!((ell.force_semi_axes[2] - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn minimised_direction_inverts_its_factor() {
+        let jv = Matrix3xX::from_column_slice(&[2.0, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0]);
+        let m = transmission_matrix(&jv);
+        let max = compatibility_index(
+            &m,
+            &dirs(Vector3::x(), Transmission::Velocity, Goal::Maximize),
+        );
+        let min = compatibility_index(
+            &m,
+            &dirs(Vector3::x(), Transmission::Velocity, Goal::Minimize),
+        );
+        assert!((max * min - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn compatibility_gradient_matches_finite_differences_on_a_planar_3r_arm() {
+        // Planar 3R arm in the x-y plane with unit-ish links; J_v(q) in closed form, ∂J_v/∂q_i
+        // by its own closed form, TC gradient against central differences of TC(q).
+        let l = [0.4, 0.3, 0.2];
+        let jac = |q: &[f64]| {
+            let mut j = Matrix3xX::zeros(3);
+            for c in 0..3 {
+                let (mut sx, mut sy) = (0.0, 0.0);
+                let mut ang: f64 = q[..c].iter().sum();
+                for k in c..3 {
+                    ang += q[k];
+                    sx += -l[k] * ang.sin();
+                    sy += l[k] * ang.cos();
+                }
+                j[(0, c)] = sx;
+                j[(1, c)] = sy;
+                // out-of-plane rows get a small constant so that M is invertible
+                j[(2, c)] = 0.1 * (c as f64 + 1.0);
+            }
+            j
+        };
+        let q = [0.3, 0.7, -0.4];
+        let h = 1e-6;
+        let dj: Vec<Matrix3xX<f64>> = (0..3)
+            .map(|i| {
+                let mut qp = q;
+                let mut qm = q;
+                qp[i] += h;
+                qm[i] -= h;
+                (jac(&qp) - jac(&qm)) / (2.0 * h)
+            })
+            .collect();
+        for kind in [Transmission::Force, Transmission::Velocity] {
+            for goal in [Goal::Maximize, Goal::Minimize] {
+                let d = dirs(Vector3::new(1.0, 0.5, 0.2), kind, goal);
+                let mut g = [0.0; 3];
+                let tc = compatibility_index_gradient(&jac(&q), &dj, &d, &mut g);
+                assert!(
+                    (tc - compatibility_index(&transmission_matrix(&jac(&q)), &d)).abs() < 1e-12
+                );
+                for i in 0..3 {
+                    let mut qp = q;
+                    let mut qm = q;
+                    qp[i] += h;
+                    qm[i] -= h;
+                    let fd = (compatibility_index(&transmission_matrix(&jac(&qp)), &d)
+                        - compatibility_index(&transmission_matrix(&jac(&qm)), &d))
+                        / (2.0 * h);
+                    assert!(
+                        (g[i] - fd).abs() < 1e-5 * (1.0 + fd.abs()),
+                        "{kind:?} {goal:?} {i}: {} vs {fd}",
+                        g[i]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn grasp_matrix_maps_opposing_forces_to_zero_wrench() {
+        let c = [Point3::new(0.05, 0.0, 0.0), Point3::new(-0.05, 0.0, 0.0)];
+        let mut g = DMatrix::zeros(6, 6);
+        grasp_matrix(&c, &Point3::origin(), &mut g);
+        // Squeezing forces along the contact line produce no wrench (internal forces).
+        let f = nalgebra::DVector::from_vec(vec![-1.0, 0.0, 0.0, 1.0, 0.0, 0.0]);
+        assert!((&g * f).norm() < 1e-15);
+        // A tangential pair produces a pure torque about z of 2·0.05.
+        let f = nalgebra::DVector::from_vec(vec![0.0, 1.0, 0.0, 0.0, -1.0, 0.0]);
+        let w = &g * f;
+        assert!((w[5] - 0.1).abs() < 1e-15 && w.rows(0, 5).norm() < 1e-15);
+    }
+
+    #[test]
+    fn hand_object_jacobian_recovers_a_rigid_translation() {
+        // Two contacts each driven by one joint along +y with unit gain: moving both joints
+        // together translates the object along y; H maps (1, 1) to the twist (0,1,0, 0,0,0).
+        let c = [Point3::new(0.05, 0.0, 0.0), Point3::new(-0.05, 0.0, 0.0)];
+        let mut g = DMatrix::zeros(6, 6);
+        grasp_matrix(&c, &Point3::origin(), &mut g);
+        let mut jh = DMatrix::zeros(6, 2);
+        jh[(1, 0)] = 1.0;
+        jh[(4, 1)] = 1.0;
+        let h = hand_object_jacobian(&g, &jh);
+        let twist = &h * nalgebra::DVector::from_vec(vec![1.0, 1.0]);
+        assert!((twist[1] - 1.0).abs() < 1e-12, "{twist}");
+        assert!(twist[0].abs() < 1e-12 && twist[2].abs() < 1e-12);
+        assert!(twist.rows(3, 3).norm() < 1e-12);
+    }
+
+    #[test]
+    fn quality_measures_match_closed_forms_and_their_gradients() {
+        let c = [
+            Point3::new(0.1, 0.0, 0.0),
+            Point3::new(0.0, 0.2, 0.0),
+            Point3::new(0.0, 0.0, 0.0),
+        ];
+        assert!((q_agp(&c) - 0.01).abs() < 1e-15);
+        // A unit square as four contacts: area 1 regardless of the origin.
+        let sq = [
+            Point3::new(1.0, 1.0, 3.0),
+            Point3::new(2.0, 1.0, 3.0),
+            Point3::new(2.0, 2.0, 3.0),
+            Point3::new(1.0, 2.0, 3.0),
+        ];
+        assert!((q_agp(&sq) - 1.0).abs() < 1e-12);
+        let cg = Point3::new(0.0, 0.0, 0.0);
+        assert!((q_dc(&c, &cg) - (Vector3::new(0.1, 0.2, 0.0_f64) / 3.0).norm()).abs() < 1e-15);
+        let pts = [
+            Point3::new(0.1, 0.02, -0.01),
+            Point3::new(-0.03, 0.2, 0.05),
+            Point3::new(0.01, -0.04, 0.1),
+            Point3::new(-0.07, 0.05, 0.02),
+        ];
+        let mut g_dc = [Vector3::zeros(); 4];
+        let mut g_agp = [Vector3::zeros(); 4];
+        q_dc_point_gradient(&pts, &cg, &mut g_dc);
+        q_agp_point_gradient(&pts, &mut g_agp);
+        let h = 1e-7;
+        for i in 0..4 {
+            for a in 0..3 {
+                let mut p = pts;
+                let mut m = pts;
+                p[i][a] += h;
+                m[i][a] -= h;
+                let fd_dc = (q_dc(&p, &cg) - q_dc(&m, &cg)) / (2.0 * h);
+                let fd_agp = (q_agp(&p) - q_agp(&m)) / (2.0 * h);
+                assert!((g_dc[i][a] - fd_dc).abs() < 1e-7);
+                assert!((g_agp[i][a] - fd_agp).abs() < 1e-7);
+            }
+        }
+    }
+}

@@ -1,0 +1,829 @@
+//! Graspable objects: primitives and closed triangle meshes as parry shapes with a pose, resting
+//! on an optional support plane (DESIGN §5). Lengths in metres.
+//!
+//! Object frame convention: the object's origin is its geometric centroid `C_G` (eq. 20); the
+//! axis of cylinders and capsules is the local `z` axis (parry's own primitives use `y`, so the
+//! parry pose carries a fixed rotation).
+
+use std::collections::HashMap;
+
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use parry3d_f64::shape::{Ball, Capsule, Cuboid, Cylinder, SharedShape, TriMesh, TriMeshFlags};
+use serde::{Deserialize, Serialize};
+
+use super::GraspError;
+
+/// Largest accepted triangle count of an uploaded mesh.
+pub const MAX_MESH_TRIANGLES: usize = 100_000;
+/// Largest accepted object extent (bounding-box diagonal), metres: a hand-held object.
+pub const MAX_OBJECT_EXTENT: f64 = 2.0;
+
+/// Geometry of an object, in its own frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ShapeSpec {
+    /// A ball.
+    Sphere {
+        /// Radius.
+        radius: f64,
+    },
+    /// A cylinder along local `z`, centred on the origin.
+    Cylinder {
+        /// Radius.
+        radius: f64,
+        /// Full height.
+        height: f64,
+    },
+    /// A box centred on the origin.
+    Box {
+        /// Full edge lengths along x, y, z.
+        size: [f64; 3],
+    },
+    /// A capsule along local `z`: a cylinder of `length` with hemispherical caps.
+    Capsule {
+        /// Radius.
+        radius: f64,
+        /// Length of the cylindrical part (total length = length + 2 radius).
+        length: f64,
+    },
+    /// A closed, consistently oriented triangle mesh; it is re-centred on its volume centroid.
+    Mesh {
+        /// Vertex positions.
+        vertices: Vec<[f64; 3]>,
+        /// Triangles as vertex indices (counter-clockwise seen from outside).
+        triangles: Vec<[u32; 3]>,
+    },
+}
+
+/// A horizontal-or-not plane the object rests on: points `x` with `normal · x = offset` (world).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SupportPlane {
+    /// Unit normal pointing to the free half-space.
+    pub normal: [f64; 3],
+    /// Plane offset along the normal.
+    pub offset: f64,
+}
+
+impl SupportPlane {
+    /// The horizontal plane `z = height` (normal `+z`).
+    pub fn horizontal(height: f64) -> Self {
+        SupportPlane {
+            normal: [0.0, 0.0, 1.0],
+            offset: height,
+        }
+    }
+
+    /// Signed height of a world point above the plane.
+    pub fn signed_distance(&self, p: &Point3<f64>) -> f64 {
+        Vector3::from(self.normal).dot(&p.coords) - self.offset
+    }
+}
+
+/// An object description as sent by a client or stored: shape, pose, optional support plane.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ObjectSpec {
+    /// Display name.
+    pub name: String,
+    /// Geometry.
+    pub shape: ShapeSpec,
+    /// Position of the centroid in the world (robot base) frame.
+    pub position: [f64; 3],
+    /// Orientation quaternion `[w, x, y, z]` (normalised on validation).
+    pub orientation: [f64; 4],
+    /// Optional support surface; links must stay above it (eq. 29).
+    pub support: Option<SupportPlane>,
+}
+
+/// A validated object ready for distance queries.
+#[derive(Clone)]
+pub struct Object {
+    spec: ObjectSpec,
+    pose: Isometry3<f64>,
+    parry_pose: Isometry3<f64>,
+    shape: SharedShape,
+    /// Half of the largest extent: a bound used by heuristics (seeding, reach checks).
+    bounding_radius: f64,
+}
+
+impl std::fmt::Debug for Object {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Object").field("spec", &self.spec).finish()
+    }
+}
+
+/// Result of a surface query at a world point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceQuery {
+    /// Signed distance to the surface: positive outside, negative inside.
+    pub signed_distance: f64,
+    /// Closest surface point (world).
+    pub point: Point3<f64>,
+    /// Outward unit normal there: the gradient of the signed distance at the query point.
+    pub normal: Vector3<f64>,
+}
+
+fn positive(field: &str, v: f64) -> Result<(), GraspError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(GraspError::InvalidDimension {
+            field: field.to_string(),
+            value: v,
+        })
+    }
+}
+
+impl Object {
+    /// Validate a spec and build the parry shape.
+    pub fn new(spec: ObjectSpec) -> Result<Self, GraspError> {
+        let mut spec = spec;
+        for (i, v) in spec.position.iter().enumerate() {
+            if !v.is_finite() {
+                return Err(GraspError::NonFinite {
+                    field: format!("position[{i}]"),
+                });
+            }
+        }
+        let q = spec.orientation;
+        let qn = (q.iter().map(|x| x * x).sum::<f64>()).sqrt();
+        if !qn.is_finite() || qn < 1e-9 {
+            return Err(GraspError::NonFinite {
+                field: "orientation".into(),
+            });
+        }
+        let rot =
+            UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+        spec.orientation = [rot.w, rot.i, rot.j, rot.k];
+        let pose = Isometry3::from_parts(Translation3::from(Vector3::from(spec.position)), rot);
+        let y_to_z =
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
+        let (shape, local_fix, bounding_radius) = match &mut spec.shape {
+            ShapeSpec::Sphere { radius } => {
+                positive("shape.radius", *radius)?;
+                (
+                    SharedShape::new(Ball::new(*radius)),
+                    Isometry3::identity(),
+                    *radius,
+                )
+            }
+            ShapeSpec::Cylinder { radius, height } => {
+                positive("shape.radius", *radius)?;
+                positive("shape.height", *height)?;
+                let r = (radius.powi(2) + (0.5 * *height).powi(2)).sqrt();
+                (
+                    SharedShape::new(Cylinder::new(0.5 * *height, *radius)),
+                    Isometry3::from_parts(Translation3::identity(), y_to_z),
+                    r,
+                )
+            }
+            ShapeSpec::Box { size } => {
+                for (i, s) in size.iter().enumerate() {
+                    positive(&format!("shape.size[{i}]"), *s)?;
+                }
+                let he = Vector3::new(size[0], size[1], size[2]) * 0.5;
+                (
+                    SharedShape::new(Cuboid::new(he)),
+                    Isometry3::identity(),
+                    he.norm(),
+                )
+            }
+            ShapeSpec::Capsule { radius, length } => {
+                positive("shape.radius", *radius)?;
+                positive("shape.length", *length)?;
+                (
+                    SharedShape::new(Capsule::new_y(0.5 * *length, *radius)),
+                    Isometry3::from_parts(Translation3::identity(), y_to_z),
+                    0.5 * *length + *radius,
+                )
+            }
+            ShapeSpec::Mesh {
+                vertices,
+                triangles,
+            } => {
+                let (centroid, r) = check_mesh(vertices, triangles)?;
+                // Re-centre on the volume centroid so that the object origin is C_G (eq. 20).
+                for v in vertices.iter_mut() {
+                    for (x, c) in v.iter_mut().zip(centroid) {
+                        *x -= c;
+                    }
+                }
+                let pts: Vec<Point3<f64>> = vertices.iter().map(|v| Point3::from(*v)).collect();
+                let mesh = TriMesh::with_flags(pts, triangles.clone(), TriMeshFlags::ORIENTED)
+                    .map_err(|e| GraspError::MalformedMesh {
+                        reason: format!("{e:?}"),
+                    })?;
+                (SharedShape::new(mesh), Isometry3::identity(), r)
+            }
+        };
+        if 2.0 * bounding_radius > MAX_OBJECT_EXTENT {
+            return Err(GraspError::InvalidDimension {
+                field: "shape".into(),
+                value: 2.0 * bounding_radius,
+            });
+        }
+        if let Some(plane) = &mut spec.support {
+            let n = Vector3::from(plane.normal);
+            let nn = n.norm();
+            if !nn.is_finite() || nn < 1e-9 || !plane.offset.is_finite() {
+                return Err(GraspError::NonFinite {
+                    field: "support".into(),
+                });
+            }
+            plane.normal = (n / nn).into();
+            plane.offset /= nn;
+        }
+        Ok(Object {
+            parry_pose: pose * local_fix,
+            pose,
+            shape,
+            bounding_radius,
+            spec,
+        })
+    }
+
+    /// The validated spec (orientation normalised, meshes re-centred).
+    pub fn spec(&self) -> &ObjectSpec {
+        &self.spec
+    }
+
+    /// World pose of the object frame.
+    pub fn pose(&self) -> &Isometry3<f64> {
+        &self.pose
+    }
+
+    /// Geometric centroid `C_G` in the world (eq. 20).
+    pub fn centroid(&self) -> Point3<f64> {
+        Point3::from(self.pose.translation.vector)
+    }
+
+    /// Radius of a ball around the centroid containing the object.
+    pub fn bounding_radius(&self) -> f64 {
+        self.bounding_radius
+    }
+
+    /// The support plane, if any.
+    pub fn support(&self) -> Option<&SupportPlane> {
+        self.spec.support.as_ref()
+    }
+
+    /// The parry shape and its world pose.
+    pub fn shape(&self) -> (&SharedShape, &Isometry3<f64>) {
+        (&self.shape, &self.parry_pose)
+    }
+
+    /// Signed distance, closest point and outward normal at a world point (parry projection).
+    pub fn query(&self, p: &Point3<f64>) -> SurfaceQuery {
+        let proj = self.shape.project_point(&self.parry_pose, p, false);
+        let diff = p - proj.point;
+        let d = diff.norm();
+        // A boundary projection of a mesh does not say inside/outside; the solid containment
+        // test (pseudo-normals of the oriented mesh) does.
+        let inside = if self.shape.as_trimesh().is_some() {
+            self.shape.contains_point(&self.parry_pose, p)
+        } else {
+            proj.is_inside
+        };
+        let sign = if inside { -1.0 } else { 1.0 };
+        let normal = if d > 1e-12 {
+            diff * (sign / d)
+        } else {
+            // On the surface the projection gives no direction; the centroid ray is a
+            // well-defined outward fallback for the (star-shaped) objects handled here.
+            (p - self.centroid())
+                .try_normalize(1e-12)
+                .unwrap_or_else(Vector3::z)
+        };
+        SurfaceQuery {
+            signed_distance: sign * d,
+            point: proj.point,
+            normal,
+        }
+    }
+}
+
+/// Check a triangle soup is a closed 2-manifold with consistent orientation.
+/// Returns its volume centroid and its bounding radius about that centroid.
+fn check_mesh(
+    vertices: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+) -> Result<([f64; 3], f64), GraspError> {
+    if triangles.is_empty() || vertices.len() < 4 {
+        return Err(GraspError::MalformedMesh {
+            reason: format!(
+                "a closed mesh needs at least 4 vertices and 4 triangles, got {} and {}",
+                vertices.len(),
+                triangles.len()
+            ),
+        });
+    }
+    if triangles.len() > MAX_MESH_TRIANGLES {
+        return Err(GraspError::MeshTooLarge {
+            triangles: triangles.len(),
+            limit: MAX_MESH_TRIANGLES,
+        });
+    }
+    for (i, v) in vertices.iter().enumerate() {
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(GraspError::MalformedMesh {
+                reason: format!("vertex {i} is not finite"),
+            });
+        }
+    }
+    let nv = vertices.len() as u32;
+    // Each directed edge must occur exactly once and its reverse exactly once: closed,
+    // edge-manifold and consistently oriented.
+    let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(triangles.len() * 3);
+    let mut volume6 = 0.0;
+    let mut centroid = Vector3::zeros();
+    for (t, tri) in triangles.iter().enumerate() {
+        if tri.iter().any(|&i| i >= nv) {
+            return Err(GraspError::MalformedMesh {
+                reason: format!("triangle {t} references a vertex beyond {}", nv - 1),
+            });
+        }
+        let [a, b, c] = tri.map(|i| Vector3::from(vertices[i as usize]));
+        if (b - a).cross(&(c - a)).norm() < 1e-18 {
+            return Err(GraspError::MalformedMesh {
+                reason: format!("triangle {t} is degenerate"),
+            });
+        }
+        for k in 0..3 {
+            let e = (tri[k], tri[(k + 1) % 3]);
+            let count = edges.entry(e).or_insert(0);
+            *count += 1;
+            if *count > 1 {
+                return Err(GraspError::NonManifoldMesh {
+                    reason: format!(
+                        "edge ({}, {}) is used twice in the same direction (triangle {t}): \
+                         non-manifold or inconsistently oriented",
+                        e.0, e.1
+                    ),
+                });
+            }
+        }
+        // Signed tetrahedron volumes about the origin give the volume centroid.
+        let v6 = a.dot(&b.cross(&c));
+        volume6 += v6;
+        centroid += (a + b + c) * v6;
+    }
+    for &(i, j) in edges.keys() {
+        if !edges.contains_key(&(j, i)) {
+            return Err(GraspError::NonManifoldMesh {
+                reason: format!("edge ({i}, {j}) has no opposite edge: the mesh is not closed"),
+            });
+        }
+    }
+    if volume6 <= 1e-15 {
+        return Err(GraspError::NonManifoldMesh {
+            reason: format!(
+                "enclosed volume is {:.3e} m³: triangles must be counter-clockwise seen from outside",
+                volume6 / 6.0
+            ),
+        });
+    }
+    let centroid = centroid / (4.0 * volume6);
+    let radius = vertices
+        .iter()
+        .map(|v| (Vector3::from(*v) - centroid).norm())
+        .fold(0.0, f64::max);
+    Ok((centroid.into(), radius))
+}
+
+/// Parse a Wavefront OBJ text (`v` and `f` records; polygons fan-triangulated; `v/vt/vn`
+/// and negative indices accepted; everything else ignored).
+pub fn parse_obj(text: &str) -> Result<ShapeSpec, GraspError> {
+    let mut vertices = Vec::new();
+    let mut triangles = Vec::new();
+    for (ln, line) in text.lines().enumerate() {
+        let mut it = line.split_whitespace();
+        match it.next() {
+            Some("v") => {
+                let mut v = [0.0; 3];
+                for x in v.iter_mut() {
+                    *x = it
+                        .next()
+                        .and_then(|s| s.parse::<f64>().ok())
+                        .ok_or_else(|| GraspError::MalformedMesh {
+                            reason: format!("OBJ line {}: bad vertex", ln + 1),
+                        })?;
+                }
+                vertices.push(v);
+            }
+            Some("f") => {
+                let mut idx = Vec::with_capacity(4);
+                for tok in it {
+                    let first = tok.split('/').next().unwrap_or("");
+                    let i: i64 = first.parse().map_err(|_| GraspError::MalformedMesh {
+                        reason: format!("OBJ line {}: bad face index '{tok}'", ln + 1),
+                    })?;
+                    let n = vertices.len() as i64;
+                    let k = if i > 0 { i - 1 } else { n + i };
+                    if i == 0 || k < 0 || k >= n {
+                        return Err(GraspError::MalformedMesh {
+                            reason: format!("OBJ line {}: face index {i} out of range", ln + 1),
+                        });
+                    }
+                    idx.push(k as u32);
+                }
+                if idx.len() < 3 {
+                    return Err(GraspError::MalformedMesh {
+                        reason: format!("OBJ line {}: face with fewer than 3 vertices", ln + 1),
+                    });
+                }
+                for k in 1..idx.len() - 1 {
+                    triangles.push([idx[0], idx[k], idx[k + 1]]);
+                }
+                if triangles.len() > MAX_MESH_TRIANGLES {
+                    return Err(GraspError::MeshTooLarge {
+                        triangles: triangles.len(),
+                        limit: MAX_MESH_TRIANGLES,
+                    });
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(ShapeSpec::Mesh {
+        vertices,
+        triangles,
+    })
+}
+
+/// Parse an STL file (binary or ASCII). Coincident vertices are welded (STL stores every
+/// triangle's corners separately) so that manifoldness can be checked.
+pub fn parse_stl(bytes: &[u8]) -> Result<ShapeSpec, GraspError> {
+    let mut corners: Vec<[f64; 3]> = Vec::new();
+    let is_ascii = bytes.starts_with(b"solid")
+        && std::str::from_utf8(bytes)
+            .is_ok_and(|s| s.contains("facet") || s.trim_end().ends_with("endsolid"));
+    if is_ascii {
+        let text = std::str::from_utf8(bytes).expect("checked above");
+        for (ln, line) in text.lines().enumerate() {
+            let mut it = line.split_whitespace();
+            if it.next() == Some("vertex") {
+                let mut v = [0.0; 3];
+                for x in v.iter_mut() {
+                    *x = it.next().and_then(|s| s.parse().ok()).ok_or_else(|| {
+                        GraspError::MalformedMesh {
+                            reason: format!("STL line {}: bad vertex", ln + 1),
+                        }
+                    })?;
+                }
+                corners.push(v);
+            }
+        }
+        if !corners.len().is_multiple_of(3) {
+            return Err(GraspError::MalformedMesh {
+                reason: "STL vertex count is not a multiple of 3".into(),
+            });
+        }
+    } else {
+        if bytes.len() < 84 {
+            return Err(GraspError::MalformedMesh {
+                reason: format!(
+                    "binary STL shorter than its 84-byte header ({} bytes)",
+                    bytes.len()
+                ),
+            });
+        }
+        let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
+        if n > MAX_MESH_TRIANGLES {
+            return Err(GraspError::MeshTooLarge {
+                triangles: n,
+                limit: MAX_MESH_TRIANGLES,
+            });
+        }
+        if bytes.len() != 84 + 50 * n {
+            return Err(GraspError::MalformedMesh {
+                reason: format!(
+                    "binary STL declares {n} triangles ({} bytes) but has {} bytes",
+                    84 + 50 * n,
+                    bytes.len()
+                ),
+            });
+        }
+        for t in 0..n {
+            let base = 84 + 50 * t + 12;
+            for c in 0..3 {
+                let mut v = [0.0; 3];
+                for (k, x) in v.iter_mut().enumerate() {
+                    let o = base + 12 * c + 4 * k;
+                    *x = f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]])
+                        as f64;
+                }
+                corners.push(v);
+            }
+        }
+    }
+    if corners.len() / 3 > MAX_MESH_TRIANGLES {
+        return Err(GraspError::MeshTooLarge {
+            triangles: corners.len() / 3,
+            limit: MAX_MESH_TRIANGLES,
+        });
+    }
+    let mut index: HashMap<[u64; 3], u32> = HashMap::new();
+    let mut vertices = Vec::new();
+    let mut triangles = Vec::with_capacity(corners.len() / 3);
+    for tri in corners.chunks_exact(3) {
+        let mut t = [0u32; 3];
+        for (k, v) in tri.iter().enumerate() {
+            let key = v.map(f64::to_bits);
+            t[k] = *index.entry(key).or_insert_with(|| {
+                vertices.push(*v);
+                (vertices.len() - 1) as u32
+            });
+        }
+        triangles.push(t);
+    }
+    Ok(ShapeSpec::Mesh {
+        vertices,
+        triangles,
+    })
+}
+
+/// Height of the lowest point of a shape along `z` in its own frame when upright (used to seat
+/// seeded objects on a table).
+fn half_height(shape: &ShapeSpec) -> f64 {
+    match shape {
+        ShapeSpec::Sphere { radius } => *radius,
+        ShapeSpec::Cylinder { height, .. } => 0.5 * height,
+        ShapeSpec::Box { size } => 0.5 * size[2],
+        ShapeSpec::Capsule { radius, .. } => *radius,
+        ShapeSpec::Mesh { vertices, .. } => vertices.iter().map(|v| -v[2]).fold(0.0, f64::max),
+    }
+}
+
+/// The everyday objects of the paper's study (Fig. 7 and the spherical object of Figs. 3-6)
+/// as simple shapes, with dimensions of common items.
+pub fn seeded_shapes() -> Vec<(&'static str, ShapeSpec, [f64; 4])> {
+    let upright = [1.0, 0.0, 0.0, 0.0];
+    // Lying along the world y axis: rotate local z onto y (−90° about x).
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let lying = [h, -h, 0.0, 0.0];
+    vec![
+        // Soft ball (tennis-ball size, 6.6 cm).
+        ("ball", ShapeSpec::Sphere { radius: 0.033 }, upright),
+        // 0.5 l bottle: 6.5 cm diameter, 20 cm tall.
+        (
+            "bottle",
+            ShapeSpec::Cylinder {
+                radius: 0.0325,
+                height: 0.20,
+            },
+            upright,
+        ),
+        // Round plastic kitchen timer: 6.5 cm diameter, 5 cm tall.
+        (
+            "kitchen_timer",
+            ShapeSpec::Cylinder {
+                radius: 0.0325,
+                height: 0.05,
+            },
+            upright,
+        ),
+        // Pencil: 8 mm diameter, 17 cm long, lying on the table.
+        (
+            "pencil",
+            ShapeSpec::Capsule {
+                radius: 0.004,
+                length: 0.17,
+            },
+            lying,
+        ),
+        // Folded sunglasses: 14 x 4.5 x 3.5 cm.
+        (
+            "sunglasses",
+            ShapeSpec::Box {
+                size: [0.045, 0.14, 0.035],
+            },
+            upright,
+        ),
+    ]
+}
+
+/// Documented reachable placements `(x, y)` of the seeded objects on a table at `z = 0` in the
+/// robot base frame (the shipped systems stand on that plane): in front of the shoulder, 0.45 to
+/// 0.55 m out, up to 0.2 m to either side. Used by the claim tests and `benches/grasp.rs`.
+pub const REACHABLE_PLACEMENTS: [(f64, f64); 3] = [(0.5, 0.0), (0.55, 0.15), (0.45, -0.2)];
+
+/// A seeded object resting on a horizontal table of height `table_z`, its centroid above `(x, y)`.
+pub fn seeded_object(name: &str, x: f64, y: f64, table_z: f64) -> Option<ObjectSpec> {
+    seeded_shapes()
+        .into_iter()
+        .find(|(n, _, _)| *n == name)
+        .map(|(n, shape, q)| {
+            let rot =
+                UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+            // Lowest point along world z of the rotated shape.
+            let lowest = match (&shape, q == [1.0, 0.0, 0.0, 0.0]) {
+                (_, true) => half_height(&shape),
+                (ShapeSpec::Capsule { radius, .. }, false) => *radius,
+                (ShapeSpec::Cylinder { radius, .. }, false) => *radius,
+                _ => {
+                    let _ = rot;
+                    half_height(&shape)
+                }
+            };
+            ObjectSpec {
+                name: n.to_string(),
+                shape,
+                position: [x, y, table_z + lowest],
+                orientation: q,
+                support: Some(SupportPlane::horizontal(table_z)),
+            }
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(shape: ShapeSpec) -> ObjectSpec {
+        ObjectSpec {
+            name: "t".into(),
+            shape,
+            position: [0.5, 0.1, 0.2],
+            orientation: [1.0, 0.0, 0.0, 0.0],
+            support: None,
+        }
+    }
+
+    const CUBE_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+        f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
+
+    #[test]
+    fn sphere_and_cylinder_signed_distances_match_closed_forms() {
+        let s = Object::new(spec(ShapeSpec::Sphere { radius: 0.05 })).unwrap();
+        let p = Point3::new(0.5, 0.1, 0.3);
+        let q = s.query(&p);
+        assert!((q.signed_distance - 0.05).abs() < 1e-12);
+        assert!((q.normal - Vector3::z()).norm() < 1e-12);
+        let inside = s.query(&Point3::new(0.52, 0.1, 0.2));
+        assert!((inside.signed_distance + 0.03).abs() < 1e-12);
+        assert!((inside.normal - Vector3::x()).norm() < 1e-12);
+        // Cylinder axis is local z: a point beside it is radial, a point above meets the cap.
+        let c = Object::new(spec(ShapeSpec::Cylinder {
+            radius: 0.03,
+            height: 0.2,
+        }))
+        .unwrap();
+        let side = c.query(&Point3::new(0.5, 0.15, 0.25));
+        assert!((side.signed_distance - 0.02).abs() < 1e-12, "{side:?}");
+        let top = c.query(&Point3::new(0.5, 0.1, 0.35));
+        assert!((top.signed_distance - 0.05).abs() < 1e-12, "{top:?}");
+        assert!((top.normal - Vector3::z()).norm() < 1e-12);
+    }
+
+    #[test]
+    fn signed_distance_gradient_is_the_normal() {
+        let objs = [
+            ShapeSpec::Box {
+                size: [0.1, 0.2, 0.05],
+            },
+            ShapeSpec::Capsule {
+                radius: 0.01,
+                length: 0.1,
+            },
+            parse_obj(CUBE_OBJ).unwrap(),
+        ];
+        for shape in objs {
+            let mut sp = spec(shape);
+            sp.orientation = [0.9, 0.1, -0.3, 0.2];
+            let o = Object::new(sp).unwrap();
+            let p = Point3::new(0.61, 0.23, 0.27);
+            let q = o.query(&p);
+            let h = 1e-6;
+            for a in 0..3 {
+                let mut pp = p;
+                let mut pm = p;
+                pp[a] += h;
+                pm[a] -= h;
+                let fd = (o.query(&pp).signed_distance - o.query(&pm).signed_distance) / (2.0 * h);
+                assert!(
+                    (fd - q.normal[a]).abs() < 1e-5,
+                    "{:?} {a}: {fd} vs {}",
+                    o.spec().shape,
+                    q.normal[a]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn non_positive_and_non_finite_dimensions_are_rejected_by_field() {
+        let e = Object::new(spec(ShapeSpec::Sphere { radius: 0.0 })).unwrap_err();
+        assert_eq!(
+            e,
+            GraspError::InvalidDimension {
+                field: "shape.radius".into(),
+                value: 0.0
+            }
+        );
+        let e = Object::new(spec(ShapeSpec::Box {
+            size: [0.1, -0.2, 0.1],
+        }))
+        .unwrap_err();
+        assert!(
+            matches!(e, GraspError::InvalidDimension { ref field, .. } if field == "shape.size[1]")
+        );
+        let e = Object::new(spec(ShapeSpec::Cylinder {
+            radius: 0.1,
+            height: f64::NAN,
+        }))
+        .unwrap_err();
+        assert!(
+            matches!(e, GraspError::InvalidDimension { ref field, .. } if field == "shape.height")
+        );
+        let mut s = spec(ShapeSpec::Sphere { radius: 0.1 });
+        s.position[1] = f64::INFINITY;
+        assert!(matches!(Object::new(s), Err(GraspError::NonFinite { .. })));
+    }
+
+    #[test]
+    fn meshes_are_parsed_checked_and_recentred() {
+        let o = Object::new(spec(parse_obj(CUBE_OBJ).unwrap())).unwrap();
+        // Unit cube re-centred: the centroid is the object position, faces 0.5 away.
+        let q = o.query(&Point3::new(0.5, 0.1, 0.2));
+        assert!((q.signed_distance + 0.5).abs() < 1e-9, "{q:?}");
+        // Missing face: not closed.
+        let open: String = CUBE_OBJ.lines().take(13).collect::<Vec<_>>().join("\n");
+        assert!(matches!(
+            Object::new(spec(parse_obj(&open).unwrap())),
+            Err(GraspError::NonManifoldMesh { .. })
+        ));
+        // All faces flipped: closed but inside out.
+        let flipped = CUBE_OBJ.replace("f 1 4 3 2", "f 2 3 4 1");
+        assert!(matches!(
+            Object::new(spec(parse_obj(&flipped).unwrap())),
+            Err(GraspError::NonManifoldMesh { .. })
+        ));
+        assert!(matches!(
+            parse_obj("v 0 0 x\n"),
+            Err(GraspError::MalformedMesh { .. })
+        ));
+        assert!(matches!(
+            parse_obj("v 0 0 0\nf 1 2 3\n"),
+            Err(GraspError::MalformedMesh { .. })
+        ));
+        // Binary STL of the same cube welds back to 8 vertices.
+        let ShapeSpec::Mesh {
+            vertices,
+            triangles,
+        } = parse_obj(CUBE_OBJ).unwrap()
+        else {
+            unreachable!()
+        };
+        let mut stl = vec![0u8; 80];
+        stl.extend_from_slice(&(triangles.len() as u32).to_le_bytes());
+        for t in &triangles {
+            stl.extend_from_slice(&[0u8; 12]);
+            for &i in t {
+                for x in vertices[i as usize] {
+                    stl.extend_from_slice(&(x as f32).to_le_bytes());
+                }
+            }
+            stl.extend_from_slice(&[0u8; 2]);
+        }
+        let ShapeSpec::Mesh {
+            vertices: v2,
+            triangles: t2,
+        } = parse_stl(&stl).unwrap()
+        else {
+            unreachable!()
+        };
+        assert_eq!((v2.len(), t2.len()), (8, 12));
+        assert!(
+            Object::new(spec(ShapeSpec::Mesh {
+                vertices: v2,
+                triangles: t2
+            }))
+            .is_ok()
+        );
+        assert!(matches!(
+            parse_stl(&stl[..100]),
+            Err(GraspError::MalformedMesh { .. })
+        ));
+        let mut huge = vec![0u8; 80];
+        huge.extend_from_slice(&(10_000_000u32).to_le_bytes());
+        assert!(matches!(
+            parse_stl(&huge),
+            Err(GraspError::MeshTooLarge { .. })
+        ));
+    }
+
+    #[test]
+    fn seeded_objects_rest_on_their_table() {
+        for (name, _, _) in seeded_shapes() {
+            let o = Object::new(seeded_object(name, 0.6, 0.0, 0.1).unwrap()).unwrap();
+            // The lowest surface point touches the plane: a point 1 mm under the centroid's
+            // footprint on the table is within 1 mm of the object.
+            let plane = o.support().unwrap();
+            let c = o.centroid();
+            let below = Point3::new(c.x, c.y, plane.offset - 0.001);
+            assert!(
+                (o.query(&below).signed_distance - 0.001).abs() < 1e-9,
+                "{name}"
+            );
+        }
+    }
+}

@@ -1,0 +1,1162 @@
+//! The task-specific grasp problem (eq. 22-29), solved through [`crate::optim`].
+//!
+//! Decision variables `u = [q_arm, q_hand]` (eq. 23, independent joints: couplings (26) are
+//! exact by substitution because mimic joints are folded into their drivers by the model).
+//! Cost (eq. 22) `w_TC·TC + w_GC·GC + w_Q·Q̂ + w_D·D` with `Q̂` the chosen quality measure made
+//! dimensionless by the object's bounding radius ρ (`Q_DC/ρ`, or `−Q_AGP/ρ²` since the area is
+//! maximised). Constraints: joint limits (25) as bounds; fingertip contact spheres tangent to
+//! the surface (27) as equalities `sd(p_i) − r_i = 0`; spread ordering (28) and link spheres
+//! outside the object and above the support plane (29) as inequalities.
+//!
+//! In the cost the quality measures are evaluated on the contact-sphere centres, i.e. on the
+//! object's surface offset by the sphere radius, where (27) keeps them; this keeps their
+//! gradients exact. The reported Q values use the contact points on the surface itself.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use nalgebra::{
+    Isometry3, Matrix3, Matrix3xX, Matrix6, Matrix6xX, Point3, Rotation3, UnitQuaternion, Vector3,
+};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::kinematics::{Data, forward_kinematics, frame_jacobian};
+use crate::optim::{Constraints, Problem, Settings, SolveReport, SolveStatus, Solver};
+
+use super::GraspError;
+use super::indexes::{self, Ellipsoids, TaskDirection};
+use super::objects::{Object, SurfaceQuery};
+use super::system::HandArm;
+
+/// Fingertip surface-distance tolerance for a feasible grasp (m).
+pub const SURFACE_TOLERANCE: f64 = 1e-3;
+/// Largest accepted penetration of a link sphere into the object or support plane (m).
+pub const PENETRATION_TOLERANCE: f64 = 5e-4;
+
+/// The grasp quality measure of eq. 20-21.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum QualityMeasure {
+    /// `Q_DC` (eq. 20), minimised.
+    CentroidDistance,
+    /// `Q_AGP` (eq. 21), maximised; needs three or more fingers.
+    PolygonArea,
+}
+
+impl QualityMeasure {
+    /// Fingers needed for the measure to be meaningful.
+    pub fn min_fingers(self) -> usize {
+        match self {
+            QualityMeasure::CentroidDistance => 2,
+            QualityMeasure::PolygonArea => 3,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            QualityMeasure::CentroidDistance => "centroid_distance",
+            QualityMeasure::PolygonArea => "polygon_area",
+        }
+    }
+}
+
+/// Weights of eq. 22.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Weights {
+    /// Task compatibility of the arm.
+    pub tc: f64,
+    /// Grasp compatibility of the hand.
+    pub gc: f64,
+    /// Grasp quality.
+    pub q: f64,
+    /// Anthropomorphism (elbow distance to the human reference).
+    pub d: f64,
+}
+
+impl Default for Weights {
+    fn default() -> Self {
+        Weights {
+            tc: 1.0,
+            gc: 0.0,
+            q: 1.0,
+            d: 1.0,
+        }
+    }
+}
+
+/// One grasp request.
+#[derive(Debug, Clone)]
+pub struct GraspRequest {
+    /// The object (pose included).
+    pub object: Object,
+    /// Task directions (world frame, unit), used by TC and GC.
+    pub task: Vec<TaskDirection>,
+    /// Quality measure.
+    pub quality: QualityMeasure,
+    /// Weights of eq. 22.
+    pub weights: Weights,
+    /// Number of starts of the multi-start search.
+    pub starts: usize,
+    /// Seed of the start perturbations.
+    pub seed: u64,
+    /// Human elbow reference for D (world); D is 0 without it.
+    pub elbow_reference: Option<Point3<f64>>,
+    /// Worker threads for the starts.
+    pub threads: usize,
+}
+
+impl GraspRequest {
+    /// A request with default weights, 4 starts, seed 0, 2 threads.
+    pub fn new(object: Object, task: Vec<TaskDirection>, quality: QualityMeasure) -> Self {
+        GraspRequest {
+            object,
+            task,
+            quality,
+            weights: Weights::default(),
+            starts: 4,
+            seed: 0,
+            elbow_reference: None,
+            threads: 2,
+        }
+    }
+
+    /// Reject what the numerics must never see, naming the field.
+    pub fn validate(&self, sys: &HandArm) -> Result<(), GraspError> {
+        for (index, t) in self.task.iter().enumerate() {
+            let n = t.direction.norm();
+            if !n.is_finite() || n < 1e-9 {
+                return Err(GraspError::InvalidDirection { index });
+            }
+        }
+        for (field, value) in [
+            ("tc", self.weights.tc),
+            ("gc", self.weights.gc),
+            ("q", self.weights.q),
+            ("d", self.weights.d),
+        ] {
+            if !value.is_finite() || value < 0.0 {
+                return Err(GraspError::InvalidWeight { field, value });
+            }
+        }
+        if sys.fingers.len() < self.quality.min_fingers() {
+            return Err(GraspError::UnusableQuality {
+                measure: self.quality.name(),
+                needed: self.quality.min_fingers(),
+                fingers: sys.fingers.len(),
+            });
+        }
+        if self.starts == 0 || self.starts > 64 {
+            return Err(GraspError::InvalidParameter {
+                field: "starts",
+                reason: format!("must be between 1 and 64, got {}", self.starts),
+            });
+        }
+        if let Some(r) = &self.elbow_reference
+            && !r.coords.iter().all(|x| x.is_finite())
+        {
+            return Err(GraspError::NonFinite {
+                field: "elbow_reference".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A joint value with its name.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NamedJoint {
+    /// Joint name.
+    pub name: String,
+    /// Value (rad or m).
+    pub value: f64,
+}
+
+/// A fingertip contact.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Contact {
+    /// Finger name.
+    pub finger: String,
+    /// Contact point on the object surface (world).
+    pub point: [f64; 3],
+    /// Outward surface normal there.
+    pub normal: [f64; 3],
+    /// Signed distance of the contact sphere from the surface (0 = touching; eq. 27 residual).
+    pub surface_distance: f64,
+}
+
+/// Every term of eq. 22 and the indexes behind it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Terms {
+    /// Total cost (eq. 22).
+    pub cost: f64,
+    /// Task compatibility index of the arm (eq. 16).
+    pub tc: f64,
+    /// Grasp compatibility index of the hand (eq. 19).
+    pub gc: f64,
+    /// Selected quality measure on the contact points.
+    pub quality: QualityMeasure,
+    /// `Q_DC` on the contact points (eq. 20), m.
+    pub q_dc: f64,
+    /// `Q_AGP` on the contact points (eq. 21), m².
+    pub q_agp: f64,
+    /// Anthropomorphism term: squared elbow distance to the reference (m²), 0 without one.
+    pub d: f64,
+    /// Arm manipulability at the grasp frame (eq. 12, full 6-D Jacobian of the arm joints).
+    pub manipulability: f64,
+    /// Arm ratio (α or β per direction's kind) along each task direction (eq. 14-15).
+    pub arm_ratios: Vec<f64>,
+    /// Hand ratio along each task direction (eq. 17-18).
+    pub hand_ratios: Vec<f64>,
+}
+
+/// Constraint residuals at the returned configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Residuals {
+    /// Largest |signed distance| of a contact sphere from the surface (eq. 27), m.
+    pub max_surface_distance: f64,
+    /// Largest penetration of a link sphere into the object (eq. 29), m (≤ 0: clear).
+    pub max_object_penetration: f64,
+    /// Largest penetration of a link sphere into the support plane, m (≤ 0: clear).
+    pub max_support_penetration: f64,
+    /// Smallest distance of a joint to its limits (eq. 25), rad or m (≥ 0 by construction).
+    pub min_limit_margin: f64,
+    /// Largest spread-order violation `q_a − q_b` (eq. 28; ≤ 0 holds).
+    pub max_spread_violation: f64,
+    /// Largest coupling error `|q_i − k_i q_driver − offset|` over mimic joints (eq. 26).
+    pub max_coupling_error: f64,
+}
+
+/// Outcome of a grasp request. An infeasible request is a result with `feasible: false`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GraspResult {
+    /// All constraints hold within tolerance.
+    pub feasible: bool,
+    /// Plain-language reason when infeasible.
+    pub reason: Option<String>,
+    /// Arm joint values.
+    pub q_arm: Vec<NamedJoint>,
+    /// Independent hand joint values.
+    pub q_hand: Vec<NamedJoint>,
+    /// Contacts, one per finger.
+    pub contacts: Vec<Contact>,
+    /// Cost terms and indexes.
+    pub terms: Terms,
+    /// Constraint residuals.
+    pub residuals: Residuals,
+    /// Velocity/force ellipsoids of the arm at the grasp frame (eq. 10-11).
+    pub arm_ellipsoids: Ellipsoids,
+    /// Velocity/force ellipsoids of the hand-object Jacobian.
+    pub hand_ellipsoids: Ellipsoids,
+    /// Solver report of the returned start.
+    pub solver: Option<SolveReport>,
+    /// Wall time of the whole request, s.
+    pub time_s: f64,
+    /// Starts run.
+    pub starts_used: usize,
+    /// Starts that ended feasible.
+    pub starts_feasible: usize,
+}
+
+/// Per-worker evaluation state: FK once per distinct `u`, shared by cost, gradient, residuals
+/// and constraint Jacobian (the closures all go through it).
+struct Eval<'a> {
+    sys: &'a HandArm,
+    req: &'a GraspRequest,
+    /// `u[k]` is `q[sel[k]]`.
+    sel: Vec<usize>,
+    na: usize,
+    q: Vec<f64>,
+    data: Data,
+    fd_data: Data,
+    last_u: Vec<f64>,
+    fresh: bool,
+    /// Rank of each arm column along the chain (base = 0), for ∂J/∂q.
+    arm_rank: Vec<usize>,
+    palm_j: Matrix6xX<f64>,
+    jv_arm: Matrix3xX<f64>,
+    dj: Vec<Matrix3xX<f64>>,
+    tip_p: Vec<Point3<f64>>,
+    tip_q: Vec<SurfaceQuery>,
+    tip_j: Vec<Matrix6xX<f64>>,
+    s_p: Vec<Point3<f64>>,
+    s_q: Vec<SurfaceQuery>,
+    s_j: Vec<Matrix6xX<f64>>,
+    elbow_p: Point3<f64>,
+    elbow_j: Matrix6xX<f64>,
+    tmp_j: Matrix6xX<f64>,
+    hand_gj: Matrix6xX<f64>,
+    point_grad: Vec<Vector3<f64>>,
+    grad_q: Vec<f64>,
+    grad_arm: Vec<f64>,
+    rho: f64,
+    n_spread: usize,
+    plane: bool,
+}
+
+impl<'a> Eval<'a> {
+    fn new(sys: &'a HandArm, req: &'a GraspRequest) -> Self {
+        let model = &sys.model;
+        let nq = model.nq();
+        let sel: Vec<usize> = sys
+            .arm_joints
+            .iter()
+            .chain(&sys.hand_joints)
+            .copied()
+            .collect();
+        let na = sys.arm_joints.len();
+        let chain = model.supporting_q(sys.palm);
+        let arm_rank = sys
+            .arm_joints
+            .iter()
+            .map(|q| chain.iter().position(|c| c == q).unwrap_or(usize::MAX))
+            .collect();
+        let m = sys.fingers.len();
+        let s = sys.link_spheres.len();
+        Eval {
+            sys,
+            req,
+            sel,
+            na,
+            q: model.neutral(),
+            data: Data::new(model),
+            fd_data: Data::new(model),
+            last_u: Vec::new(),
+            fresh: false,
+            arm_rank,
+            palm_j: Matrix6xX::zeros(nq),
+            jv_arm: Matrix3xX::zeros(na),
+            dj: vec![Matrix3xX::zeros(na); na],
+            tip_p: vec![Point3::origin(); m],
+            tip_q: vec![
+                SurfaceQuery {
+                    signed_distance: 0.0,
+                    point: Point3::origin(),
+                    normal: Vector3::z()
+                };
+                m
+            ],
+            tip_j: vec![Matrix6xX::zeros(nq); m],
+            s_p: vec![Point3::origin(); s],
+            s_q: vec![
+                SurfaceQuery {
+                    signed_distance: 0.0,
+                    point: Point3::origin(),
+                    normal: Vector3::z()
+                };
+                s
+            ],
+            s_j: vec![Matrix6xX::zeros(nq); s],
+            elbow_p: Point3::origin(),
+            elbow_j: Matrix6xX::zeros(nq),
+            tmp_j: Matrix6xX::zeros(nq),
+            hand_gj: Matrix6xX::zeros(sys.hand_joints.len()),
+            point_grad: vec![Vector3::zeros(); m],
+            grad_q: vec![0.0; nq],
+            grad_arm: vec![0.0; na],
+            rho: req.object.bounding_radius(),
+            n_spread: sys.spread_pairs.len(),
+            plane: req.object.support().is_some(),
+        }
+    }
+
+    fn n(&self) -> usize {
+        self.sel.len()
+    }
+
+    fn n_eq(&self) -> usize {
+        self.sys.fingers.len()
+    }
+
+    fn n_ineq(&self) -> usize {
+        let s = self.sys.link_spheres.len();
+        self.n_spread + s + if self.plane { s } else { 0 }
+    }
+
+    fn set_q(&mut self, u: &[f64]) {
+        for (k, &i) in self.sel.iter().enumerate() {
+            self.q[i] = u[k];
+        }
+    }
+
+    /// FK, Jacobians and surface queries at `u` (skipped when `u` is unchanged).
+    fn update(&mut self, u: &[f64]) {
+        if self.fresh && self.last_u == u {
+            return;
+        }
+        self.last_u.clear();
+        self.last_u.extend_from_slice(u);
+        self.fresh = true;
+        self.set_q(u);
+        let model = &*self.sys.model;
+        forward_kinematics(model, &mut self.data, &self.q);
+        frame_jacobian(
+            model,
+            &self.data,
+            self.sys.palm,
+            &Vector3::zeros(),
+            &mut self.palm_j,
+        );
+        for (i, f) in self.sys.fingers.iter().enumerate() {
+            self.tip_p[i] = self.data.frame(f.tip) * Point3::from(f.tip_offset);
+            self.tip_q[i] = self.req.object.query(&self.tip_p[i]);
+            frame_jacobian(model, &self.data, f.tip, &f.tip_offset, &mut self.tip_j[i]);
+        }
+        for (i, s) in self.sys.link_spheres.iter().enumerate() {
+            self.s_p[i] = self.data.frame(s.frame) * Point3::from(s.center);
+            self.s_q[i] = self.req.object.query(&self.s_p[i]);
+            frame_jacobian(model, &self.data, s.frame, &s.center, &mut self.s_j[i]);
+        }
+        if let Some(e) = self.sys.elbow {
+            self.elbow_p = Point3::from(self.data.frame(e).translation.vector);
+            frame_jacobian(model, &self.data, e, &Vector3::zeros(), &mut self.elbow_j);
+        }
+        // Arm translational Jacobian at the grasp frame and its partial derivatives. For a
+        // serial chain of revolute joints with world axes z and columns J_j = z_j × (p − p_j):
+        // ∂J_j/∂q_i = z_i × J_j when joint i precedes j (or i = j), z_j × J_i otherwise.
+        for (a, &qa) in self.sys.arm_joints.iter().enumerate() {
+            for r in 0..3 {
+                self.jv_arm[(r, a)] = self.palm_j[(r, qa)];
+            }
+        }
+        for i in 0..self.na {
+            let zi = self
+                .palm_j
+                .fixed_view::<3, 1>(3, self.sys.arm_joints[i])
+                .into_owned();
+            for j in 0..self.na {
+                let zj = self
+                    .palm_j
+                    .fixed_view::<3, 1>(3, self.sys.arm_joints[j])
+                    .into_owned();
+                let col = if self.arm_rank[i] <= self.arm_rank[j] {
+                    zi.cross(&self.jv_arm.column(j))
+                } else {
+                    zj.cross(&self.jv_arm.column(i))
+                };
+                self.dj[i].set_column(j, &col);
+            }
+        }
+    }
+
+    fn quality_surrogate(&self) -> f64 {
+        match self.req.quality {
+            QualityMeasure::CentroidDistance => {
+                indexes::q_dc(&self.tip_p, &self.req.object.centroid()) / self.rho
+            }
+            QualityMeasure::PolygonArea => -indexes::q_agp(&self.tip_p) / (self.rho * self.rho),
+        }
+    }
+
+    fn elbow_term(&self) -> f64 {
+        match (&self.req.elbow_reference, self.sys.elbow) {
+            (Some(r), Some(_)) => (self.elbow_p - r).norm_squared(),
+            _ => 0.0,
+        }
+    }
+
+    fn cost(&mut self, u: &[f64]) -> f64 {
+        self.update(u);
+        let w = self.req.weights;
+        let mut c = 0.0;
+        if w.tc > 0.0 {
+            let m = indexes::transmission_matrix(&self.jv_arm);
+            c += w.tc * indexes::compatibility_index(&m, &self.req.task);
+        }
+        if w.gc > 0.0 {
+            c += w.gc
+                * hand_gc(
+                    self.sys,
+                    self.req,
+                    &self.data,
+                    &mut self.tmp_j,
+                    &mut self.hand_gj,
+                )
+                .0;
+        }
+        if w.q > 0.0 {
+            c += w.q * self.quality_surrogate();
+        }
+        if w.d > 0.0 {
+            c += w.d * self.elbow_term();
+        }
+        c
+    }
+
+    fn gradient(&mut self, u: &[f64], g: &mut [f64]) {
+        self.update(u);
+        let w = self.req.weights;
+        self.grad_q.iter_mut().for_each(|x| *x = 0.0);
+        if w.q > 0.0 {
+            let cg = self.req.object.centroid();
+            let scale = match self.req.quality {
+                QualityMeasure::CentroidDistance => {
+                    indexes::q_dc_point_gradient(&self.tip_p, &cg, &mut self.point_grad);
+                    w.q / self.rho
+                }
+                QualityMeasure::PolygonArea => {
+                    indexes::q_agp_point_gradient(&self.tip_p, &mut self.point_grad);
+                    -w.q / (self.rho * self.rho)
+                }
+            };
+            for (i, pg) in self.point_grad.iter().enumerate() {
+                add_point_gradient(&mut self.grad_q, &self.tip_j[i], &(pg * scale));
+            }
+        }
+        if w.d > 0.0
+            && let (Some(r), Some(_)) = (&self.req.elbow_reference, self.sys.elbow)
+        {
+            let e = (self.elbow_p - r) * (2.0 * w.d);
+            add_point_gradient(&mut self.grad_q, &self.elbow_j, &e);
+        }
+        if w.tc > 0.0 {
+            indexes::compatibility_index_gradient(
+                &self.jv_arm,
+                &self.dj,
+                &self.req.task,
+                &mut self.grad_arm,
+            );
+            for (a, &qa) in self.sys.arm_joints.iter().enumerate() {
+                self.grad_q[qa] += w.tc * self.grad_arm[a];
+            }
+        }
+        for (k, &i) in self.sel.iter().enumerate() {
+            g[k] = self.grad_q[i];
+        }
+        if w.gc > 0.0 {
+            // GC goes through the pseudo-inverse of the grasp matrix, whose derivative has no
+            // compact closed form when G is rank-deficient (two-finger hands); its gradient is
+            // taken by central differences on a separate scratch Data (2n extra FK passes).
+            let h = 1e-6;
+            let mut up = self.last_u.clone();
+            for k in 0..self.n() {
+                let x = up[k];
+                up[k] = x + h;
+                let fp = self.gc_at(&up);
+                up[k] = x - h;
+                let fm = self.gc_at(&up);
+                up[k] = x;
+                g[k] += w.gc * (fp - fm) / (2.0 * h);
+            }
+        }
+    }
+
+    fn gc_at(&mut self, u: &[f64]) -> f64 {
+        for (k, &i) in self.sel.iter().enumerate() {
+            self.q[i] = u[k];
+        }
+        forward_kinematics(&self.sys.model, &mut self.fd_data, &self.q);
+        let v = hand_gc(
+            self.sys,
+            self.req,
+            &self.fd_data,
+            &mut self.tmp_j,
+            &mut self.hand_gj,
+        )
+        .0;
+        // restore q of the cached point
+        let last = std::mem::take(&mut self.last_u);
+        self.set_q(&last);
+        self.last_u = last;
+        v
+    }
+
+    fn residuals(&mut self, u: &[f64], r: &mut [f64]) {
+        self.update(u);
+        let m = self.n_eq();
+        for ((ri, tq), f) in r.iter_mut().zip(&self.tip_q).zip(&self.sys.fingers) {
+            *ri = tq.signed_distance - f.radius;
+        }
+        let mut k = m;
+        for sp in &self.sys.spread_pairs {
+            r[k] = sp.lower.at(&self.q) - sp.upper.at(&self.q);
+            k += 1;
+        }
+        for (i, s) in self.sys.link_spheres.iter().enumerate() {
+            r[k] = s.radius - self.s_q[i].signed_distance;
+            k += 1;
+        }
+        if let Some(pl) = self.req.object.support() {
+            for (i, s) in self.sys.link_spheres.iter().enumerate() {
+                r[k] = s.radius - pl.signed_distance(&self.s_p[i]);
+                k += 1;
+            }
+        }
+    }
+
+    fn jacobian_t(&mut self, u: &[f64], d: &[f64], out: &mut [f64]) {
+        self.update(u);
+        self.grad_q.iter_mut().for_each(|x| *x = 0.0);
+        let m = self.n_eq();
+        for (i, di) in d.iter().enumerate().take(m) {
+            add_point_gradient(
+                &mut self.grad_q,
+                &self.tip_j[i],
+                &(self.tip_q[i].normal * *di),
+            );
+        }
+        let mut k = m;
+        for sp in &self.sys.spread_pairs {
+            self.grad_q[sp.lower.q_index] += sp.lower.multiplier * d[k];
+            self.grad_q[sp.upper.q_index] -= sp.upper.multiplier * d[k];
+            k += 1;
+        }
+        for i in 0..self.sys.link_spheres.len() {
+            add_point_gradient(
+                &mut self.grad_q,
+                &self.s_j[i],
+                &(self.s_q[i].normal * -d[k]),
+            );
+            k += 1;
+        }
+        if let Some(pl) = self.req.object.support() {
+            let n = Vector3::from(pl.normal);
+            for i in 0..self.sys.link_spheres.len() {
+                add_point_gradient(&mut self.grad_q, &self.s_j[i], &(n * -d[k]));
+                k += 1;
+            }
+        }
+        for (k, &i) in self.sel.iter().enumerate() {
+            out[k] = self.grad_q[i];
+        }
+    }
+}
+
+/// `grad_q += J_vᵀ v` for a point Jacobian (rows 0..3 of a 6 × nq Jacobian).
+fn add_point_gradient(grad_q: &mut [f64], j: &Matrix6xX<f64>, v: &Vector3<f64>) {
+    for (c, g) in grad_q.iter_mut().enumerate() {
+        *g += j[(0, c)] * v.x + j[(1, c)] * v.y + j[(2, c)] * v.z;
+    }
+}
+
+/// Contact points on the surface: each contact-sphere centre moved along the normal by its
+/// signed distance (the closest surface point).
+fn contact_points(sys: &HandArm, obj: &Object, data: &Data) -> Vec<(Point3<f64>, SurfaceQuery)> {
+    sys.fingers
+        .iter()
+        .map(|f| {
+            let p = data.frame(f.tip) * Point3::from(f.tip_offset);
+            let q = obj.query(&p);
+            (q.point, q)
+        })
+        .collect()
+}
+
+/// Hand transmission matrix `M_h = H_v H_vᵀ` and GC (eq. 17-19) at the FK state in `data`.
+/// `H = (Gᵀ)⁺ J_h` is formed as `(G Gᵀ)⁺ G J_h` (the same matrix, since `A⁺ = (AᵀA)⁺Aᵀ`) with a
+/// fixed-size 6 × 6 pseudo-inverse, so that it allocates nothing.
+fn hand_gc(
+    sys: &HandArm,
+    req: &GraspRequest,
+    data: &Data,
+    tmp_j: &mut Matrix6xX<f64>,
+    gj: &mut Matrix6xX<f64>,
+) -> (f64, Matrix3<f64>) {
+    let cg = req.object.centroid();
+    let mut ggt = Matrix6::<f64>::zeros();
+    gj.fill(0.0);
+    for f in &sys.fingers {
+        let p = data.frame(f.tip) * Point3::from(f.tip_offset);
+        let q = req.object.query(&p);
+        let c = q.point;
+        let local = data.frame(f.tip).inverse_transform_point(&c);
+        frame_jacobian(&sys.model, data, f.tip, &local.coords, tmp_j);
+        let r = c - cg;
+        let skew = r.cross_matrix();
+        // G_i = [I; [r]×]
+        let mut gi = nalgebra::Matrix6x3::<f64>::zeros();
+        gi.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&Matrix3::identity());
+        gi.fixed_view_mut::<3, 3>(3, 0).copy_from(&skew);
+        ggt += gi * gi.transpose();
+        for (h, &qh) in sys.hand_joints.iter().enumerate() {
+            let jcol = Vector3::new(tmp_j[(0, qh)], tmp_j[(1, qh)], tmp_j[(2, qh)]);
+            let col = gi * jcol;
+            for rr in 0..6 {
+                gj[(rr, h)] += col[rr];
+            }
+        }
+    }
+    // (G Gᵀ)⁺ through a fixed-size symmetric eigendecomposition; eigenvalues below a relative
+    // threshold are the rotation about the contact line of two-finger grasps (null space).
+    let eig = nalgebra::SymmetricEigen::new(ggt);
+    let lmax = eig.eigenvalues.max().max(1e-300);
+    let mut inv = Matrix6::<f64>::zeros();
+    for k in 0..6 {
+        let l = eig.eigenvalues[k];
+        if l > 1e-10 * lmax {
+            let v = eig.eigenvectors.column(k);
+            inv += v * v.transpose() / l;
+        }
+    }
+    let h = inv * &*gj;
+    let hv = h.rows(0, 3);
+    let m = hv * hv.transpose();
+    let m3 = Matrix3::from_iterator(m.iter().copied());
+    (indexes::compatibility_index(&m3, &req.task), m3)
+}
+
+/// A start: arm configuration from a pre-grasp palm pose (damped least-squares IK), hand
+/// preshape at mid-range, perturbed per start.
+fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, u: &mut [f64]) {
+    let model = &*sys.model;
+    let mut rng =
+        ChaCha8Rng::seed_from_u64(req.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ start as u64);
+    let mut q = model.neutral();
+    let (lo, hi) = (model.lower_limits(), model.upper_limits());
+    // Hand preshape: mid-range, jittered on later starts.
+    for &h in &sys.hand_joints {
+        let (l, u) = (finite_or(lo[h], -1.0), finite_or(hi[h], 1.0));
+        let jitter = if start == 0 {
+            0.0
+        } else {
+            rng.random_range(-0.15..0.15)
+        };
+        q[h] = (0.5 * (l + u) + jitter * (u - l)).clamp(l, u);
+    }
+    // Fingertip geometry in the palm frame at the preshape.
+    forward_kinematics(model, data, &q);
+    let palm = *data.frame(sys.palm);
+    let tips: Vec<Vector3<f64>> = sys
+        .fingers
+        .iter()
+        .map(|f| {
+            palm.inverse_transform_point(&(data.frame(f.tip) * Point3::from(f.tip_offset)))
+                .coords
+        })
+        .collect();
+    let centroid_local = tips.iter().sum::<Vector3<f64>>() / tips.len() as f64;
+    let approach_local = centroid_local
+        .try_normalize(1e-9)
+        .unwrap_or_else(Vector3::z);
+    // Closing direction: thumb (or first finger) towards the others.
+    let t = sys.thumb.unwrap_or(0);
+    let others = (centroid_local * tips.len() as f64 - tips[t]) / (tips.len() - 1) as f64;
+    let close = others - tips[t];
+    let close_local = (close - approach_local * approach_local.dot(&close))
+        .try_normalize(1e-9)
+        .unwrap_or_else(|| approach_local.cross(&Vector3::x()).normalize());
+    // Candidate approach directions (world): horizontal from the shoulder, top-down, 45° down.
+    let cg = req.object.centroid();
+    let shoulder = sys
+        .arm_joints
+        .first()
+        .map(|&a| first_frame_of_q(sys, a, data))
+        .unwrap_or_else(Point3::origin);
+    let mut horiz = cg - shoulder;
+    horiz.z = 0.0;
+    let horiz = horiz.try_normalize(1e-9).unwrap_or_else(Vector3::x);
+    let down = -Vector3::z();
+    let candidates = [horiz, (horiz + down).normalize(), down];
+    let k = start % (2 * candidates.len());
+    let mut approach = candidates[k / 2];
+    let mut roll = if k.is_multiple_of(2) {
+        0.0
+    } else {
+        std::f64::consts::FRAC_PI_2
+    };
+    if start >= 2 * candidates.len() {
+        approach = (approach
+            + Vector3::new(
+                rng.random_range(-0.4..0.4),
+                rng.random_range(-0.4..0.4),
+                rng.random_range(-0.4..0.4),
+            ))
+        .try_normalize(1e-9)
+        .unwrap_or(approach);
+        roll += rng.random_range(-0.8..0.8);
+    }
+    // For objects with an axis, close across it: the closing direction is perpendicular to
+    // both the approach and the object axis when roll = 0.
+    let axis = req.object.pose().rotation * Vector3::z();
+    let mut close_world = approach.cross(&axis);
+    if close_world.norm() < 1e-3 {
+        close_world = approach.cross(&Vector3::x());
+        if close_world.norm() < 1e-3 {
+            close_world = approach.cross(&Vector3::y());
+        }
+    }
+    let close_world =
+        UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(approach), roll)
+            * close_world.normalize();
+    let r_local = Rotation3::from_basis_unchecked(&[
+        approach_local,
+        close_local,
+        approach_local.cross(&close_local),
+    ]);
+    let r_world =
+        Rotation3::from_basis_unchecked(&[approach, close_world, approach.cross(&close_world)]);
+    let rot = UnitQuaternion::from_rotation_matrix(&(r_world * r_local.transpose()));
+    let target = Isometry3::from_parts((cg.coords - rot * centroid_local).into(), rot);
+    dls_ik(sys, data, &mut q, &target);
+    for (k, &i) in sys.arm_joints.iter().chain(&sys.hand_joints).enumerate() {
+        u[k] = q[i];
+    }
+}
+
+fn finite_or(v: f64, d: f64) -> f64 {
+    if v.is_finite() { v } else { d }
+}
+
+/// World position of the frame moved by `q[qi]` (the joint's child frame) at the FK in `data`.
+fn first_frame_of_q(sys: &HandArm, qi: usize, data: &Data) -> Point3<f64> {
+    let joint = sys.model.q_joint(qi);
+    Point3::from(data.frame(joint.child).translation.vector)
+}
+
+/// Damped least-squares IK of the palm pose over the arm joints, clamped to limits. Hand-rolled
+/// because it is only a seeding heuristic (a few dozen iterations, accuracy irrelevant).
+fn dls_ik(sys: &HandArm, data: &mut Data, q: &mut [f64], target: &Isometry3<f64>) {
+    let model = &*sys.model;
+    let na = sys.arm_joints.len();
+    let mut j = Matrix6xX::zeros(model.nq());
+    let mut ja = nalgebra::DMatrix::zeros(6, na);
+    let (lo, hi) = (model.lower_limits(), model.upper_limits());
+    for _ in 0..60 {
+        forward_kinematics(model, data, q);
+        let x = data.frame(sys.palm);
+        let ep = target.translation.vector - x.translation.vector;
+        let er = (target.rotation * x.rotation.inverse()).scaled_axis();
+        // Position errors matter more than orientation for a seed: weight rotation by 0.3 m.
+        let e = nalgebra::Vector6::new(ep.x, ep.y, ep.z, 0.3 * er.x, 0.3 * er.y, 0.3 * er.z);
+        if e.norm() < 1e-4 {
+            break;
+        }
+        frame_jacobian(model, data, sys.palm, &Vector3::zeros(), &mut j);
+        for (a, &qa) in sys.arm_joints.iter().enumerate() {
+            for r in 0..6 {
+                ja[(r, a)] = j[(r, qa)] * if r >= 3 { 0.3 } else { 1.0 };
+            }
+        }
+        let jjt = &ja * ja.transpose() + nalgebra::DMatrix::identity(6, 6) * 1e-3;
+        let Some(inv) = jjt.try_inverse() else { break };
+        let dq = ja.transpose() * (inv * nalgebra::DVector::from_column_slice(e.as_slice()));
+        for (a, &qa) in sys.arm_joints.iter().enumerate() {
+            let step = dq[a].clamp(-0.3, 0.3);
+            q[qa] = (q[qa] + step).clamp(finite_or(lo[qa], -1e9), finite_or(hi[qa], 1e9));
+        }
+    }
+}
+
+struct StartOutcome {
+    start: usize,
+    u: Vec<f64>,
+    report: SolveReport,
+    feasible: bool,
+    score: f64,
+}
+
+fn solver_settings() -> Settings {
+    Settings {
+        tolerance: 1e-5,
+        // 0.1 mm: an order of magnitude inside the feasibility tolerances above.
+        constraint_tolerance: 1e-4,
+        max_inner_iterations: 500,
+        max_outer_iterations: 30,
+        initial_penalty: 100.0,
+        penalty_update_factor: 5.0,
+        lbfgs_memory: 10,
+        max_duration: Some(Duration::from_millis(400)),
+    }
+}
+
+fn run_start(sys: &HandArm, req: &GraspRequest, start: usize) -> StartOutcome {
+    let eval = std::cell::RefCell::new(Eval::new(sys, req));
+    let (n, n_eq, n_ineq) = {
+        let e = eval.borrow();
+        (e.n(), e.n_eq(), e.n_ineq())
+    };
+    let mut u = vec![0.0; n];
+    {
+        let mut e = eval.borrow_mut();
+        let e = &mut *e;
+        seed_start(sys, req, start, &mut e.fd_data, &mut u);
+    }
+    let (lo, hi) = bounds(sys);
+    let problem = Problem::new(
+        n,
+        |x: &[f64]| eval.borrow_mut().cost(x),
+        |x: &[f64], g: &mut [f64]| eval.borrow_mut().gradient(x, g),
+    )
+    .with_bounds(&lo, &hi)
+    .expect("model limits are ordered")
+    .with_constraints(Constraints::new(
+        n_eq,
+        n_ineq,
+        |x: &[f64], r: &mut [f64]| eval.borrow_mut().residuals(x, r),
+        |x: &[f64], d: &[f64], out: &mut [f64]| eval.borrow_mut().jacobian_t(x, d, out),
+    ));
+    let mut solver = Solver::new(n, n_eq + n_ineq, solver_settings());
+    let report = solver
+        .solve(&problem, &mut u)
+        .expect("problem is well-formed");
+    let mut r = vec![0.0; n_eq + n_ineq];
+    eval.borrow_mut().residuals(&u, &mut r);
+    let surface = r[..n_eq].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+    let pen = r[n_eq + sys.spread_pairs.len()..]
+        .iter()
+        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
+    let spread = r[n_eq..n_eq + sys.spread_pairs.len()]
+        .iter()
+        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
+    let feasible = report.status != SolveStatus::NumericalFailure
+        && surface <= SURFACE_TOLERANCE
+        && pen <= PENETRATION_TOLERANCE
+        && spread <= 1e-9;
+    let score = if feasible {
+        report.cost
+    } else {
+        surface + pen.max(0.0) + spread.max(0.0)
+    };
+    StartOutcome {
+        start,
+        u,
+        report,
+        feasible,
+        score,
+    }
+}
+
+fn bounds(sys: &HandArm) -> (Vec<f64>, Vec<f64>) {
+    let m = &sys.model;
+    sys.arm_joints
+        .iter()
+        .chain(&sys.hand_joints)
+        .map(|&i| (m.lower_limits()[i], m.upper_limits()[i]))
+        .unzip()
+}
+
+/// Compute a task-specific grasp: multi-start constrained optimisation of eq. 22-29, best
+/// feasible result (lowest cost) returned, or the least-infeasible one with a reason.
+pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, GraspError> {
+    req.validate(sys)?;
+    let t0 = Instant::now();
+    let mut req = req.clone();
+    for t in req.task.iter_mut() {
+        t.direction = t.direction.normalize();
+    }
+    let req = &req;
+    let threads = req.threads.clamp(1, req.starts);
+    let mut outcomes: Vec<StartOutcome> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|w| {
+                s.spawn(move || {
+                    (w..req.starts)
+                        .step_by(threads)
+                        .map(|k| run_start(sys, req, k))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().expect("grasp worker panicked"))
+            .collect()
+    });
+    outcomes.sort_by_key(|o| o.start);
+    let starts_feasible = outcomes.iter().filter(|o| o.feasible).count();
+    let best = outcomes
+        .iter()
+        .min_by(|a, b| {
+            (!a.feasible, a.score)
+                .partial_cmp(&(!b.feasible, b.score))
+                .expect("finite scores")
+        })
+        .expect("at least one start");
+    let mut result = describe(sys, req, &best.u, Some(best.report.clone()));
+    result.feasible = best.feasible;
+    result.reason = if best.feasible {
+        None
+    } else {
+        Some(explain(sys, req, &result))
+    };
+    result.starts_used = outcomes.len();
+    result.starts_feasible = starts_feasible;
+    result.time_s = t0.elapsed().as_secs_f64();
+    Ok(result)
+}
+
+fn explain(sys: &HandArm, req: &GraspRequest, r: &GraspResult) -> String {
+    let res = &r.residuals;
+    let cg = req.object.centroid();
+    let palm_reach = r
+        .contacts
+        .iter()
+        .map(|c| (Point3::from(c.point) - cg).norm())
+        .fold(0.0, f64::max);
+    if res.max_surface_distance > SURFACE_TOLERANCE {
+        let worst = r
+            .contacts
+            .iter()
+            .max_by(|a, b| {
+                a.surface_distance
+                    .abs()
+                    .total_cmp(&b.surface_distance.abs())
+            })
+            .map(|c| c.finger.clone())
+            .unwrap_or_default();
+        let hand_span = sys.fingers.len();
+        format!(
+            "fingertip '{worst}' stays {:.1} mm from the object surface: the object is out of reach \
+             of the arm or too large for the {hand_span}-finger hand (object radius {:.1} mm, \
+             contacts up to {:.1} mm from its centroid)",
+            res.max_surface_distance * 1e3,
+            req.object.bounding_radius() * 1e3,
+            palm_reach * 1e3
+        )
+    } else if res.max_object_penetration > PENETRATION_TOLERANCE {
+        format!(
+            "a hand link penetrates the object by {:.1} mm in every start found",
+            res.max_object_penetration * 1e3
+        )
+    } else if res.max_support_penetration > PENETRATION_TOLERANCE {
+        format!(
+            "the hand or wrist penetrates the support surface by {:.1} mm: the object sits too low \
+             to be grasped without touching the table",
+            res.max_support_penetration * 1e3
+        )
+    } else {
+        format!(
+            "the spread ordering of the fingers is violated by {:.3} rad",
+            res.max_spread_violation
+        )
+    }
+}
+
+/// Evaluate every term, index, residual and ellipsoid at a decision vector.
+pub(crate) fn describe(
+    sys: &HandArm,
+    req: &GraspRequest,
+    u: &[f64],
+    report: Option<SolveReport>,
+) -> GraspResult {
+    let mut e = Eval::new(sys, req);
+    let cost = e.cost(u);
+    let n_eq = e.n_eq();
+    let mut r = vec![0.0; n_eq + e.n_ineq()];
+    e.residuals(u, &mut r);
+    let model = &*sys.model;
+    let names = model.joint_names();
+    let q_arm = sys
+        .arm_joints
+        .iter()
+        .map(|&i| NamedJoint {
+            name: names[i].clone(),
+            value: e.q[i],
+        })
+        .collect();
+    let q_hand = sys
+        .hand_joints
+        .iter()
+        .map(|&i| NamedJoint {
+            name: names[i].clone(),
+            value: e.q[i],
+        })
+        .collect();
+    let cps = contact_points(sys, &req.object, &e.data);
+    let points: Vec<Point3<f64>> = cps.iter().map(|c| c.0).collect();
+    let contacts = sys
+        .fingers
+        .iter()
+        .zip(&cps)
+        .map(|(f, (p, q))| Contact {
+            finger: f.name.clone(),
+            point: [p.x, p.y, p.z],
+            normal: [q.normal.x, q.normal.y, q.normal.z],
+            surface_distance: q.signed_distance - f.radius,
+        })
+        .collect();
+    let m_arm = indexes::transmission_matrix(&e.jv_arm);
+    let mut tmp = Matrix6xX::zeros(model.nq());
+    let mut gj = Matrix6xX::zeros(sys.hand_joints.len());
+    let (gc, m_hand) = hand_gc(sys, req, &e.data, &mut tmp, &mut gj);
+    let mut arm6 = nalgebra::DMatrix::zeros(6, sys.arm_joints.len());
+    for (a, &qa) in sys.arm_joints.iter().enumerate() {
+        arm6.set_column(a, &e.palm_j.column(qa));
+    }
+    let ns = sys.spread_pairs.len();
+    let s = sys.link_spheres.len();
+    let obj_pen = r[n_eq + ns..n_eq + ns + s]
+        .iter()
+        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
+    let plane_pen = r[n_eq + ns + s..]
+        .iter()
+        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
+    let (lo, hi) = bounds(sys);
+    let margin = u
+        .iter()
+        .zip(lo.iter().zip(&hi))
+        .map(|(x, (l, h))| (x - l).min(h - x))
+        .fold(f64::INFINITY, f64::min);
+    let coupling = model
+        .joints()
+        .iter()
+        .filter(|j| j.mimic.is_some())
+        .filter_map(|j| {
+            let m = j.mimic.as_ref()?;
+            let driver = model.joint(&m.joint)?.actuation?;
+            let act = j.actuation?;
+            // The joint's value as the model applies it vs. the declared coupling (eq. 26).
+            let applied = act.multiplier * e.q[act.q_index] + act.offset;
+            let declared =
+                m.multiplier * (driver.multiplier * e.q[driver.q_index] + driver.offset) + m.offset;
+            Some((applied - declared).abs())
+        })
+        .fold(0.0, f64::max);
+    GraspResult {
+        feasible: false,
+        reason: None,
+        q_arm,
+        q_hand,
+        contacts,
+        terms: Terms {
+            cost,
+            tc: indexes::compatibility_index(&m_arm, &req.task),
+            gc,
+            quality: req.quality,
+            q_dc: indexes::q_dc(&points, &req.object.centroid()),
+            q_agp: indexes::q_agp(&points),
+            d: e.elbow_term(),
+            manipulability: indexes::manipulability(&arm6),
+            arm_ratios: req
+                .task
+                .iter()
+                .map(|t| indexes::transmission_ratio(&m_arm, &t.direction, t.kind))
+                .collect(),
+            hand_ratios: req
+                .task
+                .iter()
+                .map(|t| indexes::transmission_ratio(&m_hand, &t.direction, t.kind))
+                .collect(),
+        },
+        residuals: Residuals {
+            max_surface_distance: r[..n_eq].iter().fold(0.0, |m, v| m.max(v.abs())),
+            max_object_penetration: if s > 0 { obj_pen } else { f64::NEG_INFINITY }.max(-1.0),
+            max_support_penetration: if plane_pen.is_finite() {
+                plane_pen
+            } else {
+                -1.0
+            },
+            min_limit_margin: margin,
+            max_spread_violation: r[n_eq..n_eq + ns]
+                .iter()
+                .fold(f64::NEG_INFINITY, |m, &v| m.max(v))
+                .max(-10.0),
+            max_coupling_error: coupling,
+        },
+        arm_ellipsoids: Ellipsoids::of(&m_arm),
+        hand_ellipsoids: Ellipsoids::of(&m_hand),
+        solver: report,
+        time_s: 0.0,
+        starts_used: 0,
+        starts_feasible: 0,
+    }
+}
+
+/// Shared model handle re-exported for callers building [`HandArm`]s.
+pub type SharedModel = Arc<crate::kinematics::Model>;
+
+#[cfg(test)]
+#[path = "optimizer_tests.rs"]
+mod tests;

@@ -1,0 +1,318 @@
+//! What the grasp optimiser needs to know about an arm-hand system, resolved once to typed
+//! indices: which `q` columns are arm and hand, the grasp (palm) frame, fingertip contact
+//! spheres, spread pairs (eq. 28), the elbow frame (eq. 4 reference) and the link spheres that
+//! must stay out of the object and above the support plane (eq. 29).
+
+use std::sync::Arc;
+
+use nalgebra::{Point3, Vector3};
+use parry3d_f64::shape::{Shape, TypedShape};
+
+use crate::kinematics::{Data, FrameId, Model, System, forward_kinematics};
+
+use super::GraspError;
+
+/// One finger: its fingertip contact sphere (centre fixed in the tip frame).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Finger {
+    /// Finger name.
+    pub name: String,
+    /// Tip frame.
+    pub tip: FrameId,
+    /// Contact-sphere centre in the tip frame.
+    pub tip_offset: Vector3<f64>,
+    /// Contact-sphere radius.
+    pub radius: f64,
+}
+
+/// A joint value as an affine function of one independent coordinate:
+/// `multiplier · q[q_index] + offset` (mimic joints included).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointValue {
+    /// Independent coordinate.
+    pub q_index: usize,
+    /// Coupling factor.
+    pub multiplier: f64,
+    /// Offset.
+    pub offset: f64,
+}
+
+impl JointValue {
+    /// An independent joint.
+    pub fn independent(q_index: usize) -> Self {
+        JointValue {
+            q_index,
+            multiplier: 1.0,
+            offset: 0.0,
+        }
+    }
+
+    /// Its value at `q`.
+    pub fn at(&self, q: &[f64]) -> f64 {
+        self.multiplier * q[self.q_index] + self.offset
+    }
+}
+
+/// Spread ordering of eq. 28: `value(lower) ≤ value(upper)` (abduction/adduction collisions).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpreadOrder {
+    /// Joint that must stay below.
+    pub lower: JointValue,
+    /// Joint that must stay above.
+    pub upper: JointValue,
+}
+
+/// A sphere rigidly attached to a link: one element of the discrete point set `S_i` of eq. 29.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinkSphere {
+    /// Link frame.
+    pub frame: FrameId,
+    /// Centre in the link frame.
+    pub center: Vector3<f64>,
+    /// Radius.
+    pub radius: f64,
+}
+
+/// The arm-hand system as the grasp optimiser sees it.
+#[derive(Debug, Clone)]
+pub struct HandArm {
+    /// System name.
+    pub name: String,
+    /// The combined kinematic model.
+    pub model: Arc<Model>,
+    /// `q` indices of the arm joints, base to tip.
+    pub arm_joints: Vec<usize>,
+    /// `q` indices of the independent hand joints.
+    pub hand_joints: Vec<usize>,
+    /// The grasp frame: TC (eq. 16) is evaluated for the arm Jacobian at its origin.
+    pub palm: FrameId,
+    /// Fingers; `thumb` indexes the opposing one if any.
+    pub fingers: Vec<Finger>,
+    /// Index of the thumb finger.
+    pub thumb: Option<usize>,
+    /// Ordered spread pairs (eq. 28): `value(lower) ≤ value(upper)`.
+    pub spread_pairs: Vec<SpreadOrder>,
+    /// Elbow frame for the anthropomorphism term D.
+    pub elbow: Option<FrameId>,
+    /// Link spheres kept out of the object and above the support plane (eq. 29).
+    pub link_spheres: Vec<LinkSphere>,
+}
+
+/// Sample a collision shape by spheres: balls as themselves, capsules and cylinders along
+/// their axis, boxes on a grid; spheres fit inside the shape.
+fn spheres_of(
+    shape_dyn: &dyn Shape,
+    origin: &nalgebra::Isometry3<f64>,
+    out: &mut Vec<(Vector3<f64>, f64)>,
+) {
+    let push = |out: &mut Vec<(Vector3<f64>, f64)>, p: Point3<f64>, r: f64| {
+        out.push(((origin * p).coords, r));
+    };
+    match shape_dyn.as_typed_shape() {
+        TypedShape::Ball(b) => push(out, Point3::origin(), b.radius),
+        TypedShape::Capsule(c) => {
+            let (a, b) = (c.segment.a, c.segment.b);
+            let len = (b - a).norm();
+            let n = ((len / c.radius).ceil() as usize).clamp(1, 8);
+            for k in 0..=n {
+                push(out, a + (b - a) * (k as f64 / n as f64), c.radius);
+            }
+        }
+        TypedShape::Cylinder(c) => {
+            let r = c.radius.min(c.half_height);
+            let n = ((2.0 * c.half_height / c.radius).ceil() as usize).clamp(1, 8);
+            for k in 0..=n {
+                let y = -c.half_height + r + (2.0 * (c.half_height - r)) * (k as f64 / n as f64);
+                push(out, Point3::new(0.0, y, 0.0), c.radius);
+            }
+        }
+        TypedShape::Cuboid(b) => {
+            let he = b.half_extents;
+            let r = he.min();
+            let counts = he.map(|h| ((h / r).round() as usize).clamp(1, 4));
+            for i in 0..counts.x {
+                for j in 0..counts.y {
+                    for k in 0..counts.z {
+                        let coord = |idx: usize, n: usize, h: f64| {
+                            if n == 1 {
+                                0.0
+                            } else {
+                                -h + r + (2.0 * (h - r)) * idx as f64 / (n - 1) as f64
+                            }
+                        };
+                        push(
+                            out,
+                            Point3::new(
+                                coord(i, counts.x, he.x),
+                                coord(j, counts.y, he.y),
+                                coord(k, counts.z, he.z),
+                            ),
+                            r,
+                        );
+                    }
+                }
+            }
+        }
+        _ => {
+            // Meshes and other shapes: a bounding-sphere-free fallback is not conservative, so
+            // use the local AABB centre with the inscribed radius of the AABB.
+            let aabb = shape_dyn.compute_local_aabb();
+            let he = aabb.half_extents();
+            push(out, aabb.center(), he.min());
+        }
+    }
+}
+
+impl HandArm {
+    /// Collect the link spheres of eq. 29 from the model's collision shapes: every link moved by
+    /// a hand joint, plus links moved by any of the last `wrist_joints` arm joints (the parts
+    /// that come near the object and the table). Spheres on a fingertip link that overlap its
+    /// contact sphere are dropped: the contact sphere is what touches the surface (eq. 27).
+    pub fn collect_link_spheres(&mut self, wrist_joints: usize) {
+        let model = &self.model;
+        let wrist: Vec<usize> = self
+            .arm_joints
+            .iter()
+            .rev()
+            .take(wrist_joints)
+            .copied()
+            .collect();
+        // Frames rigidly attached to each fingertip (the tip's body): spheres there that overlap
+        // the contact sphere are dropped, the rest shrunk to the contact radius, because the
+        // contact sphere is the finger pad that touches the surface (eq. 27).
+        let tip_body: Vec<Vec<FrameId>> = self
+            .fingers
+            .iter()
+            .map(|f| {
+                let mut body = vec![f.tip];
+                let mut fr = f.tip;
+                while let (Some(j), Some(parent)) =
+                    (model.joint_of_frame(fr), model.frame_parent(fr))
+                {
+                    if !j.kind.is_fixed() {
+                        break;
+                    }
+                    body.push(parent);
+                    fr = parent;
+                }
+                // The moving link carrying the tip (the distal phalanx) is also the tip's body.
+                if let Some(j) = model.joint_of_frame(fr)
+                    && !j.kind.is_fixed()
+                {
+                    body.push(fr);
+                }
+                body
+            })
+            .collect();
+        let mut data = Data::new(model);
+        forward_kinematics(model, &mut data, &model.neutral());
+        let mut spheres = Vec::new();
+        let mut buf = Vec::new();
+        for c in model.collisions() {
+            let sup = model.supporting_q(c.frame);
+            let moved_by_hand = sup.iter().any(|q| self.hand_joints.contains(q));
+            let moved_by_wrist = sup.iter().any(|q| wrist.contains(q));
+            if !(moved_by_hand || moved_by_wrist) {
+                continue;
+            }
+            buf.clear();
+            spheres_of(c.shape.as_ref(), &c.origin, &mut buf);
+            'sphere: for &(center, mut radius) in &buf {
+                for (f, body) in self.fingers.iter().zip(&tip_body) {
+                    if body.contains(&c.frame) {
+                        let world = data.frame(c.frame) * Point3::from(center);
+                        let tip = data.frame(f.tip) * Point3::from(f.tip_offset);
+                        if (world - tip).norm() < f.radius + radius {
+                            continue 'sphere;
+                        }
+                        radius = radius.min(0.9 * f.radius);
+                    }
+                }
+                if radius > 1e-4 {
+                    spheres.push(LinkSphere {
+                        frame: c.frame,
+                        center,
+                        radius,
+                    });
+                }
+            }
+        }
+        self.link_spheres = spheres;
+    }
+
+    /// The grasp view of a kinematic [`System`]: the wrist frame is the grasp frame, the first
+    /// elbow frame is D's elbow, contact spheres are centred on the tip frames, link spheres come
+    /// from the hand's and the last three arm joints' collision shapes.
+    pub fn from_system(sys: &System) -> Result<HandArm, GraspError> {
+        let mut h = HandArm {
+            name: sys.name.clone(),
+            model: sys.model.clone(),
+            arm_joints: sys.arm_joints.clone(),
+            hand_joints: sys.hand_joints.clone(),
+            palm: sys.wrist_frame,
+            fingers: sys
+                .fingers
+                .iter()
+                .map(|f| Finger {
+                    name: f.name.clone(),
+                    tip: f.tip,
+                    tip_offset: Vector3::zeros(),
+                    radius: f.contact_radius,
+                })
+                .collect(),
+            thumb: Some(sys.thumb),
+            spread_pairs: sys
+                .spread_pairs
+                .iter()
+                .map(|p| SpreadOrder {
+                    lower: JointValue {
+                        q_index: p.lower.q_index,
+                        multiplier: p.lower.multiplier,
+                        offset: p.lower.offset,
+                    },
+                    upper: JointValue {
+                        q_index: p.upper.q_index,
+                        multiplier: p.upper.multiplier,
+                        offset: p.upper.offset,
+                    },
+                })
+                .collect(),
+            elbow: sys.elbow_frames.first().copied(),
+            link_spheres: Vec::new(),
+        };
+        h.collect_link_spheres(3);
+        h.validate()?;
+        Ok(h)
+    }
+
+    /// Check indices and sizes; called once when a system is registered.
+    pub fn validate(&self) -> Result<(), GraspError> {
+        let nq = self.model.nq();
+        let bad = |field: &'static str, reason: String| {
+            Err(GraspError::InvalidParameter { field, reason })
+        };
+        if self.fingers.len() < 2 {
+            return bad(
+                "fingers",
+                format!(
+                    "a grasp needs at least 2 fingers, got {}",
+                    self.fingers.len()
+                ),
+            );
+        }
+        for &q in self.arm_joints.iter().chain(&self.hand_joints) {
+            if q >= nq {
+                return bad("joints", format!("q index {q} beyond nq = {nq}"));
+            }
+        }
+        for f in &self.fingers {
+            if !(f.radius.is_finite() && f.radius > 0.0) {
+                return bad(
+                    "fingers.radius",
+                    format!("finger '{}' radius {}", f.name, f.radius),
+                );
+            }
+        }
+        Ok(())
+    }
+}

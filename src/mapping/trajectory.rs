@@ -1,0 +1,261 @@
+//! Mapping whole demonstrations: registration, goals per frame, the frame solver in sequence,
+//! and batches across threads.
+
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use super::MappingError;
+use super::goals::finger_goals;
+use super::objective::{FrameGoals, MappingModel, Weights};
+use super::registration::{ArmPoints, Registration, RegistrationSpec, RobotAnchor};
+use super::solve::{FrameMetrics, Mapper, SolverOptions};
+use crate::human::HumanFrame;
+
+/// A demonstration mapped onto the robot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MappedTrajectory {
+    /// Independent joints, the order of each row of `positions`.
+    pub joint_names: Vec<String>,
+    pub times: Vec<f64>,
+    /// Row-major `frames × nq` joint positions.
+    pub positions: Vec<f64>,
+    pub metrics: Vec<FrameMetrics>,
+    pub registration: Registration,
+}
+
+impl MappedTrajectory {
+    pub fn nq(&self) -> usize {
+        self.joint_names.len()
+    }
+    pub fn frame(&self, k: usize) -> &[f64] {
+        let nq = self.nq();
+        &self.positions[k * nq..(k + 1) * nq]
+    }
+    /// Indices of the frames that did not converge.
+    pub fn unconverged(&self) -> impl Iterator<Item = usize> + '_ {
+        self.metrics
+            .iter()
+            .enumerate()
+            .filter(|(_, m)| !m.converged)
+            .map(|(k, _)| k)
+    }
+}
+
+impl Mapper {
+    /// Goals of one human frame in the robot base frame.
+    pub fn goals(&self, frame: &HumanFrame, reg: &Registration, out: &mut FrameGoals) {
+        let tips: [_; 5] = std::array::from_fn(|i| {
+            let iso = &frame.fingertips[i];
+            (
+                reg.point(&iso.translation.vector.into()),
+                reg.orientation(&iso.rotation),
+            )
+        });
+        let mm = self.eval.model();
+        finger_goals(&tips, mm.fingers(), mm.thumb, &mut out.fingers);
+        out.elbow = reg.point(&frame.elbow);
+    }
+
+    /// Maps a whole demonstration.
+    pub fn map(
+        &mut self,
+        frames: &[HumanFrame],
+        spec: &RegistrationSpec,
+        robot: &RobotAnchor,
+    ) -> Result<MappedTrajectory, MappingError> {
+        self.map_cancellable(frames, spec, robot, &AtomicBool::new(false))
+            .expect("never cancelled")
+    }
+
+    /// [`Self::map`], polling `cancel` between frames (`None` once cancelled).
+    pub fn map_cancellable(
+        &mut self,
+        frames: &[HumanFrame],
+        spec: &RegistrationSpec,
+        robot: &RobotAnchor,
+        cancel: &AtomicBool,
+    ) -> Option<Result<MappedTrajectory, MappingError>> {
+        let reg = match registration_for(frames, spec, robot) {
+            Ok(r) => r,
+            Err(e) => return Some(Err(e)),
+        };
+        let nq = self.eval.nq();
+        let mut out = MappedTrajectory {
+            joint_names: self.eval.model().model.joint_names().to_vec(),
+            times: Vec::with_capacity(frames.len()),
+            positions: Vec::with_capacity(frames.len() * nq),
+            metrics: Vec::with_capacity(frames.len()),
+            registration: reg,
+        };
+        let mut goals = FrameGoals::default();
+        for (k, frame) in frames.iter().enumerate() {
+            if cancel.load(Ordering::Relaxed) {
+                return None;
+            }
+            if let Err(e) = check_frame(k, frame) {
+                return Some(Err(e));
+            }
+            if k > 0 && !(frame.t > frames[k - 1].t) {
+                return Some(Err(MappingError::NonIncreasingTime {
+                    frame: k,
+                    t: frame.t,
+                    previous: frames[k - 1].t,
+                }));
+            }
+            self.goals(frame, &reg, &mut goals);
+            let metrics = if k == 0 {
+                self.solve_first(&goals, frame.t)
+            } else {
+                self.solve_next(&goals, frame.t, frame.t - frames[k - 1].t)
+            };
+            out.times.push(frame.t);
+            out.positions.extend_from_slice(&self.q);
+            out.metrics.push(metrics);
+        }
+        Some(Ok(out))
+    }
+}
+
+fn check_frame(k: usize, f: &HumanFrame) -> Result<(), MappingError> {
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    let fields: [(&'static str, bool); 5] = [
+        ("t", f.t.is_finite()),
+        ("shoulder", finite(f.shoulder.coords.as_slice())),
+        ("elbow", finite(f.elbow.coords.as_slice())),
+        (
+            "wrist",
+            finite(f.wrist.translation.vector.as_slice())
+                && finite(f.wrist.rotation.coords.as_slice()),
+        ),
+        (
+            "fingertips",
+            f.fingertips.iter().all(|t| {
+                finite(t.translation.vector.as_slice()) && finite(t.rotation.coords.as_slice())
+            }),
+        ),
+    ];
+    for (field, ok) in fields {
+        if !ok {
+            return Err(MappingError::NonFinite { frame: k, field });
+        }
+    }
+    Ok(())
+}
+
+/// The registration of a demonstration (its arm points, the spec, the robot).
+pub fn registration_for(
+    frames: &[HumanFrame],
+    spec: &RegistrationSpec,
+    robot: &RobotAnchor,
+) -> Result<Registration, MappingError> {
+    let points: Vec<ArmPoints> = frames
+        .iter()
+        .map(|f| ArmPoints {
+            shoulder: f.shoulder,
+            elbow: f.elbow,
+            wrist: f.wrist.translation.vector.into(),
+            middle_tip: f.fingertips[2].translation.vector.into(),
+        })
+        .collect();
+    Registration::resolve(spec, &points, robot)
+}
+
+/// One demonstration of a batch.
+#[derive(Clone, Copy, Debug)]
+pub struct BatchItem<'a> {
+    pub frames: &'a [HumanFrame],
+    pub registration: &'a RegistrationSpec,
+}
+
+/// Batch mapping was cancelled through its flag.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("mapping cancelled after {completed} of {total} demonstrations")]
+pub struct Cancelled {
+    pub completed: usize,
+    pub total: usize,
+}
+
+/// Maps many demonstrations across `threads` workers (each with its own [`Mapper`]), in input
+/// order. `progress(done, total)` is called after each demonstration; `cancel` is polled between
+/// demonstrations and between frames of one.
+pub fn map_batch(
+    mm: &MappingModel,
+    robot: &RobotAnchor,
+    items: &[BatchItem<'_>],
+    weights: Weights,
+    options: SolverOptions,
+    threads: usize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    cancel: &AtomicBool,
+) -> Result<Vec<Result<MappedTrajectory, MappingError>>, Cancelled> {
+    let total = items.len();
+    let next = AtomicUsize::new(0);
+    let done = AtomicUsize::new(0);
+    let threads = threads.clamp(1, total.max(1));
+    let mut results: Vec<Option<Result<MappedTrajectory, MappingError>>> = vec![None; total];
+    let chunks: Vec<Vec<(usize, Result<MappedTrajectory, MappingError>)>> =
+        std::thread::scope(|s| {
+            let handles: Vec<_> = (0..threads)
+                .map(|_| {
+                    s.spawn(|| {
+                        let mut mine = Vec::new();
+                        let mut mapper = match Mapper::new(mm.clone(), weights, options) {
+                            Ok(m) => m,
+                            Err(e) => {
+                                // Configuration errors apply to every item; report them all.
+                                loop {
+                                    let i = next.fetch_add(1, Ordering::Relaxed);
+                                    if i >= total {
+                                        return mine;
+                                    }
+                                    mine.push((i, Err(e.clone())));
+                                }
+                            }
+                        };
+                        loop {
+                            if cancel.load(Ordering::Relaxed) {
+                                return mine;
+                            }
+                            let i = next.fetch_add(1, Ordering::Relaxed);
+                            if i >= total {
+                                return mine;
+                            }
+                            let item = items[i];
+                            let r = mapper.map_cancellable(
+                                item.frames,
+                                item.registration,
+                                robot,
+                                cancel,
+                            );
+                            match r {
+                                Some(r) => {
+                                    mine.push((i, r));
+                                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                                    progress(d, total);
+                                }
+                                None => return mine,
+                            }
+                        }
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("mapping worker panicked"))
+                .collect()
+        });
+    for chunk in chunks {
+        for (i, r) in chunk {
+            results[i] = Some(r);
+        }
+    }
+    if cancel.load(Ordering::Relaxed) || results.iter().any(Option::is_none) {
+        return Err(Cancelled {
+            completed: done.load(Ordering::Relaxed),
+            total,
+        });
+    }
+    Ok(results
+        .into_iter()
+        .map(|r| r.expect("checked above"))
+        .collect())
+}

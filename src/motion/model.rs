@@ -1,0 +1,1175 @@
+//! Training (PCA + NF per joint group), trajectory generation, baselines and metrics.
+
+use serde::{Deserialize, Serialize};
+
+use super::control::ControlGroup;
+use super::fit::{DemoY, MAX_COEFFICIENTS, certify, fit_spline};
+use super::{
+    Certificate, Components, ControlParams, FlowOptions, FlowPath, MAX_DIM, MinimumJerk,
+    MotionError, NaturalCubic, NavigationFunction, Pca, Pchip, TensorBSpline, integrate_flow,
+};
+
+/// A demonstrated (mapped) joint trajectory: `times` (s, increasing) and `positions`
+/// (`frames × n_joints`, row-major, in the model's joint order).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JointTrajectory {
+    pub times: Vec<f64>,
+    pub positions: Vec<f64>,
+}
+
+impl JointTrajectory {
+    pub fn frames(&self) -> usize {
+        self.times.len()
+    }
+    pub fn frame(&self, i: usize, n: usize) -> &[f64] {
+        &self.positions[i * n..(i + 1) * n]
+    }
+}
+
+/// Per-joint limits (rad, rad/s, rad/s²), model joint order.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JointLimits {
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub acceleration: Vec<f64>,
+}
+
+impl JointLimits {
+    pub fn n(&self) -> usize {
+        self.lower.len()
+    }
+    fn validate(&self) -> Result<(), MotionError> {
+        let n = self.n();
+        for (field, v) in [
+            ("upper", &self.upper),
+            ("velocity", &self.velocity),
+            ("acceleration", &self.acceleration),
+        ] {
+            if v.len() != n {
+                return Err(MotionError::JointCount {
+                    field,
+                    expected: n,
+                    got: v.len(),
+                });
+            }
+        }
+        for j in 0..n {
+            if !(self.lower[j].is_finite()
+                && self.upper[j].is_finite()
+                && self.lower[j] < self.upper[j])
+            {
+                return Err(MotionError::InvalidLimits {
+                    joint: j,
+                    reason: "need finite lower < upper",
+                });
+            }
+            if !(self.velocity[j] > 0.0 && self.velocity[j].is_finite()) {
+                return Err(MotionError::InvalidLimits {
+                    joint: j,
+                    reason: "velocity limit must be positive",
+                });
+            }
+            if !(self.acceleration[j] > 0.0 && self.acceleration[j].is_finite()) {
+                return Err(MotionError::InvalidLimits {
+                    joint: j,
+                    reason: "acceleration limit must be positive",
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `k` of eq. 9: chosen automatically to satisfy the certificate, or given.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub enum KChoice {
+    #[default]
+    Auto,
+    Value(f64),
+}
+
+/// Training options.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainOptions {
+    /// Joint groups, each with its own PCA + NF (e.g. arm joints, hand joints); together they
+    /// must cover every joint exactly once. Empty: one group of all joints. The first group
+    /// drives the clock.
+    pub groups: Vec<Vec<usize>>,
+    pub components: Components,
+    /// Knot intervals per PCA axis of the spline `s`.
+    pub spline_intervals: usize,
+    /// Relative weight of the smoothness + ridge penalty of the spline fit.
+    pub regularisation: f64,
+    /// Demonstrated points closer to their goal than this fraction of the demonstration's
+    /// start-goal distance (in PCA space) are left out of the spline fit.
+    pub goal_exclusion: f64,
+    pub k: KChoice,
+    /// Workspace radius `R` = this × the training data's radius (> 1).
+    pub workspace_margin: f64,
+    /// Goal region: ball around the mean demonstrated final point, radius this × the largest
+    /// distance of a demonstrated final point from it (grown if need be to a minimum of 5 % of
+    /// the data radius; clipped to stay inside the workspace).
+    pub goal_margin: f64,
+    /// Demonstrations held out of training for evaluation (indices into the input).
+    pub held_out: Vec<usize>,
+    pub flow: FlowOptions,
+}
+
+impl Default for TrainOptions {
+    fn default() -> Self {
+        TrainOptions {
+            groups: Vec::new(),
+            components: Components::default(),
+            spline_intervals: 6,
+            regularisation: 3.0,
+            goal_exclusion: 0.25,
+            k: KChoice::Auto,
+            workspace_margin: 1.5,
+            goal_margin: 1.25,
+            held_out: Vec::new(),
+            flow: FlowOptions::default(),
+        }
+    }
+}
+
+/// One joint group's learned manifold and navigation function.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ManifoldModel {
+    pub joints: Vec<usize>,
+    pub pca: Pca,
+    pub nf: NavigationFunction,
+    pub certificate: Certificate,
+}
+
+/// Learned duration `T(d) = max(intercept + slope·d, min_duration)`, `d` the joint-space
+/// (Euclidean, all joints) distance from start to goal.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DurationModel {
+    pub intercept: f64,
+    pub slope: f64,
+    pub min_duration: f64,
+}
+
+impl DurationModel {
+    pub fn eval(&self, distance: f64) -> f64 {
+        (self.intercept + self.slope * distance).max(self.min_duration)
+    }
+}
+
+/// How a group's path progress follows the first group's: `σ_g = H(σ_0)`, learned from the
+/// demonstrations (mean over them of the group's arc-length fraction at each arm fraction), so
+/// the hand's opening and closing keep their demonstrated relation to the arm's transport.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PhaseMap {
+    pub map: Pchip,
+}
+
+/// A trained model: one [`ManifoldModel`] per joint group on one clock.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MotionModel {
+    pub n_joints: usize,
+    pub limits: JointLimits,
+    pub manifolds: Vec<ManifoldModel>,
+    /// One per manifold; the first is the identity.
+    pub phase: Vec<PhaseMap>,
+    pub duration: DurationModel,
+    pub flow: FlowOptions,
+}
+
+/// Fit quality of one manifold.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ManifoldFit {
+    pub group: usize,
+    pub components: usize,
+    pub explained_variance: Vec<f64>,
+    pub cumulative_explained_variance: f64,
+    /// Demonstrated points that entered the spline fit.
+    pub spline_points: usize,
+    pub certificate: Certificate,
+    /// Mean cosine between the flow direction and the demonstrated velocity direction
+    /// (each demonstration's own final point as the goal).
+    pub train_alignment: f64,
+    pub held_out_alignment: Option<f64>,
+}
+
+/// Humanlikeness on held-out demonstrations: mean arc-length-resampled joint-space deviation
+/// from the demonstrated path, for the NF model and the two baselines.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HeldOutReport {
+    pub demonstrations: usize,
+    /// Held-out demonstrations whose start or goal the model refused (outside its regions).
+    pub refused: usize,
+    pub nf: f64,
+    pub joint_line: f64,
+    pub pca_line: f64,
+    /// `nf / joint_line` (the goal: ≤ 0.7).
+    pub ratio_to_joint_line: f64,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainReport {
+    pub manifolds: Vec<ManifoldFit>,
+    pub duration: DurationModel,
+    pub training_demonstrations: usize,
+    pub held_out: Option<HeldOutReport>,
+}
+
+/// Which planner produces the path.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Baseline {
+    /// The learned navigation function (the model proper).
+    #[default]
+    NavigationFunction,
+    /// Straight line in joint space.
+    JointLine,
+    /// Straight line in PCA space (`k → ∞`), back-projected like the NF path. With the
+    /// exact-endpoint back-projection this coincides with the joint line (linear residual
+    /// interpolation along a straight PCA segment is the joint-space segment); kept as the
+    /// issue's baseline (c) and for models whose back-projection changes.
+    PcaLine,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrajectoryOptions {
+    /// Seconds; `None` uses the learned duration.
+    pub duration: Option<f64>,
+    /// Output rate (Hz).
+    pub rate: f64,
+    pub planner: Baseline,
+}
+
+impl Default for TrajectoryOptions {
+    fn default() -> Self {
+        TrajectoryOptions {
+            duration: None,
+            rate: 100.0,
+            planner: Baseline::NavigationFunction,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrajectoryPoint {
+    pub t: f64,
+    pub positions: Vec<f64>,
+    pub velocities: Vec<f64>,
+    pub accelerations: Vec<f64>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Trajectory {
+    pub points: Vec<TrajectoryPoint>,
+    pub duration: f64,
+    /// The requested (or learned) duration before stretching.
+    pub requested_duration: f64,
+    pub learned_duration: f64,
+    /// The duration was lengthened to respect velocity/acceleration limits.
+    pub stretched: bool,
+    /// Largest velocity / acceleration limit use along the output (≤ 1).
+    pub max_velocity_ratio: f64,
+    pub max_acceleration_ratio: f64,
+    /// Largest excursion beyond a position limit along the path (0 when within limits).
+    pub max_position_excess: f64,
+    pub converged: bool,
+    /// Per group: PCA-space distance to the goal where the flow stopped (before the exact goal
+    /// was appended).
+    pub final_errors: Vec<f64>,
+    pub flow_steps: Vec<usize>,
+    pub certificates: Vec<Certificate>,
+}
+
+/// Nodes of the untimed back-projected path per group.
+const PATH_NODES: usize = 48;
+
+struct GroupPath {
+    spline: NaturalCubic,
+    converged: bool,
+    error: f64,
+    steps: usize,
+}
+
+fn check_vector(field: &'static str, q: &[f64], limits: &JointLimits) -> Result<(), MotionError> {
+    let n = limits.n();
+    if q.len() != n {
+        return Err(MotionError::JointCount {
+            field,
+            expected: n,
+            got: q.len(),
+        });
+    }
+    for (j, &v) in q.iter().enumerate() {
+        if !v.is_finite() {
+            return Err(MotionError::NonFinite {
+                field,
+                joint: j,
+                value: v,
+            });
+        }
+        let tol = 1e-9 * (1.0 + v.abs());
+        if v < limits.lower[j] - tol || v > limits.upper[j] + tol {
+            return Err(MotionError::OutOfLimits {
+                field,
+                joint: j,
+                value: v,
+                lower: limits.lower[j],
+                upper: limits.upper[j],
+            });
+        }
+    }
+    Ok(())
+}
+
+fn gather(q: &[f64], joints: &[usize], out: &mut [f64]) {
+    for (o, &j) in out.iter_mut().zip(joints) {
+        *o = q[j];
+    }
+}
+
+fn validate_demos(demos: &[JointTrajectory], n: usize) -> Result<(), MotionError> {
+    for (di, d) in demos.iter().enumerate() {
+        let frames = d.frames();
+        if frames < 3 {
+            return Err(MotionError::DemonstrationTooShort { demo: di, frames });
+        }
+        if d.positions.len() != frames * n {
+            return Err(MotionError::ShapeMismatch {
+                demo: di,
+                frames,
+                joints: n,
+                got: d.positions.len(),
+            });
+        }
+        for s in 0..frames {
+            if !d.times[s].is_finite() || (s > 0 && d.times[s] <= d.times[s - 1]) {
+                return Err(MotionError::NonIncreasingTime {
+                    demo: di,
+                    sample: s,
+                    time: d.times[s],
+                });
+            }
+            for j in 0..n {
+                if !d.positions[s * n + j].is_finite() {
+                    return Err(MotionError::NonFiniteSample {
+                        demo: di,
+                        sample: s,
+                        joint: j,
+                    });
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Arc-length fractions of a polyline (`len × d`).
+fn arc_fractions(points: &[f64], d: usize, out: &mut Vec<f64>) -> f64 {
+    let len = points.len() / d;
+    out.clear();
+    out.push(0.0);
+    let mut acc = 0.0;
+    for i in 1..len {
+        let mut s = 0.0;
+        for k in 0..d {
+            s += (points[i * d + k] - points[(i - 1) * d + k]).powi(2);
+        }
+        acc += s.sqrt();
+        out.push(acc);
+    }
+    if acc > 0.0 {
+        out.iter_mut().for_each(|x| *x /= acc);
+    }
+    acc
+}
+
+/// Resample a polyline (`len × d`) at `count` points equally spaced in arc length.
+fn resample(points: &[f64], d: usize, count: usize, out: &mut Vec<f64>) {
+    let mut frac = Vec::new();
+    let total = arc_fractions(points, d, &mut frac);
+    out.clear();
+    let len = frac.len();
+    let mut seg = 0;
+    for m in 0..count {
+        let s = m as f64 / (count - 1) as f64;
+        if total <= 0.0 || len == 1 {
+            out.extend_from_slice(&points[..d]);
+            continue;
+        }
+        while seg + 2 < len && frac[seg + 1] < s {
+            seg += 1;
+        }
+        let (a, b) = (frac[seg], frac[seg + 1]);
+        let t = if b > a {
+            ((s - a) / (b - a)).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        for k in 0..d {
+            out.push(points[seg * d + k] * (1.0 - t) + points[(seg + 1) * d + k] * t);
+        }
+    }
+}
+
+/// Mean joint-space deviation between two paths (`len × n` polylines) after resampling both
+/// at `samples` points equally spaced in arc length (Euclidean norm per sample).
+pub fn arc_length_deviation(a: &[f64], b: &[f64], n: usize, samples: usize) -> f64 {
+    let mut ra = Vec::new();
+    let mut rb = Vec::new();
+    resample(a, n, samples, &mut ra);
+    resample(b, n, samples, &mut rb);
+    let mut sum = 0.0;
+    for m in 0..samples {
+        let mut s = 0.0;
+        for k in 0..n {
+            s += (ra[m * n + k] - rb[m * n + k]).powi(2);
+        }
+        sum += s.sqrt();
+    }
+    sum / samples as f64
+}
+
+/// Mean cosine between the flow and the demonstrated velocity at moving demonstration points.
+fn alignment(nf: &NavigationFunction, demos: &[Vec<f64>]) -> Option<f64> {
+    let d = nf.dim();
+    let mut sum = 0.0;
+    let mut count = 0usize;
+    for y in demos {
+        let frames = y.len() / d;
+        let goal = &y[(frames - 1) * d..];
+        let peak = (1..frames - 1)
+            .map(|j| {
+                (0..d)
+                    .map(|i| (y[(j + 1) * d + i] - y[(j - 1) * d + i]).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .fold(0.0, f64::max);
+        for j in 1..frames - 1 {
+            let p = &y[j * d..(j + 1) * d];
+            let mut v = [0.0; MAX_DIM];
+            for i in 0..d {
+                v[i] = y[(j + 1) * d + i] - y[(j - 1) * d + i];
+            }
+            let vn = v[..d].iter().map(|x| x * x).sum::<f64>().sqrt();
+            let r2: f64 = (0..d).map(|i| (p[i] - nf.center[i]).powi(2)).sum();
+            let g2: f64 = (0..d).map(|i| (p[i] - goal[i]).powi(2)).sum();
+            if vn < 0.05 * peak || vn == 0.0 || r2 >= nf.radius * nf.radius || g2 < 1e-12 {
+                continue;
+            }
+            let mut f = [0.0; MAX_DIM];
+            nf.flow(p, goal, &mut f);
+            let fnorm = f[..d].iter().map(|x| x * x).sum::<f64>().sqrt();
+            if fnorm == 0.0 {
+                continue;
+            }
+            sum += (0..d).map(|i| f[i] * v[i]).sum::<f64>() / (fnorm * vn);
+            count += 1;
+        }
+    }
+    (count > 0).then(|| sum / count as f64)
+}
+
+/// Train the motion model on demonstrations and limits; returns the model and its report
+/// (explained variance, certificate, training and held-out fit, baselines on held-out data).
+pub fn train(
+    demos: &[JointTrajectory],
+    limits: &JointLimits,
+    opts: &TrainOptions,
+) -> Result<(MotionModel, TrainReport), MotionError> {
+    limits.validate()?;
+    let n = limits.n();
+    validate_demos(demos, n)?;
+    if !(opts.regularisation > 0.0 && opts.regularisation.is_finite()) {
+        return Err(MotionError::InvalidOption {
+            field: "regularisation",
+            value: opts.regularisation,
+            reason: "must be positive",
+        });
+    }
+    if !(0.0..1.0).contains(&opts.goal_exclusion) {
+        return Err(MotionError::InvalidOption {
+            field: "goal_exclusion",
+            value: opts.goal_exclusion,
+            reason: "must be in [0, 1)",
+        });
+    }
+    if opts.spline_intervals == 0 {
+        return Err(MotionError::InvalidOption {
+            field: "spline_intervals",
+            value: 0.0,
+            reason: "must be at least 1",
+        });
+    }
+    if !(opts.goal_margin > 0.0 && opts.goal_margin.is_finite()) {
+        return Err(MotionError::InvalidOption {
+            field: "goal_margin",
+            value: opts.goal_margin,
+            reason: "must be positive",
+        });
+    }
+    if !(opts.workspace_margin > 1.0 && opts.workspace_margin.is_finite()) {
+        return Err(MotionError::InvalidOption {
+            field: "workspace_margin",
+            value: opts.workspace_margin,
+            reason: "must be greater than 1",
+        });
+    }
+    if let KChoice::Value(k) = opts.k
+        && !(k >= 1.0 && k.is_finite())
+    {
+        return Err(MotionError::InvalidOption {
+            field: "k",
+            value: k,
+            reason: "must be at least 1",
+        });
+    }
+    let mut is_held = vec![false; demos.len()];
+    for &i in &opts.held_out {
+        if i >= demos.len() {
+            return Err(MotionError::HeldOutIndex {
+                index: i,
+                demos: demos.len(),
+            });
+        }
+        is_held[i] = true;
+    }
+    let train_idx: Vec<usize> = (0..demos.len()).filter(|i| !is_held[*i]).collect();
+    let held_idx: Vec<usize> = (0..demos.len()).filter(|i| is_held[*i]).collect();
+    if train_idx.len() < 2 {
+        return Err(MotionError::TooFewDemonstrations {
+            got: train_idx.len(),
+            needed: 2,
+        });
+    }
+    let groups: Vec<Vec<usize>> = if opts.groups.is_empty() {
+        vec![(0..n).collect()]
+    } else {
+        opts.groups.clone()
+    };
+    let mut seen = vec![false; n];
+    for (gi, g) in groups.iter().enumerate() {
+        if g.is_empty() {
+            return Err(MotionError::InvalidGroup {
+                group: gi,
+                reason: "empty group",
+            });
+        }
+        for &j in g {
+            if j >= n || seen[j] {
+                return Err(MotionError::InvalidGroup {
+                    group: gi,
+                    reason: "joint index out of range or in two groups",
+                });
+            }
+            seen[j] = true;
+        }
+    }
+    if seen.iter().any(|s| !s) {
+        return Err(MotionError::InvalidGroup {
+            group: groups.len(),
+            reason: "some joint belongs to no group",
+        });
+    }
+
+    let mut manifolds = Vec::new();
+    let mut fits = Vec::new();
+    // per group, per demo: projected trajectory (frames × d)
+    let mut projected: Vec<Vec<Vec<f64>>> = Vec::new();
+    for (gi, joints) in groups.iter().enumerate() {
+        let ng = joints.len();
+        let mut samples = Vec::new();
+        let mut buf = vec![0.0; ng];
+        for &di in &train_idx {
+            let dm = &demos[di];
+            for s in 0..dm.frames() {
+                gather(dm.frame(s, n), joints, &mut buf);
+                samples.extend_from_slice(&buf);
+            }
+        }
+        let pca = Pca::fit(&samples, ng, opts.components, MAX_DIM.min(ng))?;
+        let d = pca.d();
+        let ys: Vec<Vec<f64>> = demos
+            .iter()
+            .map(|dm| {
+                let mut out = vec![0.0; dm.frames() * d];
+                for s in 0..dm.frames() {
+                    gather(dm.frame(s, n), joints, &mut buf);
+                    pca.project(&buf, &mut out[s * d..(s + 1) * d]);
+                }
+                out
+            })
+            .collect();
+        // workspace: ball around the bounding-box centre of the training data
+        let mut lo = vec![f64::INFINITY; d];
+        let mut hi = vec![f64::NEG_INFINITY; d];
+        for &di in &train_idx {
+            for p in ys[di].chunks_exact(d) {
+                for i in 0..d {
+                    lo[i] = lo[i].min(p[i]);
+                    hi[i] = hi[i].max(p[i]);
+                }
+            }
+        }
+        let center: Vec<f64> = lo.iter().zip(&hi).map(|(a, b)| 0.5 * (a + b)).collect();
+        let mut rho: f64 = 0.0;
+        for &di in &train_idx {
+            for p in ys[di].chunks_exact(d) {
+                rho = rho.max(
+                    (0..d)
+                        .map(|i| (p[i] - center[i]).powi(2))
+                        .sum::<f64>()
+                        .sqrt(),
+                );
+            }
+        }
+        let rho = rho.max(1e-9);
+        let radius = opts.workspace_margin * rho;
+        let coeffs = TensorBSpline::coefficient_count(d, opts.spline_intervals);
+        if coeffs > MAX_COEFFICIENTS {
+            return Err(MotionError::SplineTooLarge {
+                coefficients: coeffs,
+                max: MAX_COEFFICIENTS,
+            });
+        }
+        let box_lo: Vec<f64> = center.iter().map(|c| c - radius).collect();
+        let box_hi: Vec<f64> = center.iter().map(|c| c + radius).collect();
+        let template = TensorBSpline::zeros(&box_lo, &box_hi, opts.spline_intervals);
+        let train_y: Vec<DemoY<'_>> = train_idx.iter().map(|&di| DemoY { y: &ys[di] }).collect();
+        let fit = fit_spline(
+            &template,
+            &center,
+            radius,
+            &train_y,
+            opts.regularisation,
+            opts.goal_exclusion,
+            gi,
+        )?;
+        let k = match opts.k {
+            KChoice::Auto => None,
+            KChoice::Value(k) => Some(k),
+        };
+        let mut goal_center = vec![0.0; d];
+        for &di in &train_idx {
+            let f = ys[di].len() / d - 1;
+            for i in 0..d {
+                goal_center[i] += ys[di][f * d + i] / train_idx.len() as f64;
+            }
+        }
+        let mut goal_spread: f64 = 0.0;
+        for &di in &train_idx {
+            let f = ys[di].len() / d - 1;
+            let dist = (0..d)
+                .map(|i| (ys[di][f * d + i] - goal_center[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            goal_spread = goal_spread.max(dist);
+        }
+        let offset = (0..d)
+            .map(|i| (goal_center[i] - center[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let goal_radius = (opts.goal_margin * goal_spread)
+            .max(0.05 * rho)
+            .min(0.95 * radius - offset)
+            .max(0.0);
+        let (nf, certificate) = certify(
+            template,
+            &fit,
+            center,
+            radius,
+            &goal_center,
+            goal_radius,
+            k,
+            gi,
+        )?;
+        let train_ys: Vec<Vec<f64>> = train_idx.iter().map(|&i| ys[i].clone()).collect();
+        let held_ys: Vec<Vec<f64>> = held_idx.iter().map(|&i| ys[i].clone()).collect();
+        fits.push(ManifoldFit {
+            group: gi,
+            components: d,
+            explained_variance: pca.explained_variance.clone(),
+            cumulative_explained_variance: pca.explained_variance.iter().sum(),
+            spline_points: fit.points,
+            certificate: certificate.clone(),
+            train_alignment: alignment(&nf, &train_ys).unwrap_or(0.0),
+            held_out_alignment: if held_ys.is_empty() {
+                None
+            } else {
+                alignment(&nf, &held_ys)
+            },
+        });
+        manifolds.push(ManifoldModel {
+            joints: joints.clone(),
+            pca,
+            nf,
+            certificate,
+        });
+        projected.push(ys);
+    }
+
+    // Phase maps: mean over training demos of group g's arc fraction at group 0's fractions.
+    const PHASE_NODES: usize = 21;
+    let mut phase = vec![PhaseMap {
+        map: Pchip::identity(),
+    }];
+    let mut fa = Vec::new();
+    let mut fg = Vec::new();
+    for g in 1..manifolds.len() {
+        let mut acc = [0.0; PHASE_NODES];
+        let mut used = 0;
+        for &di in &train_idx {
+            let la = arc_fractions(&projected[0][di], manifolds[0].pca.d(), &mut fa);
+            let lg = arc_fractions(&projected[g][di], manifolds[g].pca.d(), &mut fg);
+            if la <= 0.0 || lg <= 0.0 {
+                continue;
+            }
+            used += 1;
+            let mut seg = 0;
+            for (m, a) in acc.iter_mut().enumerate() {
+                let x = m as f64 / (PHASE_NODES - 1) as f64;
+                while seg + 2 < fa.len() && fa[seg + 1] < x {
+                    seg += 1;
+                }
+                let (x0, x1) = (fa[seg], fa[seg + 1]);
+                let t = if x1 > x0 {
+                    ((x - x0) / (x1 - x0)).clamp(0.0, 1.0)
+                } else {
+                    1.0
+                };
+                *a += fg[seg] * (1.0 - t) + fg[seg + 1] * t;
+            }
+        }
+        let map = if used == 0 {
+            Pchip::identity()
+        } else {
+            let mut vals: Vec<f64> = acc.iter().map(|a| a / used as f64).collect();
+            vals[0] = 0.0;
+            vals[PHASE_NODES - 1] = 1.0;
+            for m in 1..PHASE_NODES {
+                vals[m] = vals[m].max(vals[m - 1]).min(1.0);
+            }
+            Pchip::new(vals)
+        };
+        phase.push(PhaseMap { map });
+    }
+
+    // Duration as a linear function of the start-goal joint distance.
+    let (mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0);
+    let mut tmin = f64::INFINITY;
+    for &di in &train_idx {
+        let dm = &demos[di];
+        let t = dm.times[dm.frames() - 1] - dm.times[0];
+        let a = dm.frame(0, n);
+        let b = dm.frame(dm.frames() - 1, n);
+        let dist = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        sx += dist;
+        sy += t;
+        sxx += dist * dist;
+        sxy += dist * t;
+        tmin = tmin.min(t);
+    }
+    let m = train_idx.len() as f64;
+    let var = sxx / m - (sx / m).powi(2);
+    let (mut slope, mut intercept) = (0.0, sy / m);
+    if var > 1e-12 * (1.0 + sxx / m) {
+        slope = (sxy / m - sx / m * sy / m) / var;
+        intercept = sy / m - slope * sx / m;
+        if slope < 0.0 {
+            slope = 0.0;
+            intercept = sy / m;
+        }
+    }
+    let duration = DurationModel {
+        intercept,
+        slope,
+        min_duration: 0.5 * tmin,
+    };
+
+    let model = MotionModel {
+        n_joints: n,
+        limits: limits.clone(),
+        manifolds,
+        phase,
+        duration,
+        flow: opts.flow,
+    };
+
+    let held_out = if held_idx.is_empty() {
+        None
+    } else {
+        let mut report = HeldOutReport {
+            demonstrations: held_idx.len(),
+            refused: 0,
+            nf: 0.0,
+            joint_line: 0.0,
+            pca_line: 0.0,
+            ratio_to_joint_line: 0.0,
+        };
+        let mut used = 0;
+        for &di in &held_idx {
+            let dm = &demos[di];
+            let start = dm.frame(0, n);
+            let goal = dm.frame(dm.frames() - 1, n);
+            let mut dev = [0.0; 3];
+            let mut ok = true;
+            for (slot, planner) in [
+                Baseline::NavigationFunction,
+                Baseline::JointLine,
+                Baseline::PcaLine,
+            ]
+            .iter()
+            .enumerate()
+            {
+                let o = TrajectoryOptions {
+                    planner: *planner,
+                    ..TrajectoryOptions::default()
+                };
+                match model.path_positions(start, goal, &o) {
+                    Ok(p) => dev[slot] = arc_length_deviation(&p, &dm.positions, n, 100),
+                    Err(_) => ok = false,
+                }
+            }
+            if !ok {
+                report.refused += 1;
+                continue;
+            }
+            used += 1;
+            report.nf += dev[0];
+            report.joint_line += dev[1];
+            report.pca_line += dev[2];
+        }
+        if used > 0 {
+            report.nf /= used as f64;
+            report.joint_line /= used as f64;
+            report.pca_line /= used as f64;
+            report.ratio_to_joint_line = report.nf / report.joint_line.max(f64::MIN_POSITIVE);
+        }
+        Some(report)
+    };
+    let report = TrainReport {
+        manifolds: fits,
+        duration,
+        training_demonstrations: train_idx.len(),
+        held_out,
+    };
+    Ok((model, report))
+}
+
+impl MotionModel {
+    /// The closed-loop law's parameters (see [`ControlParams::control`]): `rate` (1/s) sets each
+    /// group's `K_p` (on-manifold convergence rate near the goal), `k_perp` the off-manifold
+    /// gain `K_⊥`.
+    pub fn control_params(
+        &self,
+        joint_names: Vec<String>,
+        rate: f64,
+        k_perp: f64,
+    ) -> ControlParams {
+        ControlParams {
+            joint_names,
+            k_perp,
+            groups: self
+                .manifolds
+                .iter()
+                .map(|m| ControlGroup::from_parts(&m.joints, &m.pca, &m.nf, rate))
+                .collect(),
+        }
+    }
+
+    /// Check `goal` is in every manifold's goal region and `start` strictly inside its workspace.
+    pub fn check_regions(&self, start: &[f64], goal: &[f64]) -> Result<(), MotionError> {
+        for (gi, m) in self.manifolds.iter().enumerate() {
+            let ng = m.joints.len();
+            let d = m.pca.d();
+            let mut buf = vec![0.0; ng];
+            let mut y = [0.0; MAX_DIM];
+            gather(goal, &m.joints, &mut buf);
+            m.pca.project(&buf, &mut y);
+            let dg = (0..d)
+                .map(|i| (y[i] - m.certificate.goal_center[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if dg > m.certificate.goal_radius {
+                return Err(MotionError::GoalOutsideRegion {
+                    group: gi,
+                    distance: dg,
+                    radius: m.certificate.goal_radius,
+                });
+            }
+            gather(start, &m.joints, &mut buf);
+            m.pca.project(&buf, &mut y);
+            let ds = (0..d)
+                .map(|i| (y[i] - m.nf.center[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if ds >= m.nf.radius * (1.0 - 1e-9) {
+                return Err(MotionError::StartOutsideWorkspace {
+                    group: gi,
+                    distance: ds,
+                    radius: m.nf.radius,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    fn group_paths(
+        &self,
+        start: &[f64],
+        goal: &[f64],
+        planner: Baseline,
+    ) -> Result<Vec<GroupPath>, MotionError> {
+        check_vector("start", start, &self.limits)?;
+        check_vector("goal", goal, &self.limits)?;
+        if planner == Baseline::NavigationFunction {
+            self.check_regions(start, goal)?;
+        }
+        let mut out = Vec::with_capacity(self.manifolds.len());
+        let mut flow = FlowPath::default();
+        let mut ypath = Vec::new();
+        for m in &self.manifolds {
+            let ng = m.joints.len();
+            let d = m.pca.d();
+            let (mut qs, mut qg) = (vec![0.0; ng], vec![0.0; ng]);
+            gather(start, &m.joints, &mut qs);
+            gather(goal, &m.joints, &mut qg);
+            let (mut ys, mut yg) = ([0.0; MAX_DIM], [0.0; MAX_DIM]);
+            let (mut rs, mut rg) = (vec![0.0; ng], vec![0.0; ng]);
+            m.pca.residual(&qs, &mut ys, &mut rs);
+            m.pca.residual(&qg, &mut yg, &mut rg);
+            let mut nodes = Vec::with_capacity(PATH_NODES * ng);
+            let (converged, error, steps) = match planner {
+                Baseline::JointLine => {
+                    for j in 0..PATH_NODES {
+                        let s = j as f64 / (PATH_NODES - 1) as f64;
+                        nodes.extend(qs.iter().zip(&qg).map(|(a, b)| a * (1.0 - s) + b * s));
+                    }
+                    (true, 0.0, 0)
+                }
+                Baseline::NavigationFunction | Baseline::PcaLine => {
+                    if planner == Baseline::NavigationFunction {
+                        integrate_flow(&m.nf, &ys[..d], &yg[..d], &self.flow, &mut flow);
+                        // The flow converged to within tolerance; the exact goal closes the path.
+                        flow.points.extend_from_slice(&yg[..d]);
+                    } else {
+                        flow.points.clear();
+                        flow.points.extend_from_slice(&ys[..d]);
+                        flow.points.extend_from_slice(&yg[..d]);
+                        flow.converged = true;
+                        flow.final_error = 0.0;
+                        flow.steps = 0;
+                    }
+                    resample(&flow.points, d, PATH_NODES, &mut ypath);
+                    let mut q = vec![0.0; ng];
+                    for j in 0..PATH_NODES {
+                        // q = μ + W y + (1−σ) r_start + σ r_goal, σ the arc-length progress:
+                        // the exact start and goal are kept (DESIGN §5).
+                        let s = j as f64 / (PATH_NODES - 1) as f64;
+                        m.pca.back_project(&ypath[j * d..(j + 1) * d], &mut q);
+                        for i in 0..ng {
+                            q[i] += (1.0 - s) * rs[i] + s * rg[i];
+                        }
+                        if j == 0 {
+                            q.copy_from_slice(&qs);
+                        } else if j == PATH_NODES - 1 {
+                            q.copy_from_slice(&qg);
+                        }
+                        nodes.extend_from_slice(&q);
+                    }
+                    (flow.converged, flow.final_error, flow.steps)
+                }
+            };
+            out.push(GroupPath {
+                spline: NaturalCubic::new(nodes, ng),
+                converged,
+                error,
+                steps,
+            });
+        }
+        Ok(out)
+    }
+
+    /// The untimed path as a joint-space polyline (`PATH_NODES`-per-group nodes on the shared
+    /// phase), `len × n` row-major. Used for the humanlikeness metric.
+    pub fn path_positions(
+        &self,
+        start: &[f64],
+        goal: &[f64],
+        opts: &TrajectoryOptions,
+    ) -> Result<Vec<f64>, MotionError> {
+        let paths = self.group_paths(start, goal, opts.planner)?;
+        let n = self.n_joints;
+        let samples = 200;
+        let mut out = vec![0.0; samples * n];
+        let mut scratch = vec![0.0; 3 * n];
+        for s in 0..samples {
+            let a = s as f64 / (samples - 1) as f64;
+            for (g, (m, p)) in self.manifolds.iter().zip(&paths).enumerate() {
+                let (sig, _, _) = self.phase[g].map.eval(a);
+                let ng = m.joints.len();
+                let (pp, rest) = scratch.split_at_mut(ng);
+                let (dp, ddp) = rest.split_at_mut(ng);
+                p.spline.eval(sig, pp, dp, &mut ddp[..ng]);
+                for (i, &j) in m.joints.iter().enumerate() {
+                    out[s * n + j] = pp[i];
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Learned duration for a start-goal pair.
+    pub fn learned_duration(&self, start: &[f64], goal: &[f64]) -> f64 {
+        let d = start
+            .iter()
+            .zip(goal)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        self.duration.eval(d)
+    }
+
+    /// Evaluate the timed trajectory at normalised time `tau` for duration `t_total`.
+    #[allow(clippy::too_many_arguments)] // output buffers passed explicitly (no allocation)
+    fn eval_at(
+        &self,
+        paths: &[GroupPath],
+        tau: f64,
+        t_total: f64,
+        p: &mut [f64],
+        v: &mut [f64],
+        a: &mut [f64],
+        scratch: &mut [f64],
+    ) {
+        let (m0, m1, m2) = MinimumJerk::eval(tau);
+        for (g, (m, path)) in self.manifolds.iter().zip(paths).enumerate() {
+            let (sig, h1, h2) = self.phase[g].map.eval(m0);
+            let sd = h1 * m1 / t_total;
+            let sdd = h2 * (m1 / t_total).powi(2) + h1 * m2 / (t_total * t_total);
+            let ng = m.joints.len();
+            let (pp, rest) = scratch.split_at_mut(ng);
+            let (dp, rest) = rest.split_at_mut(ng);
+            let ddp = &mut rest[..ng];
+            path.spline.eval(sig, pp, dp, ddp);
+            for (i, &j) in m.joints.iter().enumerate() {
+                p[j] = pp[i];
+                v[j] = dp[i] * sd;
+                a[j] = ddp[i] * sd * sd + dp[i] * sdd;
+            }
+        }
+    }
+
+    /// Generate a timed humanlike trajectory from `start` to `goal` (full joint vectors in the
+    /// model's order): flow integration per manifold, exact-endpoint back-projection, one clock,
+    /// minimum-jerk scaling over the learned (or requested) duration, stretched uniformly when a
+    /// velocity or acceleration limit would be exceeded.
+    pub fn trajectory(
+        &self,
+        start: &[f64],
+        goal: &[f64],
+        opts: &TrajectoryOptions,
+    ) -> Result<Trajectory, MotionError> {
+        if let Some(t) = opts.duration
+            && !(t > 0.0 && t.is_finite())
+        {
+            return Err(MotionError::InvalidOption {
+                field: "duration",
+                value: t,
+                reason: "must be positive",
+            });
+        }
+        if !(opts.rate > 0.0 && opts.rate.is_finite() && opts.rate <= 10_000.0) {
+            return Err(MotionError::InvalidOption {
+                field: "rate",
+                value: opts.rate,
+                reason: "must be in (0, 10000] Hz",
+            });
+        }
+        let paths = self.group_paths(start, goal, opts.planner)?;
+        let n = self.n_joints;
+        let learned = self.learned_duration(start, goal);
+        let requested = opts.duration.unwrap_or(learned);
+        let (mut p, mut v, mut a) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let mut scratch = vec![0.0; 3 * n];
+        // Limit use at T = 1 on a dense grid: velocity scales as 1/T, acceleration as 1/T².
+        let (mut rv, mut ra): (f64, f64) = (0.0, 0.0);
+        let grid = 400;
+        for s in 0..=grid {
+            self.eval_at(
+                &paths,
+                s as f64 / grid as f64,
+                1.0,
+                &mut p,
+                &mut v,
+                &mut a,
+                &mut scratch,
+            );
+            for j in 0..n {
+                rv = rv.max(v[j].abs() / self.limits.velocity[j]);
+                ra = ra.max(a[j].abs() / self.limits.acceleration[j]);
+            }
+        }
+        let t_min = rv.max(ra.sqrt()) * (1.0 + 1e-3);
+        let mut total = requested.max(t_min);
+        let mut points = Vec::new();
+        let (mut max_v, mut max_a, mut excess) = (0.0f64, 0.0f64, 0.0f64);
+        for _attempt in 0..4 {
+            points.clear();
+            let count = ((total * opts.rate).ceil() as usize).max(1) + 1;
+            max_v = 0.0;
+            max_a = 0.0;
+            excess = 0.0;
+            for s in 0..count {
+                let tau = s as f64 / (count - 1) as f64;
+                self.eval_at(&paths, tau, total, &mut p, &mut v, &mut a, &mut scratch);
+                for j in 0..n {
+                    max_v = max_v.max(v[j].abs() / self.limits.velocity[j]);
+                    max_a = max_a.max(a[j].abs() / self.limits.acceleration[j]);
+                    excess = excess
+                        .max(self.limits.lower[j] - p[j])
+                        .max(p[j] - self.limits.upper[j]);
+                }
+                points.push(TrajectoryPoint {
+                    t: tau * total,
+                    positions: p.clone(),
+                    velocities: v.clone(),
+                    accelerations: a.clone(),
+                });
+            }
+            if max_v <= 1.0 && max_a <= 1.0 {
+                break;
+            }
+            total *= max_v.max(max_a.sqrt()) * (1.0 + 1e-3);
+        }
+        // endpoints are exact by construction of the back-projection
+        if let Some(first) = points.first_mut() {
+            first.positions.copy_from_slice(start);
+        }
+        if let Some(last) = points.last_mut() {
+            last.positions.copy_from_slice(goal);
+        }
+        Ok(Trajectory {
+            points,
+            duration: total,
+            requested_duration: requested,
+            learned_duration: learned,
+            stretched: total > requested,
+            max_velocity_ratio: max_v,
+            max_acceleration_ratio: max_a,
+            max_position_excess: excess.max(0.0),
+            converged: paths.iter().all(|g| g.converged),
+            final_errors: paths.iter().map(|g| g.error).collect(),
+            flow_steps: paths.iter().map(|g| g.steps).collect(),
+            certificates: self
+                .manifolds
+                .iter()
+                .map(|m| m.certificate.clone())
+                .collect(),
+        })
+    }
+}

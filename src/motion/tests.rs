@@ -1,0 +1,371 @@
+//! End-to-end checks of the motion pipeline on synthetic curved demonstrations.
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::synthetic::{SyntheticData, SyntheticStudy, curved_study};
+use super::*;
+
+fn small_study(seed: u64) -> SyntheticData {
+    curved_study(&SyntheticStudy {
+        seed,
+        trials_per_position: 6,
+        frames: 60,
+        ..SyntheticStudy::default()
+    })
+}
+
+fn options(data: &SyntheticData, held_position: Option<usize>) -> TrainOptions {
+    let held_out = data
+        .position_of
+        .iter()
+        .enumerate()
+        .filter(|(_, p)| Some(**p) == held_position)
+        .map(|(i, _)| i)
+        .collect();
+    TrainOptions {
+        groups: data.groups.clone(),
+        held_out,
+        components: Components::VarianceThreshold(0.97),
+        ..TrainOptions::default()
+    }
+}
+
+fn ball_sample(rng: &mut ChaCha8Rng, center: &[f64], radius: f64) -> Vec<f64> {
+    loop {
+        let v: Vec<f64> = center.iter().map(|_| rng.random_range(-1.0..1.0)).collect();
+        if v.iter().map(|x| x * x).sum::<f64>() < 1.0 {
+            return v.iter().zip(center).map(|(a, c)| c + a * radius).collect();
+        }
+    }
+}
+
+/// A full joint vector whose group projections are `ys[g]`, plus a small off-manifold residual.
+fn joint_vector(
+    model: &MotionModel,
+    ys: &[Vec<f64>],
+    rng: &mut ChaCha8Rng,
+    residual: f64,
+) -> Vec<f64> {
+    let mut q = vec![0.0; model.n_joints];
+    for (m, y) in model.manifolds.iter().zip(ys) {
+        let mut qg = vec![0.0; m.joints.len()];
+        m.pca.back_project(y, &mut qg);
+        // remove the residual's on-manifold part so the projection stays `y`
+        let noise: Vec<f64> = qg
+            .iter()
+            .map(|_| {
+                if residual > 0.0 {
+                    rng.random_range(-residual..residual)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let mut yn = vec![0.0; y.len()];
+        let mut r = vec![0.0; qg.len()];
+        let shifted: Vec<f64> = m.pca.mean.iter().zip(&noise).map(|(a, b)| a + b).collect();
+        m.pca.residual(&shifted, &mut yn, &mut r);
+        for (i, &j) in m.joints.iter().enumerate() {
+            q[j] = qg[i] + r[i];
+        }
+    }
+    q
+}
+
+#[test]
+fn certified_flow_converges_for_1000_random_start_goal_pairs() {
+    let data = small_study(3);
+    let (model, report) = train(&data.demos, &data.limits, &options(&data, None)).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let flow_opts = FlowOptions::default();
+    let mut path = FlowPath::default();
+    for (m, fit) in model.manifolds.iter().zip(&report.manifolds) {
+        let c = &m.certificate;
+        assert!(c.holds && c.bound < 2.0 * c.k, "{c:?}");
+        assert_eq!(fit.certificate, *c);
+        // the largest joint-space effect of a PCA-space error: ‖W e‖∞ ≤ max row norm · ‖e‖
+        let d = m.pca.d();
+        let w_row: f64 = m
+            .pca
+            .components
+            .chunks_exact(d)
+            .map(|r| r.iter().map(|x| x * x).sum::<f64>().sqrt())
+            .fold(0.0, f64::max);
+        let mut steps = 0;
+        for _ in 0..1000 {
+            let y0 = ball_sample(&mut rng, &m.nf.center, 0.98 * m.nf.radius);
+            let yd = ball_sample(&mut rng, &c.goal_center, c.goal_radius);
+            integrate_flow(&m.nf, &y0, &yd, &flow_opts, &mut path);
+            assert!(
+                path.converged,
+                "steps {} error {}",
+                path.steps, path.final_error
+            );
+            assert!(w_row * path.final_error < 1e-3);
+            for w in path.gamma.windows(2) {
+                assert!(w[1] < w[0], "γ rose from {} to {}", w[0], w[1]);
+            }
+            assert!(path.steps < flow_opts.max_steps);
+            steps += path.steps;
+        }
+        println!("group {}: mean flow steps {}", fit.group, steps / 1000);
+    }
+}
+
+#[test]
+fn timed_trajectories_keep_exact_endpoints_and_respect_limits() {
+    let data = small_study(4);
+    let (model, _) = train(&data.demos, &data.limits, &options(&data, None)).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(10);
+    let n = model.n_joints;
+    let mut stretched = 0;
+    for trial in 0..40 {
+        let ys: Vec<Vec<f64>> = model
+            .manifolds
+            .iter()
+            .map(|m| ball_sample(&mut rng, &m.nf.center, 0.9 * m.nf.radius))
+            .collect();
+        let gs: Vec<Vec<f64>> = model
+            .manifolds
+            .iter()
+            .map(|m| {
+                ball_sample(
+                    &mut rng,
+                    &m.certificate.goal_center,
+                    m.certificate.goal_radius,
+                )
+            })
+            .collect();
+        let start = joint_vector(&model, &ys, &mut rng, 0.01);
+        let goal = joint_vector(&model, &gs, &mut rng, 0.01);
+        // every fourth request asks for an infeasibly short duration
+        let duration = (trial % 4 == 0).then_some(0.05);
+        let opts = TrajectoryOptions {
+            duration,
+            rate: 1000.0,
+            ..TrajectoryOptions::default()
+        };
+        let traj = model.trajectory(&start, &goal, &opts).unwrap();
+        assert!(traj.converged);
+        let first = &traj.points[0];
+        let last = traj.points.last().unwrap();
+        assert_eq!(first.positions, start);
+        assert_eq!(last.positions, goal);
+        assert_eq!(first.t, 0.0);
+        assert!((last.t - traj.duration).abs() < 1e-12);
+        for j in 0..n {
+            assert!(first.velocities[j].abs() < 1e-12 && last.velocities[j].abs() < 1e-9);
+        }
+        if traj.stretched {
+            stretched += 1;
+            assert!(traj.duration > traj.requested_duration);
+        }
+        if duration.is_some() {
+            assert!(traj.stretched, "0.05 s cannot be feasible");
+        }
+        assert!(traj.max_velocity_ratio <= 1.0 && traj.max_acceleration_ratio <= 1.0);
+        assert_eq!(traj.max_position_excess, 0.0);
+        for p in &traj.points {
+            for j in 0..n {
+                assert!(p.velocities[j].abs() <= model.limits.velocity[j] * (1.0 + 1e-12));
+                assert!(p.accelerations[j].abs() <= model.limits.acceleration[j] * (1.0 + 1e-12));
+                assert!(
+                    p.positions[j] >= model.limits.lower[j]
+                        && p.positions[j] <= model.limits.upper[j]
+                );
+            }
+        }
+        // reported velocities and accelerations are the derivatives of the positions (the phase
+        // map between groups is C¹, so accelerations may jump between samples: the second
+        // difference then lies between the neighbouring values)
+        let dt = traj.points[1].t - traj.points[0].t;
+        for i in 1..traj.points.len() - 1 {
+            let (a, b, c) = (&traj.points[i - 1], &traj.points[i], &traj.points[i + 1]);
+            for j in 0..n {
+                let v = (c.positions[j] - a.positions[j]) / (2.0 * dt);
+                let acc = (c.positions[j] - 2.0 * b.positions[j] + a.positions[j]) / (dt * dt);
+                let vs = model.limits.velocity[j];
+                let as_ = model.limits.acceleration[j];
+                assert!(
+                    (v - b.velocities[j]).abs() < 0.02 * vs,
+                    "velocity {v} vs {}",
+                    b.velocities[j]
+                );
+                let jump = (a.accelerations[j] - b.accelerations[j])
+                    .abs()
+                    .max((c.accelerations[j] - b.accelerations[j]).abs());
+                assert!(
+                    (acc - b.accelerations[j]).abs() < jump + 0.02 * as_,
+                    "acc {acc} vs {}",
+                    b.accelerations[j]
+                );
+            }
+        }
+    }
+    assert!(stretched >= 10);
+}
+
+#[test]
+fn closed_loop_law_drives_a_perturbed_simulated_state_to_the_goal() {
+    let data = small_study(5);
+    let (model, _) = train(&data.demos, &data.limits, &options(&data, None)).unwrap();
+    let params = model.control_params(
+        (0..model.n_joints).map(|j| format!("j{j}")).collect(),
+        2.0,
+        2.0,
+    );
+    // the parameters survive a serialisation round trip (what a bridge worker receives)
+    let json = serde_json::to_string(&params).unwrap();
+    let params: ControlParams = serde_json::from_str(&json).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    let n = model.n_joints;
+    let dt = 0.005;
+    for _ in 0..5 {
+        let ys: Vec<Vec<f64>> = model
+            .manifolds
+            .iter()
+            .map(|m| ball_sample(&mut rng, &m.nf.center, 0.8 * m.nf.radius))
+            .collect();
+        let gs: Vec<Vec<f64>> = model
+            .manifolds
+            .iter()
+            .map(|m| {
+                ball_sample(
+                    &mut rng,
+                    &m.certificate.goal_center,
+                    m.certificate.goal_radius,
+                )
+            })
+            .collect();
+        let mut q = joint_vector(&model, &ys, &mut rng, 0.02);
+        let goal = joint_vector(&model, &gs, &mut rng, 0.02);
+        let mut u = vec![0.0; n];
+        let mut err = f64::INFINITY;
+        for step in 0..6000 {
+            if step == 300 {
+                // a push mid-motion, off the manifold as well as along it
+                for qj in q.iter_mut() {
+                    *qj += rng.random_range(-0.15..0.15);
+                }
+            }
+            params.control(&q, &goal, &mut u);
+            for j in 0..n {
+                // the simulated robot saturates at its velocity limits
+                let v = u[j].clamp(-model.limits.velocity[j], model.limits.velocity[j]);
+                q[j] += dt * v;
+            }
+            err = q
+                .iter()
+                .zip(&goal)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            if err < 1e-4 {
+                break;
+            }
+        }
+        assert!(err < 1e-3, "closed loop ended {err} from the goal");
+    }
+}
+
+#[test]
+fn nf_model_beats_both_baselines_on_held_out_positions() {
+    let data = small_study(6);
+    // interior object positions (the outer ones lie outside the certified goal region of a
+    // model trained without them, and are refused)
+    for held in 1..4 {
+        let (_, report) = train(&data.demos, &data.limits, &options(&data, Some(held))).unwrap();
+        let h = report.held_out.unwrap();
+        println!(
+            "held-out position {held}: NF {:.4}, joint line {:.4}, PCA line {:.4}, ratio {:.3}, refused {}",
+            h.nf, h.joint_line, h.pca_line, h.ratio_to_joint_line, h.refused
+        );
+        assert_eq!(h.refused, 0);
+        assert!(h.nf < h.joint_line && h.nf < h.pca_line);
+        for m in &report.manifolds {
+            assert!(m.train_alignment > 0.5 && m.held_out_alignment.unwrap() > 0.5);
+        }
+    }
+}
+
+#[test]
+fn bad_input_is_refused_with_the_offending_field() {
+    let data = small_study(7);
+    let opts = options(&data, None);
+    let mut demos = data.demos.clone();
+    demos[3].positions[5 * 11 + 2] = f64::NAN;
+    assert_eq!(
+        train(&demos, &data.limits, &opts).unwrap_err(),
+        MotionError::NonFiniteSample {
+            demo: 3,
+            sample: 5,
+            joint: 2
+        }
+    );
+    let mut demos = data.demos.clone();
+    demos[1].times[4] = demos[1].times[3];
+    assert!(matches!(
+        train(&demos, &data.limits, &opts),
+        Err(MotionError::NonIncreasingTime {
+            demo: 1,
+            sample: 4,
+            ..
+        })
+    ));
+    assert!(matches!(
+        train(&data.demos[..1], &data.limits, &opts),
+        Err(MotionError::TooFewDemonstrations { got: 1, .. })
+    ));
+    let too_many = TrainOptions {
+        components: Components::Count(9),
+        ..opts.clone()
+    };
+    assert!(train(&data.demos, &data.limits, &too_many).is_err());
+    let (model, _) = train(&data.demos, &data.limits, &opts).unwrap();
+    let start = data.demos[0].frame(0, 11).to_vec();
+    let mut goal = data.demos[0].frame(59, 11).to_vec();
+    let t = TrajectoryOptions::default();
+    assert!(matches!(
+        model.trajectory(&start, &goal[..10], &t),
+        Err(MotionError::JointCount {
+            field: "goal",
+            expected: 11,
+            got: 10
+        })
+    ));
+    goal[4] = model.limits.upper[4] + 0.1;
+    assert!(matches!(
+        model.trajectory(&start, &goal, &t),
+        Err(MotionError::OutOfLimits {
+            field: "goal",
+            joint: 4,
+            ..
+        })
+    ));
+    // a goal far outside the demonstrated goals is refused rather than planned uncertified
+    let m = &model.manifolds[0];
+    let far: Vec<f64> =
+        m.nf.center
+            .iter()
+            .enumerate()
+            .map(|(i, c)| if i == 0 { c + 0.99 * m.nf.radius } else { *c })
+            .collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let mut ys = vec![far];
+    ys.extend(
+        model.manifolds[1..]
+            .iter()
+            .map(|m| m.certificate.goal_center.clone()),
+    );
+    let goal = joint_vector(&model, &ys, &mut rng, 0.0);
+    assert!(matches!(
+        model.trajectory(&start, &goal, &t),
+        Err(MotionError::GoalOutsideRegion { group: 0, .. })
+    ));
+    let mut bad = t;
+    bad.rate = f64::NAN;
+    assert!(matches!(
+        model.trajectory(&start, &start, &bad),
+        Err(MotionError::InvalidOption { field: "rate", .. })
+    ));
+}
