@@ -57,6 +57,7 @@
 
 pub mod error;
 pub mod extract;
+pub mod grasps;
 pub mod health;
 pub mod jobs;
 pub mod middleware;
@@ -139,6 +140,7 @@ impl ShutdownTrigger {
     tags(
         (name = "health", description = "Liveness and readiness"),
         (name = "jobs", description = "Long-running computations: status, progress (SSE), cancellation"),
+        (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -149,6 +151,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
     OpenApiRouter::with_openapi(ApiDoc::openapi())
         .merge(health::router())
         .merge(jobs::router())
+        .merge(grasps::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).

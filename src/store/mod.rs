@@ -6,6 +6,7 @@
 //! result reference in one transaction.
 
 pub mod blob;
+pub mod grasps;
 pub mod jobs;
 
 use std::path::Path;

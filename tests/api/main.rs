@@ -1,6 +1,7 @@
 //! Black-box API tests: the real service on an ephemeral port with a temporary database.
 
 mod errors;
+mod grasps;
 mod health;
 mod helpers;
 mod jobs;
