@@ -58,6 +58,7 @@
 pub mod demonstrations;
 pub mod error;
 pub mod extract;
+pub mod grasps;
 pub mod health;
 pub mod jobs;
 pub mod middleware;
@@ -145,6 +146,7 @@ impl ShutdownTrigger {
         (name = "jobs", description = "Long-running computations: status, progress (SSE), cancellation"),
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
+        (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -157,6 +159,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(jobs::router())
         .merge(robots::router())
         .merge(demonstrations::router())
+        .merge(grasps::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).

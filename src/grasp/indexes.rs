@@ -5,7 +5,7 @@ use nalgebra::{DMatrix, Matrix3, Matrix3xX, Point3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// What a task direction must transmit.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Transmission {
     /// Force transmission ratio α (eq. 14 / 17).
@@ -16,7 +16,7 @@ pub enum Transmission {
 
 /// Whether the ratio along the direction is to be made large (fast motion / large force) or
 /// small (fine control); the paper notes both are meaningful (§IV, Fig. 6 discussion).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Goal {
     /// Make the ratio large.
@@ -124,7 +124,7 @@ pub fn compatibility_index_gradient(
 
 /// Principal axes of the velocity ellipsoid `ẋᵀ M⁻¹ ẋ ≤ 1` (eq. 10) and of the force ellipsoid
 /// `fᵀ M f ≤ 1` (eq. 11) for `M = J Jᵀ`. The two share directions with reciprocal lengths.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Ellipsoids {
     /// Unit axis directions (world), sorted by decreasing velocity semi-axis.
     pub axes: [[f64; 3]; 3],

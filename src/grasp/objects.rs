@@ -19,7 +19,7 @@ pub const MAX_MESH_TRIANGLES: usize = 100_000;
 pub const MAX_OBJECT_EXTENT: f64 = 2.0;
 
 /// Geometry of an object, in its own frame.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum ShapeSpec {
     /// A ball.
@@ -56,7 +56,7 @@ pub enum ShapeSpec {
 }
 
 /// A horizontal-or-not plane the object rests on: points `x` with `normal · x = offset` (world).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SupportPlane {
     /// Unit normal pointing to the free half-space.
     pub normal: [f64; 3],
@@ -80,7 +80,7 @@ impl SupportPlane {
 }
 
 /// An object description as sent by a client or stored: shape, pose, optional support plane.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ObjectSpec {
     /// Display name.
     pub name: String,

@@ -36,7 +36,7 @@ pub const SURFACE_TOLERANCE: f64 = 1e-3;
 pub const PENETRATION_TOLERANCE: f64 = 5e-4;
 
 /// The grasp quality measure of eq. 20-21.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum QualityMeasure {
     /// `Q_DC` (eq. 20), minimised.
@@ -63,7 +63,8 @@ impl QualityMeasure {
 }
 
 /// Weights of eq. 22.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(default)]
 pub struct Weights {
     /// Task compatibility of the arm.
     pub tc: f64,
@@ -165,7 +166,7 @@ impl GraspRequest {
 }
 
 /// A joint value with its name.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct NamedJoint {
     /// Joint name.
     pub name: String,
@@ -174,7 +175,7 @@ pub struct NamedJoint {
 }
 
 /// A fingertip contact.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Contact {
     /// Finger name.
     pub finger: String,
@@ -187,7 +188,7 @@ pub struct Contact {
 }
 
 /// Every term of eq. 22 and the indexes behind it.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Terms {
     /// Total cost (eq. 22).
     pub cost: f64,
@@ -212,7 +213,7 @@ pub struct Terms {
 }
 
 /// Constraint residuals at the returned configuration.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Residuals {
     /// Largest |signed distance| of a contact sphere from the surface (eq. 27), m.
     pub max_surface_distance: f64,
@@ -228,8 +229,41 @@ pub struct Residuals {
     pub max_coupling_error: f64,
 }
 
+/// The solver report of the returned start, in plain units.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct SolverSummary {
+    /// How the solve ended.
+    pub status: String,
+    /// Inner iterations.
+    pub iterations: usize,
+    /// Outer (augmented Lagrangian) iterations.
+    pub outer_iterations: usize,
+    /// Cost at the solution.
+    pub cost: f64,
+    /// Largest general-constraint violation at the solution.
+    pub max_constraint_violation: f64,
+    /// Solve time, s.
+    pub time_s: f64,
+}
+
+impl From<&SolveReport> for SolverSummary {
+    fn from(r: &SolveReport) -> Self {
+        SolverSummary {
+            status: serde_json::to_value(r.status)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_owned))
+                .unwrap_or_default(),
+            iterations: r.iterations,
+            outer_iterations: r.outer_iterations,
+            cost: r.cost,
+            max_constraint_violation: r.max_constraint_violation,
+            time_s: r.time.as_secs_f64(),
+        }
+    }
+}
+
 /// Outcome of a grasp request. An infeasible request is a result with `feasible: false`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct GraspResult {
     /// All constraints hold within tolerance.
     pub feasible: bool,
@@ -250,7 +284,7 @@ pub struct GraspResult {
     /// Velocity/force ellipsoids of the hand-object Jacobian.
     pub hand_ellipsoids: Ellipsoids,
     /// Solver report of the returned start.
-    pub solver: Option<SolveReport>,
+    pub solver: Option<SolverSummary>,
     /// Wall time of the whole request, s.
     pub time_s: f64,
     /// Starts run.
@@ -1088,7 +1122,8 @@ pub(crate) fn describe(
         .iter()
         .zip(lo.iter().zip(&hi))
         .map(|(x, (l, h))| (x - l).min(h - x))
-        .fold(f64::INFINITY, f64::min);
+        .fold(f64::INFINITY, f64::min)
+        .min(1e6); // unbounded (continuous) joints: keep JSON finite
     let coupling = model
         .joints()
         .iter()
@@ -1147,7 +1182,7 @@ pub(crate) fn describe(
         },
         arm_ellipsoids: Ellipsoids::of(&m_arm),
         hand_ellipsoids: Ellipsoids::of(&m_hand),
-        solver: report,
+        solver: report.as_ref().map(SolverSummary::from),
         time_s: 0.0,
         starts_used: 0,
         starts_feasible: 0,

@@ -2,6 +2,7 @@
 
 mod demonstrations;
 mod errors;
+mod grasps;
 mod health;
 mod helpers;
 mod jobs;

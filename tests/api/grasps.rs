@@ -1,0 +1,311 @@
+//! `/v1/objects` and `/v1/grasps`: seeded objects, object CRUD, grasp requests and every
+//! rejection of bad input.
+
+use serde_json::{Value, json};
+
+use crate::helpers::{TestApp, assert_problem, spawn_app_with};
+
+async fn app() -> TestApp {
+    spawn_app_with(|c| {
+        c.robots = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
+    })
+    .await
+}
+
+const CUBE_OBJ: &str = "v 0 0 0\nv 0.05 0 0\nv 0.05 0.05 0\nv 0 0.05 0\nv 0 0 0.05\nv 0.05 0 0.05\nv 0.05 0.05 0.05\nv 0 0.05 0.05\n\
+    f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
+
+async fn objects(app: &TestApp) -> Vec<Value> {
+    let res = app.get("/v1/objects").await;
+    assert_eq!(res.status(), 200);
+    res.json::<Vec<Value>>().await.unwrap()
+}
+
+async fn seeded_id(app: &TestApp, name: &str) -> String {
+    objects(app)
+        .await
+        .into_iter()
+        .find(|o| o["name"] == name)
+        .unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned()
+}
+
+#[tokio::test]
+async fn the_everyday_objects_are_seeded() {
+    let app = app().await;
+    let list = objects(&app).await;
+    let names: Vec<&str> = list
+        .iter()
+        .filter(|o| o["seeded"] == true)
+        .map(|o| o["name"].as_str().unwrap())
+        .collect();
+    for n in ["ball", "bottle", "kitchen_timer", "pencil", "sunglasses"] {
+        assert!(names.contains(&n), "{n} missing from {names:?}");
+    }
+    let bottle = list.iter().find(|o| o["name"] == "bottle").unwrap();
+    assert_eq!(bottle["spec"]["shape"]["type"], "cylinder");
+}
+
+#[tokio::test]
+async fn an_object_can_be_created_read_and_deleted() {
+    let app = app().await;
+    let res = app
+        .post_json(
+            "/v1/objects",
+            &json!({"name": "orange", "shape": {"type": "sphere", "radius": 0.04}, "position": [0.5, 0.1, 0.04],
+                    "support": {"normal": [0, 0, 1], "offset": 0.0}}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let created: Value = res.json().await.unwrap();
+    let id = created["id"].as_str().unwrap().to_owned();
+    let got: Value = app
+        .get(&format!("/v1/objects/{id}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(got["spec"]["shape"]["radius"], 0.04);
+    assert_eq!(got["seeded"], false);
+    let del = app
+        .client
+        .delete(app.url(&format!("/v1/objects/{id}")))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(del.status(), 204);
+    assert_problem(
+        app.get(&format!("/v1/objects/{id}")).await,
+        404,
+        "not-found",
+    )
+    .await;
+    let again = app
+        .client
+        .delete(app.url(&format!("/v1/objects/{id}")))
+        .send()
+        .await
+        .unwrap();
+    assert_problem(again, 404, "not-found").await;
+}
+
+#[tokio::test]
+async fn a_mesh_object_is_accepted_from_obj_text() {
+    let app = app().await;
+    let res = app
+        .post_json("/v1/objects", &json!({"name": "cube", "mesh": {"format": "obj", "data": CUBE_OBJ}, "position": [0.5, 0.0, 0.025]}))
+        .await;
+    assert_eq!(res.status(), 201);
+    let o: Value = res.json().await.unwrap();
+    assert_eq!(o["spec"]["shape"]["type"], "mesh");
+    assert_eq!(
+        o["spec"]["shape"]["triangles"].as_array().unwrap().len(),
+        12
+    );
+}
+
+#[tokio::test]
+async fn bad_objects_are_rejected_naming_the_field_and_nothing_is_stored() {
+    let app = app().await;
+    let before = objects(&app).await.len();
+    let open_mesh: String = CUBE_OBJ.lines().take(13).collect::<Vec<_>>().join("\n");
+    let cases = [
+        (
+            json!({"name": "x", "shape": {"type": "sphere", "radius": 0.0}, "position": [0.5, 0, 0.1]}),
+            "$.shape.radius",
+        ),
+        (
+            json!({"name": "x", "shape": {"type": "box", "size": [0.1, -0.1, 0.1]}, "position": [0.5, 0, 0.1]}),
+            "$.shape.size[1]",
+        ),
+        (
+            json!({"name": "x", "mesh": {"format": "obj", "data": open_mesh}, "position": [0.5, 0, 0.1]}),
+            "$.mesh",
+        ),
+        (
+            json!({"name": "x", "mesh": {"format": "obj", "data": "v 0 0 zero\n"}, "position": [0.5, 0, 0.1]}),
+            "$.mesh",
+        ),
+        (
+            json!({"name": "x", "mesh": {"format": "ply", "data": "ply"}, "position": [0.5, 0, 0.1]}),
+            "$.mesh.format",
+        ),
+        (
+            json!({"name": "x", "mesh": {"format": "stl", "data": "AAAA", "encoding": "base64"}, "position": [0.5, 0, 0.1]}),
+            "$.mesh",
+        ),
+        (json!({"name": "x", "position": [0.5, 0, 0.1]}), "$.shape"),
+    ];
+    for (body, path) in cases {
+        let p = assert_problem(app.post_json("/v1/objects", &body).await, 422, "validation").await;
+        assert_eq!(p["errors"][0]["path"], path, "{p}");
+    }
+    assert_eq!(objects(&app).await.len(), before);
+}
+
+#[tokio::test]
+async fn a_grasp_of_a_seeded_object_is_computed_stored_and_read_back() {
+    let app = app().await;
+    let ball = seeded_id(&app, "ball").await;
+    let res = app
+        .post_json(
+            "/v1/grasps",
+            &json!({"robot": "wam_t42", "object_id": ball,
+                    "task_directions": [{"direction": [0, 1, 0], "kind": "velocity", "goal": "maximize"}],
+                    "quality": "centroid_distance", "weights": {"tc": 1.0, "q": 1.0}, "starts": 4, "seed": 7}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let g: Value = res.json().await.unwrap();
+    assert_eq!(g["result"]["feasible"], true, "{}", g["result"]["reason"]);
+    assert_eq!(g["result"]["q_arm"].as_array().unwrap().len(), 7);
+    assert!(g["result"]["q_arm"][0]["name"].is_string());
+    assert_eq!(g["result"]["contacts"].as_array().unwrap().len(), 2);
+    assert!(
+        g["result"]["residuals"]["max_surface_distance"]
+            .as_f64()
+            .unwrap()
+            <= 1e-3
+    );
+    assert!(g["result"]["terms"]["tc"].as_f64().unwrap() > 0.0);
+    assert_eq!(g["request"]["seed"], 7);
+    let id = g["id"].as_str().unwrap();
+    let back: Value = app
+        .get(&format!("/v1/grasps/{id}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(back, g);
+    assert_problem(
+        app.get("/v1/grasps/00000000-0000-0000-0000-000000000000")
+            .await,
+        404,
+        "not-found",
+    )
+    .await;
+}
+
+#[tokio::test]
+async fn an_unreachable_object_answers_feasible_false_with_a_reason() {
+    let app = app().await;
+    let res = app
+        .post_json(
+            "/v1/grasps",
+            &json!({"robot": "pa10_t42", "object": {"name": "far ball", "shape": {"type": "sphere", "radius": 0.03},
+                    "position": [2.5, 0.0, 0.03]}, "starts": 2}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let g: Value = res.json().await.unwrap();
+    assert_eq!(g["result"]["feasible"], false);
+    assert!(
+        g["result"]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("out of reach"),
+        "{}",
+        g["result"]["reason"]
+    );
+}
+
+#[tokio::test]
+async fn bad_grasp_requests_are_rejected_naming_the_field() {
+    let app = app().await;
+    let ball = seeded_id(&app, "ball").await;
+    let base = json!({"robot": "wam_t42", "object_id": ball});
+    let with = |patch: Value| {
+        let mut b = base.clone();
+        for (k, v) in patch.as_object().unwrap() {
+            b[k] = v.clone();
+        }
+        b
+    };
+    let cases = [
+        (with(json!({"robot": "no_such_robot"})), "$.robot"),
+        (with(json!({"robot": "../../etc/passwd"})), "$.robot"),
+        (
+            with(json!({"object_id": "00000000-0000-0000-0000-00000000dead"})),
+            "$.object_id",
+        ),
+        (
+            with(
+                json!({"object_id": null, "object": {"name": "b", "shape": {"type": "cylinder", "radius": 0.03, "height": -1.0}, "position": [0.5, 0, 0.1]}}),
+            ),
+            "$.object.shape.height",
+        ),
+        (
+            with(
+                json!({"task_directions": [{"direction": [0, 0, 0], "kind": "force", "goal": "maximize"}]}),
+            ),
+            "$.task_directions[0].direction",
+        ),
+        (with(json!({"weights": {"q": -1.0}})), "$.weights.q"),
+        (with(json!({"quality": "polygon_area"})), "$.quality"),
+        (with(json!({"starts": 0})), "$.starts"),
+    ];
+    for (body, path) in cases {
+        let p = assert_problem(app.post_json("/v1/grasps", &body).await, 422, "validation").await;
+        assert_eq!(p["errors"][0]["path"], path, "{p}");
+    }
+    // JSON has no NaN: a NaN direction or weight cannot even be parsed.
+    let raw = format!(
+        r#"{{"robot":"wam_t42","object_id":"{ball}","task_directions":[{{"direction":[NaN,0,1],"kind":"force","goal":"maximize"}}]}}"#
+    );
+    let res = app
+        .client
+        .post(app.url("/v1/grasps"))
+        .header("content-type", "application/json")
+        .body(raw)
+        .send()
+        .await
+        .unwrap();
+    assert_problem(res, 400, "malformed-json").await;
+}
+
+#[tokio::test]
+async fn a_batch_runs_as_a_job_and_stores_every_grasp() {
+    let app = app().await;
+    let ball = seeded_id(&app, "ball").await;
+    let res = app
+        .post_json(
+            "/v1/grasps/batch",
+            &json!({"robot": "wam_ihy", "starts": 2, "items": [
+                {"object_id": ball},
+                {"object": {"name": "b2", "shape": {"type": "sphere", "radius": 0.03}, "position": [0.45, -0.1, 0.03],
+                            "support": {"normal": [0, 0, 1], "offset": 0.0}}}
+            ]}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+    let job: Value = res.json().await.unwrap();
+    let id = job["id"].as_str().unwrap();
+    let done = app
+        .wait_job(id, |j| {
+            j["status"] == "succeeded" || j["status"] == "failed"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let href = done["result"]["href"].as_str().unwrap();
+    let batch: Value = app.get(href).await.json().await.unwrap();
+    assert_eq!(batch["count"], 2);
+    let ids = batch["grasps"].as_array().unwrap();
+    assert_eq!(ids.len(), 2);
+    let g: Value = app
+        .get(&format!("/v1/grasps/{}", ids[1].as_str().unwrap()))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(g["object"]["name"], "b2");
+    let bad = app
+        .post_json(
+            "/v1/grasps/batch",
+            &json!({"robot": "wam_ihy", "items": []}),
+        )
+        .await;
+    let p = assert_problem(bad, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.items");
+}
