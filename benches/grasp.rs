@@ -10,14 +10,25 @@ use reachgrasp::grasp::objects::{REACHABLE_PLACEMENTS, seeded_object, seeded_sha
 use reachgrasp::grasp::{GraspRequest, HandArm, Object, QualityMeasure, plan_grasp};
 use reachgrasp::kinematics::System;
 
-const SYSTEMS: [&str; 6] = ["wam_t42", "wam_ihy", "wam_ob4f", "pa10_t42", "pa10_ihy", "pa10_ob4f"];
+const SYSTEMS: [&str; 6] = [
+    "wam_t42",
+    "wam_ihy",
+    "wam_ob4f",
+    "pa10_t42",
+    "pa10_ihy",
+    "pa10_ob4f",
+];
 
 fn requests() -> Vec<GraspRequest> {
     let mut out = Vec::new();
     for (name, _, _) in seeded_shapes() {
         for (x, y) in REACHABLE_PLACEMENTS {
             let obj = Object::new(seeded_object(name, x, y, 0.0).expect("seeded")).expect("valid");
-            out.push(GraspRequest::new(obj, vec![], QualityMeasure::CentroidDistance));
+            out.push(GraspRequest::new(
+                obj,
+                vec![],
+                QualityMeasure::CentroidDistance,
+            ));
         }
     }
     out

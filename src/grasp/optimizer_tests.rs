@@ -574,7 +574,12 @@ fn claim_d_every_system_grasps_every_seeded_object_within_tolerance() {
                 assert!(r.residuals.max_coupling_error <= 1e-12, "{at}");
                 let q: Vec<f64> = r.q_arm.iter().chain(&r.q_hand).map(|j| j.value).collect();
                 for (k, v) in q.iter().enumerate() {
-                    assert!(*v >= lo[k] && *v <= hi[k], "{at}: joint {k} = {v} outside [{}, {}]", lo[k], hi[k]);
+                    assert!(
+                        *v >= lo[k] && *v <= hi[k],
+                        "{at}: joint {k} = {v} outside [{}, {}]",
+                        lo[k],
+                        hi[k]
+                    );
                 }
             }
         }
