@@ -392,3 +392,59 @@ mod tests {
         assert!(bad.validate().is_err());
     }
 }
+
+#[cfg(test)]
+mod perf_probe {
+    use super::*;
+    use crate::mapping::objective::tests::system;
+
+    #[test]
+    #[ignore]
+    fn probe() {
+        let sys = system("wam_ihy");
+        let mm = MappingModel::from_system(&sys).unwrap();
+        let mut ev = Evaluator::new(mm.clone());
+        let mut mapper =
+            Mapper::new(mm.clone(), Weights::default(), SolverOptions::default()).unwrap();
+        let q0 = mm.neutral();
+        let n = 2000;
+        let mut goals = Vec::new();
+        for k in 0..n {
+            let s = k as f64 / n as f64;
+            let q: Vec<f64> = q0
+                .iter()
+                .enumerate()
+                .map(|(i, &x)| {
+                    let (l, u) = (mm.lower[i], mm.upper[i]);
+                    (x + 0.3 * (s * 3.0 + i as f64).sin()).clamp(l, u)
+                })
+                .collect();
+            ev.update(&q);
+            let mut g = FrameGoals::default();
+            for i in 0..mm.fingers() {
+                g.fingers[i].position = ev.tip_position(i) + nalgebra::Vector3::new(0.01, 0.0, 0.0);
+                g.fingers[i].orientation = ev.tip_orientation(i);
+            }
+            g.elbow = ev.elbow_point(0) + nalgebra::Vector3::new(0.0, 0.2, 0.0);
+            goals.push(g);
+        }
+        let m0 = mapper.solve_first(&goals[0], 0.0);
+        println!("first {:?}", m0);
+        let t = std::time::Instant::now();
+        let mut it = 0;
+        let mut nc = 0;
+        for k in 1..n {
+            let m = mapper.solve_next(&goals[k], k as f64 / 120.0, 1.0 / 120.0);
+            it += m.iterations;
+            if !m.converged {
+                nc += 1;
+            }
+        }
+        let el = t.elapsed().as_secs_f64();
+        println!(
+            "frames/s {:.0}, mean iters {:.1}, unconverged {nc}",
+            (n - 1) as f64 / el,
+            it as f64 / (n - 1) as f64
+        );
+    }
+}

@@ -135,40 +135,30 @@ impl TensorBSpline {
         base
     }
 
-    /// `s(y)` and `∇s(y)` (into `grad[..dim]`); allocation-free.
+    /// `s(y)` and `∇s(y)` (into `grad[..dim]`); allocation-free. Contracts the 4^d local
+    /// coefficients one axis at a time (axis 0 first: its four coefficients are contiguous),
+    /// carrying the value and the partial derivatives of the axes already contracted.
     pub fn value_gradient(&self, y: &[f64], grad: &mut [f64]) -> f64 {
         let mut b = [[0.0; 4]; MAX_DIM];
         let mut db = [[0.0; 4]; MAX_DIM];
         let base = self.locate(y, &mut b, &mut db);
         let d = self.dim;
-        let mut strides = [0usize; MAX_DIM];
-        for (i, s) in strides.iter_mut().enumerate().take(d) {
-            *s = self.stride(i);
-        }
-        let mut g = [0.0; MAX_DIM];
-        let mut value = 0.0;
+        let per_axis = self.intervals + 3;
+        // level 1: contract axis 0 straight from the coefficient array
+        let mut lvl = [[0.0f64; MAX_DIM + 1]; 256];
+        let groups = 1usize << (2 * (d - 1));
         let mut digit = [0usize; MAX_DIM];
-        let total = 1usize << (2 * d);
-        for _ in 0..total {
-            let mut offset = base;
-            let mut w = 1.0;
-            for i in 0..d {
-                offset += digit[i] * strides[i];
-                w *= b[i][digit[i]];
+        for entry in lvl.iter_mut().take(groups) {
+            let mut off = base;
+            let mut stride = per_axis;
+            for i in 1..d {
+                off += digit[i] * stride;
+                stride *= per_axis;
             }
-            let c = self.coefficients[offset];
-            value += c * w;
-            for (k, gk) in g.iter_mut().enumerate().take(d) {
-                let mut p = c * db[k][digit[k]];
-                for i in 0..d {
-                    if i != k {
-                        p *= b[i][digit[i]];
-                    }
-                }
-                *gk += p;
-            }
-            // odometer increment over the 4^d local coefficients
-            for dg in digit.iter_mut().take(d) {
+            let c = &self.coefficients[off..off + 4];
+            entry[0] = c[0] * b[0][0] + c[1] * b[0][1] + c[2] * b[0][2] + c[3] * b[0][3];
+            entry[1] = c[0] * db[0][0] + c[1] * db[0][1] + c[2] * db[0][2] + c[3] * db[0][3];
+            for dg in digit.iter_mut().take(d).skip(1) {
                 *dg += 1;
                 if *dg < 4 {
                     break;
@@ -176,8 +166,27 @@ impl TensorBSpline {
                 *dg = 0;
             }
         }
-        grad[..d].copy_from_slice(&g[..d]);
-        value
+        // levels 2..d: contract groups of four consecutive entries along the next axis
+        let mut len = groups;
+        for axis in 1..d {
+            len /= 4;
+            for m in 0..len {
+                let mut out = [0.0f64; MAX_DIM + 1];
+                for a in 0..4 {
+                    let e = &lvl[4 * m + a];
+                    let w = b[axis][a];
+                    // channel 0 value, channel 1 + i the derivative along axis i (< axis)
+                    out[0] += e[0] * w;
+                    for ch in 1..=axis {
+                        out[ch] += e[ch] * w;
+                    }
+                    out[axis + 1] += e[0] * db[axis][a];
+                }
+                lvl[m] = out;
+            }
+        }
+        grad[..d].copy_from_slice(&lvl[0][1..=d]);
+        lvl[0][0]
     }
 
     /// `s(y)` only.

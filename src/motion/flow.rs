@@ -22,9 +22,9 @@ impl Default for FlowOptions {
     fn default() -> Self {
         FlowOptions {
             tolerance: 1e-8,
-            relative_error: 1e-6,
+            relative_error: 1e-5,
             max_steps: 20_000,
-            max_step_fraction: 0.02,
+            max_step_fraction: 0.04,
         }
     }
 }

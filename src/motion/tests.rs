@@ -369,3 +369,37 @@ fn bad_input_is_refused_with_the_offending_field() {
         Err(MotionError::InvalidOption { field: "rate", .. })
     ));
 }
+
+#[test]
+fn a_given_k_is_certified_by_shrinking_the_field() {
+    let data = small_study(8);
+    let auto = train(&data.demos, &data.limits, &options(&data, None))
+        .unwrap()
+        .1;
+    let given = TrainOptions {
+        k: KChoice::Value(4.0),
+        ..options(&data, None)
+    };
+    let (model, report) = train(&data.demos, &data.limits, &given).unwrap();
+    for (m, a) in model.manifolds.iter().zip(&auto.manifolds) {
+        let c = &m.certificate;
+        assert_eq!(c.k, 4.0);
+        assert!(c.holds && c.bound < 8.0 && c.shrink <= 1.0 && c.shrink > 0.0);
+        // the stored certificate is the one recomputed from the stored field
+        assert_eq!(
+            m.nf.certificate(&c.goal_center, c.goal_radius, c.shrink),
+            *c
+        );
+        assert!(a.certificate.holds);
+    }
+    assert_eq!(report.manifolds.len(), 2);
+    // a k too small for the workspace ball's own share cannot be certified: refused
+    let tiny = TrainOptions {
+        k: KChoice::Value(1.0),
+        ..options(&data, None)
+    };
+    assert!(matches!(
+        train(&data.demos, &data.limits, &tiny),
+        Err(MotionError::CertificateUnattainable { group: 0, .. })
+    ));
+}
