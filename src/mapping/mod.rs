@@ -3,6 +3,17 @@
 //! Per frame: register the human data into the robot base frame ([`registration`]), assign the
 //! fingertip goals ([`goals`]), and minimise `F = w_x·P + w_o·Σ d_o + w_D·D` (eq. 1-5) over the
 //! independent joint coordinates inside the joint limits (eq. 6-7).
+//!
+//! - Couplings (eq. 26, URDF mimics) are substituted: the variables are the model's independent
+//!   coordinates, and each driver's bounds are tightened by the limits of the joints it drives.
+//! - Spread ordering (eq. 28): an ordering within one coordinate (the iHY's mirrored spread) is a
+//!   bound; between two coordinates it is part of the feasible set, projected onto exactly
+//!   (see `nlp.rs`) — a constraint, not a reparametrisation, so bounds stay simple boxes.
+//! - Solver: PANOC (optimization_engine) per frame, warm-started; see [`solve`].
+//!
+//! Typical use: `MappingModel::from_system(&system)`, `anchor()`, then one [`Mapper`] per worker
+//! (`Mapper::map(frames, &RegistrationSpec::default(), &anchor)`), or [`map_batch`] for many
+//! demonstrations across threads.
 
 pub mod goals;
 mod nlp;

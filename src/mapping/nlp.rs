@@ -4,6 +4,13 @@
 //! nonconvex objective under simple bounds (eq. 7); PANOC needs only cost and gradient, projects
 //! onto the box exactly (every iterate respects the limits), warm-starts well, and keeps all its
 //! buffers in a reusable cache — the hot loop allocates nothing.
+//!
+//! Why here and not through `crate::optim`: the shared adapter builds a `Problem` per solve
+//! (boxed closures, owned bound vectors) and supports a box plus ALM-penalised general
+//! constraints; the mapping solves thousands of frames per second and needs (a) no allocation
+//! per frame and (b) the spread ordering (eq. 28) as an exact projection so it holds on every
+//! iterate. Both fit in the ~100 lines below on the same backend (optimization_engine PANOC);
+//! moving [`OrderedBox`] and this allocation-free entry point into `optim` is a mechanical step.
 
 use std::cell::RefCell;
 
@@ -122,6 +129,7 @@ impl BoxSolver {
         f: &mut dyn FnMut(&[f64], Option<&mut [f64]>) -> f64,
         q: &mut [f64],
         max_iter: usize,
+        tolerance: f64,
     ) -> SolveReport {
         self.backup.copy_from_slice(q);
         let f = RefCell::new(f);
@@ -141,6 +149,7 @@ impl BoxSolver {
         let problem = Problem::new(&bounds, grad, cost);
         let status = PANOCOptimizer::new(problem, &mut self.cache)
             .with_max_iter(max_iter)
+            .with_tolerance(tolerance)
             .solve(q);
         match status {
             Ok(s) => SolveReport {

@@ -300,3 +300,56 @@ fn bad_frames_are_rejected_naming_the_frame() {
         }
     );
 }
+
+/// Tuning probe (not a check): iterations and objective gap for a few tolerances.
+#[test]
+#[ignore]
+fn probe_tolerances() {
+    let frames = &demos(1, 1)[0];
+    let sys = system("wam_ihy");
+    let mm = MappingModel::from_system(&sys).unwrap();
+    let anchor = mm.anchor();
+    let reg = registration_for(frames, &RegistrationSpec::default(), &anchor).unwrap();
+    let tight = SolverOptions {
+        tolerance: 1e-10,
+        first_frame_tolerance: 1e-10,
+        max_iterations: 5000,
+        ..SolverOptions::default()
+    };
+    let mut r = Mapper::new(mm.clone(), Weights::default(), tight).unwrap();
+    let mut goals = vec![FrameGoals::default(); frames.len()];
+    for (f, g) in frames.iter().zip(goals.iter_mut()) {
+        r.goals(f, &reg, g);
+    }
+    let mut refs = vec![r.solve_first(&goals[0], 0.0).objective];
+    for k in 1..frames.len() {
+        refs.push(
+            r.solve_next(&goals[k], 0.0, frames[k].t - frames[k - 1].t)
+                .objective,
+        );
+    }
+    for (tol, iters) in [(1e-6, 500), (1e-5, 100), (1e-4, 50), (1e-4, 20), (1e-3, 20)] {
+        let o = SolverOptions {
+            tolerance: tol,
+            max_iterations: iters,
+            ..SolverOptions::default()
+        };
+        let mut m = Mapper::new(mm.clone(), Weights::default(), o).unwrap();
+        m.solve_first(&goals[0], 0.0);
+        let (mut it, mut gaps, mut nc) = (0, Vec::new(), 0);
+        for k in 1..frames.len() {
+            let x = m.solve_next(&goals[k], 0.0, frames[k].t - frames[k - 1].t);
+            it += x.iterations;
+            nc += usize::from(!x.converged);
+            gaps.push((x.objective - refs[k]) / refs[k]);
+        }
+        gaps.sort_by(f64::total_cmp);
+        println!(
+            "tol {tol:e} cap {iters}: mean iters {:.1}, unconverged {nc}/{}, gap median {:.4} % max {:.4} %",
+            it as f64 / (frames.len() - 1) as f64,
+            frames.len() - 1,
+            100.0 * gaps[gaps.len() / 2],
+            100.0 * gaps[gaps.len() - 1]
+        );
+    }
+}
