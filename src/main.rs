@@ -38,34 +38,6 @@ enum Command {
     /// of upload documents (each one a valid `POST /v1/demonstrations` body), or with
     /// `--summary` the ingest summary of each.
     Synth(SynthArgs),
-}
-
-#[derive(Debug, clap::Args)]
-struct SynthArgs {
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    #[arg(long, default_value_t = 5)]
-    subjects: usize,
-    /// Object positions (1 to 5).
-    #[arg(long, default_value_t = 5)]
-    positions: usize,
-    #[arg(long, default_value_t = 10)]
-    trials: usize,
-    /// Comma-separated objects: ball, bottle, kitchen_timer, pencil, sunglasses (default all).
-    #[arg(long, value_delimiter = ',')]
-    objects: Vec<String>,
-    /// Every object at every position (default: objects counterbalanced over positions).
-    #[arg(long)]
-    full_factorial: bool,
-    /// Leave out the sensor noise.
-    #[arg(long)]
-    no_noise: bool,
-    /// Common resampling rate written into each document's `sync`, Hz.
-    #[arg(long, default_value_t = 120.0)]
-    rate_hz: f64,
-    /// Print `{external_id, subject, object, summary}` per demonstration instead of the streams.
-    #[arg(long)]
-    summary: bool,
     /// Compute a task-specific grasp offline (same body and result as `POST /v1/grasps`; a
     /// seeded object is named by `object_id`, e.g. `ball`). Prints the result as JSON.
     Grasp {
@@ -99,6 +71,34 @@ struct SynthArgs {
         #[arg(long)]
         seed: Option<u64>,
     },
+}
+
+#[derive(Debug, clap::Args)]
+struct SynthArgs {
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    #[arg(long, default_value_t = 5)]
+    subjects: usize,
+    /// Object positions (1 to 5).
+    #[arg(long, default_value_t = 5)]
+    positions: usize,
+    #[arg(long, default_value_t = 10)]
+    trials: usize,
+    /// Comma-separated objects: ball, bottle, kitchen_timer, pencil, sunglasses (default all).
+    #[arg(long, value_delimiter = ',')]
+    objects: Vec<String>,
+    /// Every object at every position (default: objects counterbalanced over positions).
+    #[arg(long)]
+    full_factorial: bool,
+    /// Leave out the sensor noise.
+    #[arg(long)]
+    no_noise: bool,
+    /// Common resampling rate written into each document's `sync`, Hz.
+    #[arg(long, default_value_t = 120.0)]
+    rate_hz: f64,
+    /// Print `{external_id, subject, object, summary}` per demonstration instead of the streams.
+    #[arg(long)]
+    summary: bool,
 }
 
 fn main() -> anyhow::Result<()> {
