@@ -678,20 +678,6 @@ async fn get_batch(
     }))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::decode_base64;
-
-    #[test]
-    fn base64_decodes_rfc4648_vectors() {
-        assert_eq!(decode_base64("").unwrap(), b"");
-        assert_eq!(decode_base64("Zg==").unwrap(), b"f");
-        assert_eq!(decode_base64("Zm9vYmFy").unwrap(), b"foobar");
-        assert_eq!(decode_base64("Zm9vYg==").unwrap(), b"foob");
-        assert!(decode_base64("Zm9v!").is_none());
-    }
-}
-
 /// The offline path of the `reachgrasp grasp` command: the `POST /v1/grasps` body, where
 /// `object_id` names a seeded object (`ball`, `bottle`, `kitchen_timer`, `pencil`,
 /// `sunglasses`, placed 0.5 m in front of the robot on a table at z = 0). Blocking.
@@ -725,4 +711,18 @@ pub fn grasp_offline(robots: &std::path::Path, body: &GraspIn) -> Result<GraspRe
     };
     let sys = load_system(robots, &body.robot)?;
     plan_grasp(&sys, &make_request(object, &settings)).map_err(|e| grasp_error("$", e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::decode_base64;
+
+    #[test]
+    fn base64_decodes_rfc4648_vectors() {
+        assert_eq!(decode_base64("").unwrap(), b"");
+        assert_eq!(decode_base64("Zg==").unwrap(), b"f");
+        assert_eq!(decode_base64("Zm9vYmFy").unwrap(), b"foobar");
+        assert_eq!(decode_base64("Zm9vYg==").unwrap(), b"foob");
+        assert!(decode_base64("Zm9v!").is_none());
+    }
 }
