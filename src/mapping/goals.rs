@@ -106,7 +106,7 @@ impl Cubic {
             }
             let v = self.speed(u);
             let mut next = if v > 1e-300 { u - f / v } else { f64::NAN };
-            if !(next > lo && next < hi) {
+            if next.is_nan() || next <= lo || next >= hi {
                 next = 0.5 * (lo + hi);
             }
             u = next;

@@ -218,7 +218,7 @@ impl MappingModel {
             used[o.j] = true;
         }
         for k in 0..lower.len() {
-            if !(lower[k] <= upper[k]) {
+            if lower[k].is_nan() || upper[k].is_nan() || lower[k] > upper[k] {
                 return Err(MappingError::EmptyJointRange {
                     joint: model.joint_names()[k].clone(),
                     lower: lower[k],

@@ -94,7 +94,8 @@ impl Mapper {
             if let Err(e) = check_frame(k, frame) {
                 return Some(Err(e));
             }
-            if k > 0 && !(frame.t > frames[k - 1].t) {
+            // `t` is finite here (checked above), so `<=` is the full negation of `>`.
+            if k > 0 && frame.t <= frames[k - 1].t {
                 return Some(Err(MappingError::NonIncreasingTime {
                     frame: k,
                     t: frame.t,
@@ -177,6 +178,7 @@ pub struct Cancelled {
 /// Maps many demonstrations across `threads` workers (each with its own [`Mapper`]), in input
 /// order. `progress(done, total)` is called after each demonstration; `cancel` is polled between
 /// demonstrations and between frames of one.
+#[allow(clippy::too_many_arguments)]
 pub fn map_batch(
     mm: &MappingModel,
     robot: &RobotAnchor,
