@@ -596,12 +596,12 @@ fn run_study(ctx: &JobContext, cfg: &StudyConfig) -> Result<JobOutput, JobError>
             let (mut first, mut stored) = (None, 0usize);
             for demo in &demos {
                 let ext = demo.labels.external_id.as_deref().unwrap_or_default();
-                if let Some(row) = repo::get_by_external_id(&mut **tx, ext).await? {
+                if let Some(row) = repo::get_by_external_id(tx, ext).await? {
                     first.get_or_insert(row.id);
                     continue;
                 }
                 let id = Uuid::new_v4().to_string();
-                repo::insert(&mut **tx, &id, Some(&job_id.to_string()), demo, &created_at).await?;
+                repo::insert(tx, &id, Some(&job_id.to_string()), demo, &created_at).await?;
                 first.get_or_insert(id);
                 stored += 1;
             }

@@ -145,7 +145,10 @@ async fn a_multipart_csv_upload_gives_the_same_frames_as_json() {
     let (sa, sb) = (&csv_doc["summary"], &json_doc["summary"]);
     assert_eq!(sa["frames"], sb["frames"]);
     for k in ["duration_s", "start_s", "tracker_rate_hz", "glove_rate_hz"] {
-        assert!((sa[k].as_f64().unwrap() - sb[k].as_f64().unwrap()).abs() < 1e-9, "{k}");
+        assert!(
+            (sa[k].as_f64().unwrap() - sb[k].as_f64().unwrap()).abs() < 1e-9,
+            "{k}"
+        );
     }
     let frames = |doc: &Value| {
         let id = doc["id"].as_str().unwrap().to_string();
