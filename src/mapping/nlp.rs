@@ -105,6 +105,9 @@ pub struct SolveReport {
     pub converged: bool,
 }
 
+/// `f(x, Some(g))` writes `∇f(x)` into `g`; both forms return `f(x)`.
+pub type CostAndGradient<'a> = dyn FnMut(&[f64], Option<&mut [f64]>) -> f64 + 'a;
+
 /// Reusable PANOC scratch for problems of one size.
 pub struct BoxSolver {
     cache: PANOCCache,
@@ -121,12 +124,13 @@ impl BoxSolver {
 
     /// Minimises `f` over `[lower, upper]` from `q` (overwritten with the best feasible iterate).
     /// `f(x, Some(g))` must write `∇f(x)` into `g`; both forms return `f(x)`.
+    #[allow(clippy::too_many_arguments)]
     pub fn solve(
         &mut self,
         lower: &[f64],
         upper: &[f64],
         pairs: &[PairOrder],
-        f: &mut dyn FnMut(&[f64], Option<&mut [f64]>) -> f64,
+        f: &mut CostAndGradient<'_>,
         q: &mut [f64],
         max_iter: usize,
         tolerance: f64,

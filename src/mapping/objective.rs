@@ -256,10 +256,10 @@ impl MappingModel {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5ea5);
         let mut reach = 0.0_f64;
         for _ in 0..512 {
-            for k in 0..q.len() {
+            for (k, x) in q.iter_mut().enumerate() {
                 let l = self.lower[k].max(-std::f64::consts::PI);
                 let u = self.upper[k].min(std::f64::consts::PI);
-                q[k] = if l < u { rng.random_range(l..=u) } else { l };
+                *x = if l < u { rng.random_range(l..=u) } else { l };
             }
             forward_kinematics(model, &mut data, &q);
             for &tip in &self.tips {
