@@ -158,6 +158,7 @@ impl IkSolver {
             let (mut e, mut pe, mut oe) = task_error(&self.data, target, wp, wo);
             let mut cost = e.norm_squared();
             let mut lambda = 1e-3;
+            let mut stalls = 0;
             for _ in 0..opts.max_iterations_per_attempt {
                 if cost < best_cost {
                     best_cost = cost;
@@ -165,6 +166,11 @@ impl IkSolver {
                     self.best.copy_from_slice(&self.q);
                 }
                 if converged(pe, oe) {
+                    break 'attempts;
+                }
+                // The budget is checked every iteration, not only between attempts, so a slow
+                // attempt cannot overrun it by much.
+                if start.elapsed() >= opts.time_budget {
                     break 'attempts;
                 }
                 iterations += 1;
@@ -215,6 +221,9 @@ impl IkSolver {
                     let (e2, pe2, oe2) = task_error(&self.data, target, wp, wo);
                     let c2 = e2.norm_squared();
                     if c2 < cost {
+                        // Creeping progress (typically pinned against a joint limit or in a
+                        // local minimum) is better spent on a fresh random start.
+                        stalls = if c2 > 0.95 * cost { stalls + 1 } else { 0 };
                         std::mem::swap(&mut self.q, &mut self.trial);
                         (e, pe, oe, cost) = (e2, pe2, oe2, c2);
                         lambda = (lambda * 0.3).max(1e-9);
@@ -223,8 +232,7 @@ impl IkSolver {
                     }
                     lambda *= 8.0;
                 }
-                if !improved {
-                    // Restore data for q (trial evaluation overwrote it) and give up this attempt.
+                if !improved || stalls >= 6 {
                     break;
                 }
             }
