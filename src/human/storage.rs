@@ -69,31 +69,13 @@ pub fn unpack_frames(data: &[f64]) -> Result<(Vec<HumanFrame>, Vec<[f64; 22]>), 
     Ok((frames, glove))
 }
 
-/// Little-endian bytes of an f64 array.
-pub fn to_le_bytes(values: &[f64]) -> Vec<u8> {
-    values.iter().flat_map(|v| v.to_le_bytes()).collect()
-}
-
-/// Inverse of [`to_le_bytes`].
-pub fn from_le_bytes(bytes: &[u8]) -> Result<Vec<f64>, HumanError> {
-    if !bytes.len().is_multiple_of(8) {
-        return Err(HumanError::MalformedStorage {
-            reason: format!("{} bytes is not a multiple of 8", bytes.len()),
-        });
-    }
-    Ok(bytes
-        .chunks_exact(8)
-        .map(|c| f64::from_le_bytes(c.try_into().expect("chunks of 8")))
-        .collect())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::Vector3;
 
     #[test]
-    fn frames_round_trip_through_the_flat_and_byte_forms() {
+    fn frames_round_trip_through_the_flat_form() {
         let pose = |s: f64| {
             Isometry3::from_parts(
                 Translation3::new(s, -s, 2.0 * s),
@@ -117,8 +99,7 @@ mod tests {
             .collect();
         let flat = pack_frames(&frames, &glove);
         assert_eq!(flat.len(), 3 * FRAME_WIDTH);
-        let back = from_le_bytes(&to_le_bytes(&flat)).unwrap();
-        let (f2, g2) = unpack_frames(&back).unwrap();
+        let (f2, g2) = unpack_frames(&flat).unwrap();
         assert_eq!(g2, glove);
         for (a, b) in frames.iter().zip(&f2) {
             assert_eq!(a.t, b.t);
@@ -129,6 +110,5 @@ mod tests {
             }
         }
         assert!(unpack_frames(&flat[1..]).is_err());
-        assert!(from_le_bytes(&[0u8; 7]).is_err());
     }
 }
