@@ -20,10 +20,6 @@ use crate::jobs::{JobContext, JobError, JobOutput, JobRecord, ResultRef};
 use crate::store::demonstrations::{self as repo, Deleted, DemonstrationFilter, DemonstrationRow};
 use crate::store::{blob, is_unique_violation, now};
 
-/// Largest page of [`list_demonstrations`].
-pub const MAX_PAGE: u32 = 500;
-const DEFAULT_PAGE: u32 = 50;
-
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(list_demonstrations, create_demonstration))
@@ -415,13 +411,7 @@ async fn list_demonstrations(
     State(state): State<AppState>,
     Query(q): Query<ListQuery>,
 ) -> Result<Json<DemonstrationList>, ApiError> {
-    let limit = q.limit.unwrap_or(DEFAULT_PAGE);
-    if !(1..=MAX_PAGE).contains(&limit) {
-        return Err(ApiError::invalid_parameter(
-            "limit",
-            format!("must be between 1 and {MAX_PAGE}, got {limit}"),
-        ));
-    }
+    let limit = super::extract::page_limit(q.limit)?;
     let offset = q.offset.unwrap_or(0);
     let filter = DemonstrationFilter {
         subject: q.subject,

@@ -17,10 +17,6 @@ use super::{ApiError, AppState, Json, Path, Problem, Query, Shutdown};
 use crate::jobs::{JobRecord, JobRunner, JobStatus};
 use crate::store::jobs::JobFilter;
 
-/// Largest page of [`list_jobs`].
-pub const MAX_PAGE: u32 = 500;
-const DEFAULT_PAGE: u32 = 50;
-
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(list_jobs))
@@ -61,13 +57,7 @@ async fn list_jobs(
     State(state): State<AppState>,
     Query(q): Query<ListJobsQuery>,
 ) -> Result<Json<JobList>, ApiError> {
-    let limit = q.limit.unwrap_or(DEFAULT_PAGE);
-    if !(1..=MAX_PAGE).contains(&limit) {
-        return Err(ApiError::invalid_parameter(
-            "limit",
-            format!("must be between 1 and {MAX_PAGE}, got {limit}"),
-        ));
-    }
+    let limit = super::extract::page_limit(q.limit)?;
     let offset = q.offset.unwrap_or(0);
     let filter = JobFilter {
         status: q.status,
