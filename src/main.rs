@@ -252,13 +252,18 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
     use reachgrasp::store::mappings::DemoLabels;
     use std::io::Write;
 
+    // The field errors already say everything the summary line would (it repeats the first).
     let fail = |e: reachgrasp::api::ApiError| {
         let fields: Vec<String> = e
             .errors()
             .iter()
             .map(|f| format!("{}: {}", f.path, f.message))
             .collect();
-        anyhow::anyhow!("{} {}", e.detail(), fields.join("; "))
+        if fields.is_empty() {
+            anyhow::anyhow!("{}", e.detail())
+        } else {
+            anyhow::anyhow!("{}", fields.join("; "))
+        }
     };
     let weights = match args.weights.as_deref() {
         None => WeightsIn::default(),

@@ -269,6 +269,19 @@ async fn a_mapping_job_stores_trajectories_within_the_limits_and_serves_them_in_
         "not-found",
     )
     .await;
+
+    // A demonstration a mapping uses cannot be deleted alone; with cascade the mapping goes too.
+    let demo_url = app.url(&format!("/v1/demonstrations/{}", ids[0]));
+    let res = app.client.delete(&demo_url).send().await.unwrap();
+    assert_problem(res, 409, "conflict").await;
+    let res = app
+        .client
+        .delete(format!("{demo_url}?cascade=true"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 204);
+    assert_problem(app.get(&mapping_url).await, 404, "not-found").await;
 }
 
 /// A demonstration whose arm cannot be registered: the elbow sits on the shoulder throughout.
