@@ -125,7 +125,31 @@ fn ik(c: &mut Criterion) {
 
 criterion_group!(benches, fk_jacobian, ik);
 
+/// `KIN_PROFILE=N`: only N FK + Jacobian evaluations, for instruction counts that do not depend
+/// on machine load: `KIN_PROFILE=100000 valgrind --tool=callgrind --toggle-collect='*forward_kinematics*'
+/// --toggle-collect='*frame_jacobian*' target/release/deps/kinematics-*` then divide by N.
+fn profile_fk(n: usize) {
+    let model = arm("wam.urdf");
+    let flange = model.frame_id("wam_flange").unwrap();
+    let mut data = Data::new(&model);
+    let mut j = Matrix6xX::zeros(model.nq());
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let qs: Vec<Vec<f64>> = (0..64).map(|_| random_q(&model, &mut rng)).collect();
+    for i in 0..n {
+        forward_kinematics(&model, &mut data, black_box(&qs[i & 63]));
+        frame_jacobian(&model, &data, flange, &Vector3::zeros(), &mut j);
+        black_box(&j);
+    }
+}
+
 fn main() {
+    if let Some(n) = std::env::var("KIN_PROFILE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        profile_fk(n);
+        return;
+    }
     ik_report();
     benches();
     Criterion::default().configure_from_args().final_summary();

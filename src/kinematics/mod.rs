@@ -14,6 +14,7 @@ mod mesh;
 mod model;
 #[cfg(test)]
 mod robot_tests;
+mod sincos;
 mod system;
 pub mod urdf;
 
