@@ -57,12 +57,22 @@ fn ik_report() {
         let mut rng = ChaCha8Rng::seed_from_u64(99);
         let mut times = Vec::new();
         let (mut ok, mut iters, mut restarts) = (0usize, 0usize, 0usize);
+        let mut failures = Vec::new();
         let cases = targets(&model, flange, 10_000, 7);
         for (t, seed) in &cases {
             let start = Instant::now();
             let r = solver.solve(&model, t, seed, &opts, &mut rng);
             times.push(start.elapsed());
             ok += r.success as usize;
+            if !r.success {
+                failures.push(format!(
+                    "{:.1} ms, {} restarts, {:.1e} m, {:.1e} rad",
+                    r.elapsed.as_secs_f64() * 1e3,
+                    r.restarts,
+                    r.position_error,
+                    r.orientation_error
+                ));
+            }
             iters += r.iterations;
             restarts += r.restarts;
         }
@@ -79,6 +89,10 @@ fn ik_report() {
             iters as f64 / cases.len() as f64,
             restarts as f64 / cases.len() as f64
         );
+        // Why the failures failed (time budget, restart limit, residual left).
+        for f in failures.iter().take(10) {
+            println!("  failed: {f}");
+        }
     }
 }
 

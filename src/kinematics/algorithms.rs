@@ -62,10 +62,7 @@ pub fn forward_kinematics(model: &Model, data: &mut Data, q: &[f64]) {
                     v.y * c - v.x * s,
                     v.z * c + w * s,
                 );
-                (
-                    UnitQuaternion::new_unchecked(local),
-                    o.translation.vector,
-                )
+                (UnitQuaternion::new_unchecked(local), o.translation.vector)
             }
             Step::Revolute {
                 axis,
@@ -173,6 +170,63 @@ pub fn frame_jacobian(
                 // The parent's rotation times the axis in the parent frame.
                 let a = x[model.parents[i]].rotation * axis_in_parent;
                 add(q_index, multiplier, &a, &Vector3::zeros());
+            }
+        }
+        i = model.parents[i];
+    }
+}
+
+/// `grad += J_v(frame, point)ᵀ · v`: the linear rows of [`frame_jacobian`] transposed and applied
+/// to a world vector, accumulated into `grad` (length `model.nq()`) without forming the 6 × nq
+/// matrix. This is what a gradient of a function of one world point needs (constraint and cost
+/// gradients of many points), at the cost of one pass up the chain. For a revolute column,
+/// `(a × (p − o)) · v = a · ((p − o) × v)`.
+///
+/// Requires a prior [`forward_kinematics`]. Panics if `grad.len() != model.nq()`.
+pub fn add_point_jacobian_transpose(
+    model: &Model,
+    data: &Data,
+    frame: FrameId,
+    point_in_frame: &Vector3<f64>,
+    v: &Vector3<f64>,
+    grad: &mut [f64],
+) {
+    assert_eq!(
+        grad.len(),
+        model.nq(),
+        "gradient buffer must have length nq"
+    );
+    let x = &data.placements[..];
+    let p = (x[frame.0] * Point3::from(*point_in_frame)).coords;
+    let mut i = frame.0;
+    while i != usize::MAX {
+        match model.steps[i] {
+            Step::Fixed => {}
+            Step::RevoluteZ {
+                q_index,
+                multiplier,
+                ..
+            } => {
+                let a = z_axis(&x[i].rotation);
+                grad[q_index] += multiplier * a.dot(&(p - x[i].translation.vector).cross(v));
+            }
+            Step::Revolute {
+                axis,
+                q_index,
+                multiplier,
+                ..
+            } => {
+                let a = x[i].rotation * axis;
+                grad[q_index] += multiplier * a.dot(&(p - x[i].translation.vector).cross(v));
+            }
+            Step::Prismatic {
+                axis_in_parent,
+                q_index,
+                multiplier,
+                ..
+            } => {
+                let a = x[model.parents[i]].rotation * axis_in_parent;
+                grad[q_index] += multiplier * a.dot(v);
             }
         }
         i = model.parents[i];
@@ -312,6 +366,32 @@ pub(crate) mod tests {
                         rng.random_range(-0.3..0.3),
                     );
                     check_jacobian_fd(&model, &q, FrameId(f), &p, 1e-6);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn point_jacobian_transpose_product_equals_the_jacobian_rows() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for seed in 0..20 {
+            let model = random_tree(seed, 12);
+            let q = random_q(&model, &mut rng);
+            let mut data = Data::new(&model);
+            forward_kinematics(&model, &mut data, &q);
+            let mut j = Matrix6xX::zeros(model.nq());
+            for f in 0..model.n_frames() {
+                let p = Vector3::new(rng.random_range(-0.3..0.3), 0.2, -0.1);
+                let v = Vector3::new(0.3, -1.2, rng.random_range(-1.0..1.0));
+                frame_jacobian(&model, &data, FrameId(f), &p, &mut j);
+                let expected = j.fixed_rows::<3>(0).transpose() * v;
+                let mut g = vec![0.5; model.nq()];
+                add_point_jacobian_transpose(&model, &data, FrameId(f), &p, &v, &mut g);
+                for k in 0..model.nq() {
+                    assert!(
+                        (g[k] - 0.5 - expected[k]).abs() < 1e-12,
+                        "frame {f} column {k}"
+                    );
                 }
             }
         }

@@ -64,7 +64,7 @@ mod tests {
     #[test]
     fn matches_libm_over_joint_ranges_and_quadrant_boundaries() {
         let mut rng = ChaCha8Rng::seed_from_u64(11);
-        let mut check = |x: f64| {
+        let check = |x: f64| {
             let (s, c) = sin_cos(x);
             let (s0, c0) = x.sin_cos();
             assert!(
