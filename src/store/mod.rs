@@ -9,7 +9,9 @@ pub mod blob;
 pub mod demonstrations;
 pub mod grasps;
 pub mod jobs;
+pub mod models;
 pub mod robots;
+pub mod trajectories;
 
 use std::path::Path;
 use std::str::FromStr;
