@@ -62,6 +62,7 @@ pub mod grasps;
 pub mod health;
 pub mod jobs;
 pub mod middleware;
+pub mod models;
 pub mod robots;
 pub mod testing;
 
@@ -147,6 +148,8 @@ impl ShutdownTrigger {
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
+        (name = "models", description = "Humanlike motion models: PCA manifolds + certified navigation functions (paper eq. 8-9), closed-loop law"),
+        (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -160,6 +163,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(robots::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
+        .merge(models::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
