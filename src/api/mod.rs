@@ -61,6 +61,7 @@ pub mod extract;
 pub mod grasps;
 pub mod health;
 pub mod jobs;
+pub mod mappings;
 pub mod middleware;
 pub mod robots;
 pub mod testing;
@@ -147,6 +148,7 @@ impl ShutdownTrigger {
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
+        (name = "mappings", description = "Human demonstrations mapped onto a robot arm-hand system (paper eq. 1-7): joint trajectories and per-frame metrics"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -160,6 +162,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(robots::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
+        .merge(mappings::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).

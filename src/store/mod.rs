@@ -9,6 +9,7 @@ pub mod blob;
 pub mod demonstrations;
 pub mod grasps;
 pub mod jobs;
+pub mod mappings;
 pub mod robots;
 
 use std::path::Path;

@@ -6,6 +6,7 @@ mod grasps;
 mod health;
 mod helpers;
 mod jobs;
+mod mappings;
 mod openapi;
 mod process;
 mod robots;
