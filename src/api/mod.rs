@@ -63,6 +63,7 @@ pub mod health;
 pub mod jobs;
 pub mod mappings;
 pub mod middleware;
+pub mod models;
 pub mod robots;
 pub mod testing;
 
@@ -149,6 +150,8 @@ impl ShutdownTrigger {
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
         (name = "mappings", description = "Human demonstrations mapped onto a robot arm-hand system (paper eq. 1-7): joint trajectories and per-frame metrics"),
+        (name = "models", description = "Humanlike motion models: PCA manifolds + certified navigation functions (paper eq. 8-9), closed-loop law"),
+        (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -163,6 +166,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(demonstrations::router())
         .merge(grasps::router())
         .merge(mappings::router())
+        .merge(models::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
