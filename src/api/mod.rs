@@ -55,8 +55,10 @@
 //! 8. **Tests.** Black-box tests in `tests/api/<resource>.rs` (add `mod <resource>;` to
 //!    `tests/api/main.rs`) using `helpers::spawn_app()`.
 
+pub mod bridges;
 pub mod demonstrations;
 pub mod error;
+pub mod executions;
 pub mod extract;
 pub mod grasps;
 pub mod health;
@@ -96,6 +98,8 @@ pub struct AppState {
     pub jobs: JobRunner,
     /// Loaded arm-hand systems by id (see [`robots::system`]).
     pub robots: robots::RobotCache,
+    /// Connected bridge workers and the execution dispatcher.
+    pub bridges: crate::bridge::Hub,
     /// Resolves when the service starts shutting down (ends long-lived streams).
     pub shutdown: Shutdown,
 }
@@ -147,6 +151,8 @@ impl ShutdownTrigger {
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
+        (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
+        (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -160,6 +166,8 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(robots::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
+        .merge(executions::router())
+        .merge(bridges::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
