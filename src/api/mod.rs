@@ -55,8 +55,10 @@
 //! 8. **Tests.** Black-box tests in `tests/api/<resource>.rs` (add `mod <resource>;` to
 //!    `tests/api/main.rs`) using `helpers::spawn_app()`.
 
+pub mod bridges;
 pub mod demonstrations;
 pub mod error;
+pub mod executions;
 pub mod extract;
 pub mod grasps;
 pub mod health;
@@ -98,6 +100,8 @@ pub struct AppState {
     pub jobs: JobRunner,
     /// Loaded arm-hand systems by id (see [`robots::system`]).
     pub robots: robots::RobotCache,
+    /// Connected bridge workers and the execution dispatcher.
+    pub bridges: crate::bridge::Hub,
     /// Resolves when the service starts shutting down (ends long-lived streams).
     pub shutdown: Shutdown,
 }
@@ -152,6 +156,8 @@ impl ShutdownTrigger {
         (name = "mappings", description = "Human demonstrations mapped onto a robot arm-hand system (paper eq. 1-7): joint trajectories and per-frame metrics"),
         (name = "models", description = "Humanlike motion models: PCA manifolds + certified navigation functions (paper eq. 8-9), closed-loop law"),
         (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
+        (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
+        (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -167,6 +173,8 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(grasps::router())
         .merge(mappings::router())
         .merge(models::router())
+        .merge(executions::router())
+        .merge(bridges::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
