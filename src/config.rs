@@ -87,6 +87,12 @@ pub struct Config {
           value_parser = clap::value_parser!(u64).range(10..=60_000), global = true)]
     pub bridge_heartbeat_ms: u64,
 
+    /// Skip first-start seeding (generating the default synthetic study, mapping it for every
+    /// bundled system and training each system's default model when one is missing).
+    #[arg(long, env = "REACHGRASP_NO_SEED", global = true,
+          value_parser = clap::builder::BoolishValueParser::new())]
+    pub no_seed: bool,
+
     /// TEST ONLY: expose `POST /v1/_test/jobs/sleep` (a job that only sleeps). Never enable in a
     /// deployment.
     #[arg(long, env = "REACHGRASP_TEST_JOBS", hide = true, global = true,
@@ -109,6 +115,7 @@ impl Default for Config {
             bridge_token: None,
             bridge_queue_timeout_secs: DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS,
             bridge_heartbeat_ms: DEFAULT_BRIDGE_HEARTBEAT_MS,
+            no_seed: false,
             test_jobs: false,
         }
     }

@@ -66,6 +66,7 @@ pub mod jobs;
 pub mod mappings;
 pub mod middleware;
 pub mod models;
+pub mod plans;
 pub mod robots;
 pub mod testing;
 
@@ -102,6 +103,8 @@ pub struct AppState {
     pub robots: robots::RobotCache,
     /// Connected bridge workers and the execution dispatcher.
     pub bridges: crate::bridge::Hub,
+    /// Robots whose default model the first-start seeding is still preparing.
+    pub seed: crate::seed::SeedStatus,
     /// Resolves when the service starts shutting down (ends long-lived streams).
     pub shutdown: Shutdown,
 }
@@ -158,6 +161,7 @@ impl ShutdownTrigger {
         (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
         (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
         (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
+        (name = "plans", description = "One request from object and task to a humanlike motion ending in a task-specific grasp, and its execution"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -175,6 +179,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(models::router())
         .merge(executions::router())
         .merge(bridges::router())
+        .merge(plans::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
