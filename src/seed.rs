@@ -159,7 +159,11 @@ async fn seed_robot(state: &AppState, robot: &str, demos: Vec<String>) -> anyhow
     state.seed.set(robot, job);
     tracing::info!(robot, %job, "seeding: training the default model");
     wait(state, job, "training").await?;
-    tracing::info!(robot, model = model.as_deref().unwrap_or("?"), "seeding: default model ready");
+    tracing::info!(
+        robot,
+        model = model.as_deref().unwrap_or("?"),
+        "seeding: default model ready"
+    );
     Ok(())
 }
 
@@ -175,7 +179,11 @@ async fn submit_study(state: &AppState) -> anyhow::Result<Uuid> {
 
 /// POSTs `body` to a job-creating route in-process; returns the job id (`Location`) and the
 /// resource id the job fills (`Content-Location`), if given.
-async fn submit(state: &AppState, path: &str, body: Value) -> anyhow::Result<(Uuid, Option<String>)> {
+async fn submit(
+    state: &AppState,
+    path: &str,
+    body: Value,
+) -> anyhow::Result<(Uuid, Option<String>)> {
     let request = Request::builder()
         .method(Method::POST)
         .uri(path)

@@ -577,7 +577,10 @@ pub(crate) async fn compute_grasp(
 }
 
 /// Stores a grasp from [`compute_grasp`].
-pub(crate) async fn store_grasp(state: &AppState, new: &repo::NewGrasp) -> Result<GraspDto, ApiError> {
+pub(crate) async fn store_grasp(
+    state: &AppState,
+    new: &repo::NewGrasp,
+) -> Result<GraspDto, ApiError> {
     grasp_dto(repo::insert_grasp(&state.db, new).await?)
 }
 

@@ -22,8 +22,8 @@ use utoipa_axum::routes;
 
 use super::grasps::{GraspDto, GraspIn, compute_grasp, grasp_dto, store_grasp};
 use super::models::{
-    AutoOr, CreateTrajectory, GoalIn, JointValues, TrajectoryDto, check_start,
-    generate_trajectory, trajectory_dto,
+    AutoOr, CreateTrajectory, GoalIn, JointValues, TrajectoryDto, check_start, generate_trajectory,
+    trajectory_dto,
 };
 use super::{ApiError, AppState, Json, Path, Problem, Query};
 use crate::bridge::{ExecutionPayload, Mode};
@@ -191,7 +191,9 @@ fn resolve_start(state: &AppState, body: &PlanIn) -> Result<JointValues, ApiErro
         }
         StartIn::Current(other) => Err(ApiError::invalid_field(
             "$.start",
-            format!("must be a configuration {{joint_names, positions}} or \"current\", got \"{other}\""),
+            format!(
+                "must be a configuration {{joint_names, positions}} or \"current\", got \"{other}\""
+            ),
         )),
     }
 }
@@ -272,7 +274,9 @@ pub async fn plan(state: &AppState, body: &PlanIn) -> Result<PlanDto, ApiError> 
             Mode::OpenLoop => {
                 let stored = trajectories::get_trajectory(&state.db, &t.id)
                     .await?
-                    .ok_or_else(|| ApiError::internal(anyhow::anyhow!("trajectory {} vanished", t.id)))?;
+                    .ok_or_else(|| {
+                        ApiError::internal(anyhow::anyhow!("trajectory {} vanished", t.id))
+                    })?;
                 ExecutionPayload::Trajectory {
                     trajectory_id: stored.id,
                     joint_names: stored.joint_names,
@@ -283,7 +287,9 @@ pub async fn plan(state: &AppState, body: &PlanIn) -> Result<PlanDto, ApiError> 
                 model_id: model_id.clone(),
                 params: model_repo::load_params(&state.db, &model_id)
                     .await?
-                    .ok_or_else(|| ApiError::internal(anyhow::anyhow!("model {model_id} has no parameters")))?,
+                    .ok_or_else(|| {
+                        ApiError::internal(anyhow::anyhow!("model {model_id} has no parameters"))
+                    })?,
                 goal: t.goal.clone(),
             },
         };
@@ -378,12 +384,19 @@ async fn get_plan(
         .ok_or_else(|| ApiError::not_found("plan", &id))?;
     let grasp = grasp_repo::get_grasp(&state.db, &row.grasp_id)
         .await?
-        .ok_or_else(|| ApiError::conflict(format!("the plan's grasp {} no longer exists", row.grasp_id)))?;
+        .ok_or_else(|| {
+            ApiError::conflict(format!(
+                "the plan's grasp {} no longer exists",
+                row.grasp_id
+            ))
+        })?;
     let trajectory = match &row.trajectory_id {
         Some(t) => Some(trajectory_dto(
             trajectories::get_trajectory(&state.db, t)
                 .await?
-                .ok_or_else(|| ApiError::conflict(format!("the plan's trajectory {t} no longer exists")))?,
+                .ok_or_else(|| {
+                    ApiError::conflict(format!("the plan's trajectory {t} no longer exists"))
+                })?,
         )?),
         None => None,
     };

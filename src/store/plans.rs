@@ -74,9 +74,9 @@ pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<PlanRow>, sqlx::E
         "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
          request, timings, created_at FROM plans WHERE id = ?",
     )
-        .bind(id)
-        .fetch_optional(pool)
-        .await
+    .bind(id)
+    .fetch_optional(pool)
+    .await
 }
 
 /// A page of plans, newest first, optionally of one robot; with the total count.

@@ -9,4 +9,5 @@ mod jobs;
 mod mappings;
 mod openapi;
 mod process;
+mod quickstart;
 mod robots;
