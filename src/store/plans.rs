@@ -1,4 +1,4 @@
-//! Plans (migration 0008): the links from one `POST /v1/plans` to the grasp, trajectory and
+//! Plans (migration 0009): the links from one `POST /v1/plans` to the grasp, trajectory and
 //! execution it produced.
 
 use sqlx::SqlitePool;

@@ -1,4 +1,4 @@
--- 0008 (plans): one request from object to humanlike motion (issue 10).
+-- 0009 (plans): one request from object to humanlike motion (issue 10).
 --
 -- A plan links what it produced: the grasp (always), the trajectory to it (when the grasp is
 -- feasible and inside the model's certified goal region) and the execution it queued (when
