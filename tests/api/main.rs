@@ -10,4 +10,5 @@ mod mappings;
 mod models;
 mod openapi;
 mod process;
+mod quickstart;
 mod robots;
