@@ -211,6 +211,15 @@ pub async fn plan(state: &AppState, body: &PlanIn) -> Result<PlanDto, ApiError> 
             format!("'{w}' is not a worker name (1-64 letters, digits, '-', '_', '.')"),
         ));
     }
+    if crate::store::robots::get(&state.db, &robot)
+        .await?
+        .is_none()
+    {
+        return Err(ApiError::invalid_field(
+            "$.robot",
+            format!("unknown robot '{robot}'"),
+        ));
+    }
     let model_id = resolve_model(state, body).await?;
     let start = resolve_start(state, body)?;
     let model_robot = check_start(state, &model_id, &start).await?;
