@@ -66,6 +66,13 @@ where
 
 async fn default_model(client: &reqwest::Client, base: &str, robot: &str) -> Option<String> {
     let list = get_json(client, &format!("{base}/v1/models?robot={robot}")).await;
+    if let Some(failed) = list["items"]
+        .as_array()?
+        .iter()
+        .find(|m| m["status"] == "failed")
+    {
+        panic!("seeding failed to train {robot}: {failed}");
+    }
     list["items"].as_array()?.iter().find_map(|m| {
         (m["status"] == "succeeded" && m["default"] == true)
             .then(|| m["id"].as_str().unwrap().to_owned())
