@@ -7,6 +7,8 @@ mod health;
 mod helpers;
 mod jobs;
 mod mappings;
+mod models;
 mod openapi;
 mod process;
+mod quickstart;
 mod robots;
