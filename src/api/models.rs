@@ -1219,7 +1219,7 @@ fn trajectory_report(
     }
 }
 
-fn trajectory_dto(t: trajectories::StoredTrajectory) -> Result<TrajectoryDto, ApiError> {
+pub(crate) fn trajectory_dto(t: trajectories::StoredTrajectory) -> Result<TrajectoryDto, ApiError> {
     Ok(TrajectoryDto {
         report: serde_json::from_str(&t.summary).map_err(ApiError::internal)?,
         id: t.id,
@@ -1320,6 +1320,35 @@ async fn create_trajectory(
     State(state): State<AppState>,
     Json(body): Json<CreateTrajectory>,
 ) -> Result<Response, ApiError> {
+    let dto = generate_trajectory(&state, &body).await?;
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, format!("/v1/trajectories/{}", dto.id))],
+        Json(dto),
+    )
+        .into_response())
+}
+
+/// Checks that `model` is trained and that `start` is a valid configuration for it (names,
+/// finite values, joint limits) before a caller does expensive work; returns the model's robot.
+pub(crate) async fn check_start(
+    state: &AppState,
+    model: &str,
+    start: &JointValues,
+) -> Result<String, ApiError> {
+    let l = loaded_model(state, model, Some("$.model")).await?;
+    let system = super::robots::system(state, &l.robot).await?;
+    let q = joint_values(&system, start, "$.start")?;
+    check_limits(&l.model, &l.names, &q, Some(&start.joint_names), "$.start")?;
+    Ok(l.robot.clone())
+}
+
+/// Generates and stores one trajectory (the work of `POST /v1/trajectories`, shared with
+/// `/v1/plans`).
+pub(crate) async fn generate_trajectory(
+    state: &AppState,
+    body: &CreateTrajectory,
+) -> Result<TrajectoryDto, ApiError> {
     let requested = match &body.duration {
         None => None,
         Some(AutoOr::Auto(s)) if s == "auto" => None,
@@ -1338,8 +1367,8 @@ async fn create_trajectory(
             format!("must be in (0, {MAX_RATE}] Hz, got {rate}"),
         ));
     }
-    let l = loaded_model(&state, &body.model, Some("$.model")).await?;
-    let system = super::robots::system(&state, &l.robot).await.map_err(|e| {
+    let l = loaded_model(state, &body.model, Some("$.model")).await?;
+    let system = super::robots::system(state, &l.robot).await.map_err(|e| {
         if e.status() == StatusCode::NOT_FOUND {
             ApiError::conflict(format!("the model's robot '{}' no longer exists", l.robot))
         } else {
@@ -1347,7 +1376,7 @@ async fn create_trajectory(
         }
     })?;
     let start = joint_values(&system, &body.start, "$.start")?;
-    let (goal, goal_names, grasp) = resolve_goal(&state, &system, &l.robot, &body.goal).await?;
+    let (goal, goal_names, grasp) = resolve_goal(state, &system, &l.robot, &body.goal).await?;
     check_limits(
         &l.model,
         &l.names,
@@ -1402,13 +1431,7 @@ async fn create_trajectory(
         },
     )
     .await?;
-    let dto = trajectory_dto(stored)?;
-    Ok((
-        StatusCode::CREATED,
-        [(header::LOCATION, format!("/v1/trajectories/{}", dto.id))],
-        Json(dto),
-    )
-        .into_response())
+    trajectory_dto(stored)
 }
 
 /// One stored trajectory with its points and report.
