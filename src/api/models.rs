@@ -90,7 +90,9 @@ pub struct CreateModel {
     pub components: Option<usize>,
     /// Keep the fewest components explaining this fraction of the variance (default 0.88).
     pub variance_threshold: Option<f64>,
-    /// Spline resolution: knot intervals per PCA axis of the learned field (default 6).
+    /// Spline resolution: knot intervals per PCA axis of the learned field (default 6, lowered
+    /// for a manifold with so many components that the spline would exceed its coefficient
+    /// budget; an explicit value is never lowered).
     pub spline_intervals: Option<usize>,
     /// Weight of the spline fit's smoothness + ridge penalty (default 3).
     pub regularisation: Option<f64>,
@@ -154,6 +156,8 @@ pub struct ManifoldDto {
     pub all_explained_variance: Vec<f64>,
     /// Demonstrated points in the spline fit.
     pub spline_points: usize,
+    /// Knot intervals per PCA axis of the learned field.
+    pub spline_intervals: usize,
     /// Mean cosine between the flow and the demonstrated velocity (training data).
     pub train_alignment: f64,
     pub certificate: CertificateDto,
@@ -670,6 +674,7 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, A
             format!("must be between 1 and {MAX_SPLINE_INTERVALS}, got {intervals}"),
         ));
     } else if let Components::Count(c) = components
+        && body.spline_intervals.is_some()
         && (1..=MAX_DIM).contains(&c)
     {
         let coefficients = TensorBSpline::coefficient_count(c, intervals);
@@ -740,6 +745,9 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, A
             groups,
             components,
             spline_intervals: intervals,
+            // the default resolution is lowered where many components would exceed the
+            // coefficient budget; an explicit one is honoured or refused
+            cap_spline_intervals: body.spline_intervals.is_none(),
             regularisation,
             k,
             ..TrainOptions::default()
@@ -786,6 +794,7 @@ fn model_report(
                 cumulative_explained_variance: fit.cumulative_explained_variance,
                 all_explained_variance: m.pca.all_explained_variance.clone(),
                 spline_points: fit.spline_points,
+                spline_intervals: m.nf.spline.intervals(),
                 train_alignment: fit.train_alignment,
                 certificate: certificate_dto(group_name(ng, g), &m.certificate),
                 goal_region: GoalRegionDto {

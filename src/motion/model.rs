@@ -99,6 +99,9 @@ pub struct TrainOptions {
     pub components: Components,
     /// Knot intervals per PCA axis of the spline `s`.
     pub spline_intervals: usize,
+    /// Lower `spline_intervals` for a manifold whose spline would exceed the coefficient budget
+    /// (many components: `(intervals + 3)^d` coefficients) instead of refusing to train.
+    pub cap_spline_intervals: bool,
     /// Relative weight of the smoothness + ridge penalty of the spline fit.
     pub regularisation: f64,
     /// Demonstrated points closer to their goal than this fraction of the demonstration's
@@ -122,6 +125,7 @@ impl Default for TrainOptions {
             groups: Vec::new(),
             components: Components::default(),
             spline_intervals: 6,
+            cap_spline_intervals: false,
             regularisation: 3.0,
             goal_exclusion: 0.25,
             k: KChoice::Auto,
@@ -625,7 +629,14 @@ pub fn train(
         }
         let rho = rho.max(1e-9);
         let radius = opts.workspace_margin * rho;
-        let coeffs = TensorBSpline::coefficient_count(d, opts.spline_intervals);
+        let mut intervals = opts.spline_intervals;
+        while opts.cap_spline_intervals
+            && intervals > 1
+            && TensorBSpline::coefficient_count(d, intervals) > MAX_COEFFICIENTS
+        {
+            intervals -= 1;
+        }
+        let coeffs = TensorBSpline::coefficient_count(d, intervals);
         if coeffs > MAX_COEFFICIENTS {
             return Err(MotionError::SplineTooLarge {
                 coefficients: coeffs,
@@ -634,7 +645,7 @@ pub fn train(
         }
         let box_lo: Vec<f64> = center.iter().map(|c| c - radius).collect();
         let box_hi: Vec<f64> = center.iter().map(|c| c + radius).collect();
-        let template = TensorBSpline::zeros(&box_lo, &box_hi, opts.spline_intervals);
+        let template = TensorBSpline::zeros(&box_lo, &box_hi, intervals);
         let train_y: Vec<DemoY<'_>> = train_idx.iter().map(|&di| DemoY { y: &ys[di] }).collect();
         let fit = fit_spline(
             &template,
