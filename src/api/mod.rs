@@ -64,6 +64,7 @@ pub mod grasps;
 pub mod health;
 pub mod jobs;
 pub mod middleware;
+pub mod models;
 pub mod robots;
 pub mod testing;
 
@@ -151,6 +152,8 @@ impl ShutdownTrigger {
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
+        (name = "models", description = "Humanlike motion models: PCA manifolds + certified navigation functions (paper eq. 8-9), closed-loop law"),
+        (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
         (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
         (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
     ),
@@ -166,6 +169,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(robots::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
+        .merge(models::router())
         .merge(executions::router())
         .merge(bridges::router())
 }

@@ -10,7 +10,10 @@ pub mod demonstrations;
 pub mod executions;
 pub mod grasps;
 pub mod jobs;
+pub mod mappings;
+pub mod models;
 pub mod robots;
+pub mod trajectories;
 
 use std::path::Path;
 use std::str::FromStr;
