@@ -308,6 +308,11 @@ impl Run {
         })
     }
 
+    /// Perturbation kicks applied so far.
+    pub fn kicks(&self) -> u32 {
+        self.perturb.as_ref().map_or(0, |p| p.2)
+    }
+
     pub fn mode(&self) -> Mode {
         match self.controller {
             Controller::Track { .. } => Mode::OpenLoop,
