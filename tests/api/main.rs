@@ -7,6 +7,7 @@ mod grasps;
 mod health;
 mod helpers;
 mod jobs;
+mod models;
 mod openapi;
 mod process;
 mod robots;
