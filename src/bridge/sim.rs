@@ -6,6 +6,10 @@
 //! proportional term; closed loop runs the model's law `u(q)` (`ControlParams::control`,
 //! DESIGN §5) on the measured state.
 
+// The integrators index several parallel per-joint arrays (state, command, limits) with one
+// joint index; zipped iterator chains over five arrays read worse than the update rules.
+#![allow(clippy::needless_range_loop)]
+
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -13,8 +17,8 @@ use super::protocol::{Execute, ExecutionPayload, Feedback, Mode, Outcome};
 use crate::motion::{ControlParams, TrajectoryPoint};
 
 /// Default joint acceleration limit (rad/s²) where the system descriptor gives none (URDFs
-/// carry only velocity limits); a conservative figure for a 7-DoF arm like the WAM.
-pub const DEFAULT_ACCELERATION_LIMIT: f64 = 4.0;
+/// carry only velocity limits); the same default as the motion models' `acceleration_limit`.
+pub const DEFAULT_ACCELERATION_LIMIT: f64 = 5.0;
 /// Velocity limit (rad/s) used for a joint whose URDF gives none (or zero).
 pub const DEFAULT_VELOCITY_LIMIT: f64 = 1.5;
 
@@ -309,6 +313,11 @@ impl Run {
             progress: 0.0,
             perturb: perturb.map(|p| (p, ChaCha8Rng::seed_from_u64(p.seed), 0)),
         })
+    }
+
+    /// Perturbation kicks applied so far.
+    pub fn kicks(&self) -> u32 {
+        self.perturb.as_ref().map_or(0, |p| p.2)
     }
 
     pub fn mode(&self) -> Mode {

@@ -102,9 +102,11 @@ pub enum WorkerEvent {
         id: String,
         at: Instant,
     },
+    /// An execution ended on this worker (`kicks`: perturbations applied during it).
     Finished {
         id: String,
         outcome: Outcome,
+        kicks: u32,
     },
     Cancelled {
         id: String,
@@ -323,7 +325,7 @@ where
                                 }
                                 Err(reason) => {
                                     tracing::warn!(execution = %ex.execution_id, %reason, "execution refused");
-                                    emit(WorkerEvent::Finished { id: ex.execution_id.clone(), outcome: Outcome::Failed });
+                                    emit(WorkerEvent::Finished { id: ex.execution_id.clone(), outcome: Outcome::Failed, kicks: 0 });
                                     outgoing.push(WorkerMessage::Result(ExecutionResult {
                                         execution_id: ex.execution_id,
                                         outcome: Outcome::Failed,
@@ -363,7 +365,7 @@ where
                         outgoing.push(WorkerMessage::Feedback(r.feedback(robot)));
                     }
                     if let Some((outcome, reason)) = done {
-                        emit(WorkerEvent::Finished { id: r.id.clone(), outcome });
+                        emit(WorkerEvent::Finished { id: r.id.clone(), outcome, kicks: r.kicks() });
                         tracing::info!(execution = %r.id, ?outcome, "execution finished");
                         outgoing.push(WorkerMessage::Result(ExecutionResult {
                             execution_id: r.id.clone(),
