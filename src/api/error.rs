@@ -49,6 +49,9 @@ pub struct Problem {
     /// For validation problems: every offending field.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub errors: Vec<FieldError>,
+    /// For `not-ready`: the job preparing what the request needs (`GET /v1/jobs/{job_id}`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub job_id: Option<String>,
 }
 
 /// The error every handler returns; it renders as problem+json.
@@ -63,10 +66,12 @@ pub struct Problem {
 /// | `not-found` | 404 | unknown resource id or route |
 /// | `method-not-allowed` | 405 | the route exists, the method does not |
 /// | `conflict` | 409 | the request conflicts with the resource's state |
+/// | `unauthorized` | 401 | missing or wrong credentials (bridge workers' token) |
 /// | `payload-too-large` | 413 | body above the configured limit |
 /// | `unsupported-media-type` | 415 | body is not `application/json` |
 /// | `validation` | 422 | well-formed JSON with bad values (see `errors`) |
 /// | `unavailable` | 503 | dependency down, shutting down |
+/// | `not-ready` | 503 | a job (see `job_id`) is still preparing what the request needs |
 /// | `timeout` | 503 | the request took longer than the configured timeout |
 /// | `internal` | 500 | a bug; logged, never detailed to the client |
 #[derive(Debug)]
@@ -76,6 +81,7 @@ pub struct ApiError {
     title: &'static str,
     detail: Cow<'static, str>,
     errors: Vec<FieldError>,
+    job_id: Option<String>,
     /// The logged cause of an internal error (never sent).
     source: Option<anyhow::Error>,
 }
@@ -93,6 +99,7 @@ impl ApiError {
             title,
             detail: detail.into(),
             errors: Vec::new(),
+            job_id: None,
             source: None,
         }
     }
@@ -208,6 +215,16 @@ impl ApiError {
         )
     }
 
+    /// 401: missing or wrong credentials (the bridge workers' token).
+    pub fn unauthorized(detail: impl Into<Cow<'static, str>>) -> Self {
+        ApiError::new(
+            StatusCode::UNAUTHORIZED,
+            "unauthorized",
+            "Unauthorized",
+            detail,
+        )
+    }
+
     /// 503: a dependency is down or the service is stopping.
     pub fn unavailable(detail: impl Into<Cow<'static, str>>) -> Self {
         ApiError::new(
@@ -216,6 +233,19 @@ impl ApiError {
             "Service unavailable",
             detail,
         )
+    }
+
+    /// 503: job `job` is still preparing what the request needs (e.g. a default model during
+    /// first-start seeding); retry once it has finished.
+    pub fn not_ready(detail: impl Into<Cow<'static, str>>, job: impl fmt::Display) -> Self {
+        let mut e = ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "not-ready",
+            "Not ready yet",
+            detail,
+        );
+        e.job_id = Some(job.to_string());
+        e
     }
 
     /// 503: the request exceeded the configured timeout.
@@ -289,6 +319,7 @@ impl ApiError {
             status: self.status.as_u16(),
             detail: self.detail.to_string(),
             errors: self.errors.clone(),
+            job_id: self.job_id.clone(),
         }
     }
 }

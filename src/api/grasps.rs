@@ -472,7 +472,7 @@ fn new_grasp(
     }
 }
 
-fn grasp_dto(row: repo::GraspRow) -> Result<GraspDto, ApiError> {
+pub(crate) fn grasp_dto(row: repo::GraspRow) -> Result<GraspDto, ApiError> {
     Ok(GraspDto {
         id: row.id,
         robot: row.robot,
@@ -562,6 +562,23 @@ async fn create_grasp(
     State(state): State<AppState>,
     Json(body): Json<GraspIn>,
 ) -> Result<Response, ApiError> {
+    let (new, _) = compute_grasp(&state, &body).await?;
+    let out = store_grasp(&state, &new).await?;
+    let location = format!("/v1/grasps/{}", out.id);
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, location)],
+        Json(out),
+    )
+        .into_response())
+}
+
+/// Computes one grasp, ready to store (the work of `POST /v1/grasps`, shared with `/v1/plans`,
+/// which stores it only once the rest of the plan has been checked).
+pub(crate) async fn compute_grasp(
+    state: &AppState,
+    body: &GraspIn,
+) -> Result<(repo::NewGrasp, GraspResult), ApiError> {
     let settings = parse_settings(
         &body.task_directions,
         body.quality,
@@ -570,8 +587,8 @@ async fn create_grasp(
         body.seed,
         body.elbow_reference,
     )?;
-    let (object_id, object) = resolve_object(&state, "$.", &body.object_id, &body.object).await?;
-    let sys = robot_view(&state, &body.robot).await?;
+    let (object_id, object) = resolve_object(state, "$.", &body.object_id, &body.object).await?;
+    let sys = robot_view(state, &body.robot).await?;
     let (result, object) = tokio::task::spawn_blocking(move || {
         let req = make_request(object.clone(), &settings);
         let r = plan_grasp(&sys, &req).map_err(|e| grasp_error("$", e))?;
@@ -580,19 +597,18 @@ async fn create_grasp(
     .await
     .map_err(ApiError::internal)??;
     let (result, dto) = result;
-    let row = repo::insert_grasp(
-        &state.db,
-        &new_grasp(&body.robot, object_id, &object, &dto, &result),
-    )
-    .await?;
-    let out = grasp_dto(row)?;
-    let location = format!("/v1/grasps/{}", out.id);
     Ok((
-        StatusCode::CREATED,
-        [(header::LOCATION, location)],
-        Json(out),
-    )
-        .into_response())
+        new_grasp(&body.robot, object_id, &object, &dto, &result),
+        result,
+    ))
+}
+
+/// Stores a grasp from [`compute_grasp`].
+pub(crate) async fn store_grasp(
+    state: &AppState,
+    new: &repo::NewGrasp,
+) -> Result<GraspDto, ApiError> {
+    grasp_dto(repo::insert_grasp(&state.db, new).await?)
 }
 
 /// One stored grasp.

@@ -55,13 +55,18 @@
 //! 8. **Tests.** Black-box tests in `tests/api/<resource>.rs` (add `mod <resource>;` to
 //!    `tests/api/main.rs`) using `helpers::spawn_app()`.
 
+pub mod bridges;
 pub mod demonstrations;
 pub mod error;
+pub mod executions;
 pub mod extract;
 pub mod grasps;
 pub mod health;
 pub mod jobs;
+pub mod mappings;
 pub mod middleware;
+pub mod models;
+pub mod plans;
 pub mod robots;
 pub mod testing;
 
@@ -96,6 +101,10 @@ pub struct AppState {
     pub jobs: JobRunner,
     /// Loaded arm-hand systems by id (see [`robots::system`]).
     pub robots: robots::RobotCache,
+    /// Connected bridge workers and the execution dispatcher.
+    pub bridges: crate::bridge::Hub,
+    /// Robots whose default model the first-start seeding is still preparing.
+    pub seed: crate::seed::SeedStatus,
     /// Resolves when the service starts shutting down (ends long-lived streams).
     pub shutdown: Shutdown,
 }
@@ -147,6 +156,12 @@ impl ShutdownTrigger {
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
+        (name = "mappings", description = "Human demonstrations mapped onto a robot arm-hand system (paper eq. 1-7): joint trajectories and per-frame metrics"),
+        (name = "models", description = "Humanlike motion models: PCA manifolds + certified navigation functions (paper eq. 8-9), closed-loop law"),
+        (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
+        (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
+        (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
+        (name = "plans", description = "One request from object and task to a humanlike motion ending in a task-specific grasp, and its execution"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -160,6 +175,11 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(robots::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
+        .merge(mappings::router())
+        .merge(models::router())
+        .merge(executions::router())
+        .merge(bridges::router())
+        .merge(plans::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).

@@ -269,7 +269,8 @@ pub struct Trajectory {
     /// Largest velocity / acceleration limit use along the output (≤ 1).
     pub max_velocity_ratio: f64,
     pub max_acceleration_ratio: f64,
-    /// Largest excursion beyond a position limit along the path (0 when within limits).
+    /// Largest excursion beyond a position limit of the interpolated path before it was held
+    /// on the limit (0 when within limits); the output points are always within limits.
     pub max_position_excess: f64,
     pub converged: bool,
     /// Per group: PCA-space distance to the goal where the flow stopped (before the exact goal
@@ -1133,6 +1134,14 @@ impl MotionModel {
                     excess = excess
                         .max(self.limits.lower[j] - p[j])
                         .max(p[j] - self.limits.upper[j]);
+                    // The interpolated humanlike path can bulge slightly past a limit when an
+                    // end sits on it (a hand joint fully open, say). A robot must never be sent
+                    // past its limits, so the point is held on the limit there.
+                    if p[j] < self.limits.lower[j] || p[j] > self.limits.upper[j] {
+                        p[j] = p[j].clamp(self.limits.lower[j], self.limits.upper[j]);
+                        v[j] = 0.0;
+                        a[j] = 0.0;
+                    }
                 }
                 points.push(TrajectoryPoint {
                     t: tau * total,

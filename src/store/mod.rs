@@ -7,9 +7,14 @@
 
 pub mod blob;
 pub mod demonstrations;
+pub mod executions;
 pub mod grasps;
 pub mod jobs;
+pub mod mappings;
+pub mod models;
+pub mod plans;
 pub mod robots;
+pub mod trajectories;
 
 use std::path::Path;
 use std::str::FromStr;
