@@ -58,6 +58,7 @@
 pub mod demonstrations;
 pub mod error;
 pub mod extract;
+pub mod figures;
 pub mod grasps;
 pub mod health;
 pub mod jobs;
@@ -147,6 +148,7 @@ impl ShutdownTrigger {
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
+        (name = "figures", description = "Figures as SVG (paper Fig. 2-6 and more); 3-D views take azimuth/elevation"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -160,6 +162,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(robots::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
+        .merge(figures::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
@@ -173,6 +176,7 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
 pub fn router(state: AppState) -> Router {
     let (mut router, api) = openapi_router().split_for_parts();
     router = router.merge(SwaggerUi::new("/docs").url("/openapi.json", api));
+    router = router.merge(crate::dashboard::router());
     if state.config.test_jobs {
         tracing::warn!("TEST-ONLY job routes are enabled (REACHGRASP_TEST_JOBS)");
         router = router.merge(testing::router());

@@ -193,3 +193,14 @@ pub async fn get_batch(
             .await?;
     Ok(Some((b, ids.into_iter().map(|r| r.0).collect())))
 }
+
+/// The newest grasps first (the dashboard's list).
+pub async fn list_grasps(pool: &SqlitePool, limit: u32) -> Result<Vec<GraspRow>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT id, robot, object_id, object, request, result, feasible, batch_id, created_at \
+         FROM grasps ORDER BY created_at DESC LIMIT ?",
+    )
+    .bind(i64::from(limit))
+    .fetch_all(pool)
+    .await
+}

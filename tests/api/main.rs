@@ -2,6 +2,7 @@
 
 mod demonstrations;
 mod errors;
+mod figures;
 mod grasps;
 mod health;
 mod helpers;

@@ -1,0 +1,243 @@
+//! End-to-end dashboard test in a real headless Chromium driven over WebDriver (chromedriver +
+//! fantoccini): open the dashboard, submit an invalid and then a valid synthetic study from the
+//! form, follow the live progress bar to the end, open the result and its figure, screenshot.
+//!
+//! Needs Debian's `chromium` and `chromium-driver` (`/usr/bin/chromium`, `/usr/bin/chromedriver`;
+//! override with `CHROMIUM` / `CHROMEDRIVER`). Without them the test FAILS when `CI=true` and
+//! skips with a loud message otherwise.
+
+#[path = "api/helpers.rs"]
+#[allow(dead_code)]
+mod helpers;
+
+use std::net::TcpListener;
+use std::path::PathBuf;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use fantoccini::{Client, ClientBuilder, Locator};
+use serde_json::json;
+
+fn tool(env: &str, default: &str) -> PathBuf {
+    std::env::var_os(env)
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(default))
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("a free port")
+        .port()
+}
+
+async fn wait_for_port(port: u16) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while tokio::net::TcpStream::connect(("127.0.0.1", port))
+        .await
+        .is_err()
+    {
+        assert!(
+            Instant::now() < deadline,
+            "chromedriver did not listen on {port} within 20 s"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+async fn text_of(c: &Client, css: &str) -> String {
+    c.find(Locator::Css(css))
+        .await
+        .expect(css)
+        .text()
+        .await
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn dashboard_runs_a_synthetic_study_in_headless_chromium() {
+    let chromium = tool("CHROMIUM", "/usr/bin/chromium");
+    let driver = tool("CHROMEDRIVER", "/usr/bin/chromedriver");
+    if !chromium.is_file() || !driver.is_file() {
+        let msg = format!(
+            "headless Chromium is not installed ({} / {}): apt-get install -y chromium chromium-driver",
+            chromium.display(),
+            driver.display()
+        );
+        if std::env::var("CI").is_ok_and(|v| v == "true") {
+            panic!("{msg}");
+        }
+        eprintln!("\n!!!!!!!! SKIPPING the browser test: {msg} !!!!!!!!\n");
+        return;
+    }
+
+    let app = helpers::spawn_app_with(|c| {
+        c.robots = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
+    })
+    .await;
+    let port = free_port();
+    let _driver = tokio::process::Command::new(&driver)
+        .arg(format!("--port={port}"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("chromedriver starts");
+    wait_for_port(port).await;
+
+    let profile = tempfile::tempdir().unwrap();
+    let caps = json!({
+        "browserName": "chrome",
+        "goog:chromeOptions": {
+            "binary": chromium,
+            "args": [
+                "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                "--disable-dev-shm-usage", "--window-size=1280,1600",
+                format!("--user-data-dir={}", profile.path().display()),
+            ],
+        },
+    });
+    let caps = caps.as_object().unwrap().clone();
+    let c = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+        .capabilities(caps)
+        .connect(&format!("http://127.0.0.1:{port}"))
+        .await
+        .expect("a WebDriver session");
+
+    let outcome = drive(&c, &app.base_url).await;
+    let shot = c.screenshot().await;
+    c.close().await.ok();
+    let png = shot.expect("a screenshot");
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"));
+    let path = dir.join("dashboard-e2e.png");
+    std::fs::write(&path, png).unwrap();
+    println!("dashboard screenshot: {}", path.display());
+    outcome.unwrap();
+}
+
+/// The browser session's steps; the caller screenshots whatever the outcome.
+async fn drive(c: &Client, base: &str) -> Result<(), String> {
+    let started = Instant::now();
+    c.goto(&format!("{base}/"))
+        .await
+        .map_err(|e| e.to_string())?;
+    println!("dashboard first page loaded in {:?}", started.elapsed());
+    let title = c.title().await.map_err(|e| e.to_string())?;
+    assert!(title.contains("Overview"), "{title}");
+
+    // An invalid value: the server's problem+json message lands next to the field.
+    let subjects = c
+        .find(Locator::Css("#synthetic-form input[name=subjects]"))
+        .await
+        .map_err(|e| e.to_string())?;
+    subjects.clear().await.unwrap();
+    subjects.send_keys("0").await.unwrap();
+    let submit = c
+        .find(Locator::Css("#synthetic-form button[type=submit]"))
+        .await
+        .unwrap();
+    submit.click().await.unwrap();
+    c.wait()
+        .at_most(Duration::from_secs(20))
+        .for_element(Locator::Css("#synthetic-form .field.invalid"))
+        .await
+        .map_err(|e| format!("no field error shown: {e}"))?;
+    let err = text_of(c, "#synthetic-form .field.invalid .field-error").await;
+    assert!(err.contains("subjects") || !err.is_empty(), "{err}");
+    let invalid_input = c
+        .find(Locator::Css("#synthetic-form .field.invalid input"))
+        .await
+        .unwrap();
+    assert_eq!(
+        invalid_input.attr("name").await.unwrap().as_deref(),
+        Some("subjects")
+    );
+
+    // A valid small study: 1 subject, 1 position, 2 trials; the bar follows the job's SSE.
+    subjects.clear().await.unwrap();
+    subjects.send_keys("1").await.unwrap();
+    submit.click().await.unwrap();
+    c.wait()
+        .at_most(Duration::from_secs(90))
+        .for_element(Locator::Css(
+            "#synthetic-form .job-status[data-status=succeeded]",
+        ))
+        .await
+        .map_err(|e| format!("the study's progress bar did not finish: {e}"))?;
+    let bar = c
+        .find(Locator::Css("#synthetic-form .job-status progress"))
+        .await
+        .unwrap();
+    assert_eq!(bar.prop("value").await.unwrap().as_deref(), Some("100"));
+    assert!(
+        text_of(c, "#synthetic-form .job-status .job-text")
+            .await
+            .contains("succeeded")
+    );
+
+    // The result: the study's demonstrations, then one demonstration with its figure.
+    c.find(Locator::Css("#synthetic-form .job-result a"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    let first = c
+        .wait()
+        .at_most(Duration::from_secs(20))
+        .for_element(Locator::Css("a[href^='/ui/demonstrations/']"))
+        .await
+        .map_err(|e| format!("no demonstration listed: {e}"))?;
+    let rows = c.find_all(Locator::Css("tbody tr")).await.unwrap();
+    assert_eq!(rows.len(), 2, "two trials were generated");
+    first.click().await.unwrap();
+    c.wait()
+        .at_most(Duration::from_secs(20))
+        .for_element(Locator::Css("figure.plot img"))
+        .await
+        .map_err(|e| e.to_string())?;
+    // The figure must actually load (a broken image has naturalWidth 0).
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let w = c
+            .execute(
+                "const i = document.querySelector('figure.plot img'); \
+                 return i.complete ? i.naturalWidth : 0;",
+                vec![],
+            )
+            .await
+            .unwrap();
+        if w.as_u64().unwrap_or(0) > 0 {
+            break;
+        }
+        if Instant::now() > deadline {
+            return Err("the demonstration figure did not load".into());
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let page = text_of(c, "main").await;
+    for needle in [
+        "Wrist speed and grip aperture",
+        "subject",
+        "frames",
+        "synthetic",
+    ] {
+        assert!(
+            page.contains(needle),
+            "{needle} missing from the page:\n{page}"
+        );
+    }
+    // An unknown id is a readable page, not a JSON error.
+    c.goto(&format!("{base}/ui/demonstrations/nope"))
+        .await
+        .unwrap();
+    assert!(
+        text_of(c, "main")
+            .await
+            .contains("There is no demonstration with id")
+    );
+    // Back to the demonstration (for the screenshot).
+    c.back().await.unwrap();
+    Ok(())
+}
