@@ -63,6 +63,7 @@ pub mod grasps;
 pub mod health;
 pub mod jobs;
 pub mod middleware;
+pub mod models;
 pub mod robots;
 pub mod testing;
 
@@ -148,6 +149,8 @@ impl ShutdownTrigger {
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
+        (name = "models", description = "Humanlike motion models: PCA manifolds + certified navigation functions (paper eq. 8-9), closed-loop law"),
+        (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
         (name = "figures", description = "Figures as SVG (paper Fig. 2-6 and more); 3-D views take azimuth/elevation"),
     ),
     components(schemas(Problem, FieldError))
@@ -162,6 +165,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(robots::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
+        .merge(models::router())
         .merge(figures::router())
 }
 

@@ -31,6 +31,7 @@ mod control;
 mod error;
 mod fit;
 mod flow;
+pub mod mapped;
 mod model;
 mod nf;
 mod pca;
@@ -42,7 +43,7 @@ mod timing;
 pub use bspline::{MAX_DIM, TensorBSpline};
 pub use control::ControlParams;
 pub use error::MotionError;
-pub use fit::SplineFit;
+pub use fit::{MAX_COEFFICIENTS as MAX_SPLINE_COEFFICIENTS, SplineFit};
 pub use flow::{FlowOptions, FlowPath, integrate_flow};
 pub use model::{
     Baseline, DurationModel, HeldOutReport, JointLimits, JointTrajectory, KChoice, ManifoldFit,

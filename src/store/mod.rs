@@ -9,7 +9,10 @@ pub mod blob;
 pub mod demonstrations;
 pub mod grasps;
 pub mod jobs;
+pub mod mappings;
+pub mod models;
 pub mod robots;
+pub mod trajectories;
 
 use std::path::Path;
 use std::str::FromStr;
