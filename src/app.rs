@@ -52,7 +52,27 @@ impl App {
             .await
             .with_context(|| format!("cannot listen on {} (REACHGRASP_BIND)", config.bind))?;
         let (trigger, shutdown) = Shutdown::new();
+        let recovered = store::executions::recover_interrupted(&db)
+            .await
+            .context("cannot recover interrupted executions")?;
+        if recovered > 0 {
+            tracing::warn!(
+                count = recovered,
+                "executions left running by the previous process marked interrupted"
+            );
+        }
+        let token = match &config.bridge_token {
+            Some(t) if !t.trim().is_empty() => t.trim().to_owned(),
+            _ => {
+                let t = uuid::Uuid::new_v4().simple().to_string();
+                tracing::warn!(token = %t, "no bridge token configured (REACHGRASP_BRIDGE_TOKEN); bridge workers must present this generated one");
+                t
+            }
+        };
+        let bridges = crate::bridge::Hub::new(db.clone(), config.bridge_settings(token));
+        bridges.spawn_dispatcher(shutdown.clone());
         let state = AppState {
+            bridges,
             db,
             config: Arc::new(config),
             jobs,

@@ -22,6 +22,11 @@ pub const DEFAULT_REQUEST_TIMEOUT_SECS: u64 = 60;
 /// Default graceful-shutdown grace period in seconds.
 pub const DEFAULT_SHUTDOWN_GRACE_SECS: u64 = 10;
 
+/// Default time a queued execution waits for a compatible worker (s).
+pub const DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS: u64 = 600;
+/// Default bridge heartbeat interval (ms).
+pub const DEFAULT_BRIDGE_HEARTBEAT_MS: u64 = 1000;
+
 /// Service configuration.
 #[derive(Debug, Clone, clap::Args)]
 pub struct Config {
@@ -65,6 +70,23 @@ pub struct Config {
           global = true)]
     pub shutdown_grace_secs: u64,
 
+    /// Token bridge workers present (`Authorization: Bearer <token>`) on
+    /// `/v1/bridges/connect`. When unset, a random token is generated at start and logged once.
+    #[arg(long, env = "REACHGRASP_BRIDGE_TOKEN", global = true, hide_env_values = true)]
+    pub bridge_token: Option<String>,
+
+    /// Seconds a queued execution waits while no compatible worker is connected before it
+    /// fails with `no worker` (0: wait forever).
+    #[arg(long, env = "REACHGRASP_BRIDGE_QUEUE_TIMEOUT", default_value_t = DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS,
+          global = true)]
+    pub bridge_queue_timeout_secs: u64,
+
+    /// Milliseconds between worker heartbeats (told to workers in `welcome`); a worker silent
+    /// for 5 intervals is disconnected.
+    #[arg(long, env = "REACHGRASP_BRIDGE_HEARTBEAT_MS", default_value_t = DEFAULT_BRIDGE_HEARTBEAT_MS,
+          value_parser = clap::value_parser!(u64).range(10..=60_000), global = true)]
+    pub bridge_heartbeat_ms: u64,
+
     /// TEST ONLY: expose `POST /v1/_test/jobs/sleep` (a job that only sleeps). Never enable in a
     /// deployment.
     #[arg(long, env = "REACHGRASP_TEST_JOBS", hide = true, global = true,
@@ -84,6 +106,9 @@ impl Default for Config {
             request_timeout_secs: DEFAULT_REQUEST_TIMEOUT_SECS,
             job_concurrency: None,
             shutdown_grace_secs: DEFAULT_SHUTDOWN_GRACE_SECS,
+            bridge_token: None,
+            bridge_queue_timeout_secs: DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS,
+            bridge_heartbeat_ms: DEFAULT_BRIDGE_HEARTBEAT_MS,
             test_jobs: false,
         }
     }
@@ -92,6 +117,18 @@ impl Default for Config {
 impl Config {
     pub fn request_timeout(&self) -> Duration {
         Duration::from_secs(self.request_timeout_secs)
+    }
+
+    /// The bridge hub's settings; `token` is the resolved token (configured or generated).
+    pub fn bridge_settings(&self, token: String) -> crate::bridge::HubSettings {
+        let interval = Duration::from_millis(self.bridge_heartbeat_ms);
+        crate::bridge::HubSettings {
+            token,
+            heartbeat_interval: interval,
+            heartbeat_timeout: interval * 5,
+            queue_timeout: (self.bridge_queue_timeout_secs > 0)
+                .then(|| Duration::from_secs(self.bridge_queue_timeout_secs)),
+        }
     }
 
     pub fn shutdown_grace(&self) -> Duration {

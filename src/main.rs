@@ -1,5 +1,6 @@
 //! The `reachgrasp` binary: `serve` (the default) runs the HTTP service; `openapi` prints the
-//! OpenAPI document; `synth` prints a synthetic demonstration study.
+//! OpenAPI document; `synth` prints a synthetic demonstration study; `bridge --sim` runs the
+//! reference (simulated) bridge worker.
 
 use clap::{Parser, Subcommand};
 use reachgrasp::app::{App, init_tracing, shutdown_signal};
@@ -34,6 +35,9 @@ enum Command {
         #[arg(long)]
         targets: std::path::PathBuf,
     },
+    /// Run a bridge worker: connect to the service's `/v1/bridges/connect` and execute what it
+    /// forwards. `--sim` drives a simulated robot (the only built-in robot driver).
+    Bridge(BridgeArgs),
     /// Generate a seeded synthetic demonstration study and print it as JSON on stdout: an array
     /// of upload documents (each one a valid `POST /v1/demonstrations` body), or with
     /// `--summary` the ingest summary of each.
@@ -74,6 +78,54 @@ enum Command {
 }
 
 #[derive(Debug, clap::Args)]
+struct BridgeArgs {
+    /// Drive a simulated robot (integrates commands under the joint velocity and acceleration
+    /// limits at the control rate).
+    #[arg(long)]
+    sim: bool,
+    /// Robot system id (bundled in the robots folder, a descriptor file, or registered).
+    #[arg(long)]
+    robot: String,
+    /// The service's bridge WebSocket.
+    #[arg(long, env = "REACHGRASP_BRIDGE_URL",
+          default_value = "ws://127.0.0.1:8080/v1/bridges/connect")]
+    url: String,
+    /// The service's bridge token.
+    #[arg(long, env = "REACHGRASP_BRIDGE_TOKEN", hide_env_values = true)]
+    token: String,
+    /// Worker name (unique among connected workers; default `sim-<robot>`).
+    #[arg(long)]
+    name: Option<String>,
+    /// Control rate (Hz).
+    #[arg(long, default_value_t = 100.0)]
+    rate_hz: f64,
+    /// Feedback rate (Hz).
+    #[arg(long, default_value_t = 50.0)]
+    feedback_hz: f64,
+    /// Joint acceleration limit (rad/s²; the system descriptor has none).
+    #[arg(long, default_value_t = reachgrasp::bridge::sim::DEFAULT_ACCELERATION_LIMIT)]
+    max_acceleration: f64,
+    /// Apply random state kicks during motion.
+    #[arg(long)]
+    perturb: bool,
+    /// Largest kick per joint (rad).
+    #[arg(long, default_value_t = 0.08)]
+    perturb_magnitude: f64,
+    /// Seed of the kicks.
+    #[arg(long, default_value_t = 7)]
+    seed: u64,
+    /// Largest distance (rad) of the robot from a trajectory's first point it accepts.
+    #[arg(long, default_value_t = 0.25)]
+    start_tolerance: f64,
+    /// Final error (rad) that counts as arrived.
+    #[arg(long, default_value_t = 0.01)]
+    goal_tolerance: f64,
+    /// Initial joint positions, comma-separated in model order (default: 0, or mid-range).
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    initial: Option<Vec<f64>>,
+}
+
+#[derive(Debug, clap::Args)]
 struct SynthArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -111,6 +163,7 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Ik { robot, targets } => ik(&cli.config, &robot, &targets),
         Command::Synth(args) => synth(args),
+        Command::Bridge(args) => bridge(&cli.config, args),
         Command::Grasp {
             request,
             robot,
@@ -205,6 +258,60 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
     }
     writeln!(out)?;
     out.flush()?;
+    Ok(())
+}
+
+fn bridge(config: &Config, args: BridgeArgs) -> anyhow::Result<()> {
+    use reachgrasp::bridge::sim::{Perturbation, RunOptions};
+    use reachgrasp::bridge::worker::{WorkerOptions, run_worker};
+    init_tracing(config)?;
+    anyhow::ensure!(
+        args.sim,
+        "only the simulated robot driver is built in: pass --sim"
+    );
+    anyhow::ensure!(
+        args.rate_hz > 0.0 && args.rate_hz <= 2000.0 && args.feedback_hz > 0.0,
+        "--rate-hz must be in (0, 2000] and --feedback-hz positive"
+    );
+    anyhow::ensure!(
+        args.max_acceleration > 0.0 && args.max_acceleration.is_finite(),
+        "--max-acceleration must be positive"
+    );
+    let system = reachgrasp::api::robots::resolve_robot_for_cli(config, &args.robot)?;
+    let name = args.name.unwrap_or_else(|| format!("sim-{}", args.robot));
+    let mut opts = WorkerOptions::for_system(
+        args.url,
+        args.token,
+        name,
+        args.robot,
+        &system,
+        args.max_acceleration,
+    );
+    if let Some(q) = args.initial {
+        anyhow::ensure!(
+            q.len() == opts.joint_names.len(),
+            "--initial needs {} values ({:?})",
+            opts.joint_names.len(),
+            opts.joint_names
+        );
+        opts.initial = Some(q);
+    }
+    opts.rate_hz = args.rate_hz;
+    opts.feedback_hz = args.feedback_hz.min(args.rate_hz);
+    opts.run = RunOptions {
+        start_tolerance: args.start_tolerance,
+        goal_tolerance: args.goal_tolerance,
+        ..RunOptions::default()
+    };
+    opts.perturb = args.perturb.then_some(Perturbation {
+        magnitude: args.perturb_magnitude,
+        seed: args.seed,
+        ..Perturbation::default()
+    });
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(run_worker(opts, None, shutdown_signal()))?;
     Ok(())
 }
 

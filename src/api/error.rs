@@ -63,6 +63,7 @@ pub struct Problem {
 /// | `not-found` | 404 | unknown resource id or route |
 /// | `method-not-allowed` | 405 | the route exists, the method does not |
 /// | `conflict` | 409 | the request conflicts with the resource's state |
+/// | `unauthorized` | 401 | missing or wrong credentials (bridge workers' token) |
 /// | `payload-too-large` | 413 | body above the configured limit |
 /// | `unsupported-media-type` | 415 | body is not `application/json` |
 /// | `validation` | 422 | well-formed JSON with bad values (see `errors`) |
@@ -204,6 +205,16 @@ impl ApiError {
             StatusCode::UNSUPPORTED_MEDIA_TYPE,
             "unsupported-media-type",
             "Unsupported media type",
+            detail,
+        )
+    }
+
+    /// 401: missing or wrong credentials (the bridge workers' token).
+    pub fn unauthorized(detail: impl Into<Cow<'static, str>>) -> Self {
+        ApiError::new(
+            StatusCode::UNAUTHORIZED,
+            "unauthorized",
+            "Unauthorized",
             detail,
         )
     }

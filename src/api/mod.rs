@@ -55,8 +55,10 @@
 //! 8. **Tests.** Black-box tests in `tests/api/<resource>.rs` (add `mod <resource>;` to
 //!    `tests/api/main.rs`) using `helpers::spawn_app()`.
 
+pub mod bridges;
 pub mod demonstrations;
 pub mod error;
+pub mod executions;
 pub mod extract;
 pub mod figures;
 pub mod grasps;
@@ -98,6 +100,8 @@ pub struct AppState {
     pub jobs: JobRunner,
     /// Loaded arm-hand systems by id (see [`robots::system`]).
     pub robots: robots::RobotCache,
+    /// Connected bridge workers and the execution dispatcher.
+    pub bridges: crate::bridge::Hub,
     /// Resolves when the service starts shutting down (ends long-lived streams).
     pub shutdown: Shutdown,
 }
@@ -151,6 +155,8 @@ impl ShutdownTrigger {
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
         (name = "models", description = "Humanlike motion models: PCA manifolds + certified navigation functions (paper eq. 8-9), closed-loop law"),
         (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
+        (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
+        (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
         (name = "figures", description = "Figures as SVG (paper Fig. 2-6 and more); 3-D views take azimuth/elevation"),
     ),
     components(schemas(Problem, FieldError))
@@ -166,6 +172,8 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(demonstrations::router())
         .merge(grasps::router())
         .merge(models::router())
+        .merge(executions::router())
+        .merge(bridges::router())
         .merge(figures::router())
 }
 

@@ -7,6 +7,7 @@
 
 pub mod blob;
 pub mod demonstrations;
+pub mod executions;
 pub mod grasps;
 pub mod jobs;
 pub mod mappings;

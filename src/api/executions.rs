@@ -1,0 +1,431 @@
+//! `/v1/executions`: trajectories and closed-loop motions queued for bridge workers
+//! (DESIGN §7): create (202), list, inspect (state, last feedback, tracking error summary),
+//! follow (SSE), cancel.
+
+use std::convert::Infallible;
+use std::time::Duration;
+
+use axum::extract::State;
+use axum::http::{StatusCode, header};
+use axum::response::IntoResponse;
+use axum::response::sse::{Event, KeepAlive, Sse};
+use futures::Stream;
+use serde::{Deserialize, Serialize};
+use utoipa::{IntoParams, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+use uuid::Uuid;
+
+use super::{ApiError, AppState, FieldError, Json, Path, Problem, Query};
+use crate::bridge::protocol::{Feedback, TrajectoryPointSchema};
+use crate::bridge::{ExecutionPayload, Mode, PayloadPaths, TrackingSummary};
+use crate::motion::TrajectoryPoint;
+use crate::store::executions as repo;
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(list_executions, create_execution))
+        .routes(routes!(get_execution))
+        .routes(routes!(execution_events))
+        .routes(routes!(cancel_execution))
+}
+
+// ------------------------------------------------------------------------------------ DTOs
+
+/// A trajectory given in the request.
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+pub struct InlineTrajectory {
+    /// The robot's independent joints in model order.
+    pub joint_names: Vec<String>,
+    #[schema(value_type = Vec<TrajectoryPointSchema>)]
+    pub points: Vec<TrajectoryPoint>,
+}
+
+/// Joint values with their names.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct JointValues {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+}
+
+/// What to execute: a trajectory (stored `trajectory_id` or inline `trajectory`) in
+/// `open_loop`, or a model's closed-loop law (`model_id` + `goal`, or a stored trajectory's
+/// model and goal) in `closed_loop`.
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+pub struct CreateExecution {
+    /// Robot system id, e.g. `wam_ihy`.
+    pub robot: String,
+    pub mode: Mode,
+    /// A stored trajectory (`POST /v1/trajectories`).
+    pub trajectory_id: Option<String>,
+    /// An inline trajectory.
+    pub trajectory: Option<InlineTrajectory>,
+    /// A trained model (`closed_loop`).
+    pub model_id: Option<String>,
+    /// Goal of a `closed_loop` execution with `model_id` (every joint, any order).
+    pub goal: Option<JointValues>,
+    /// Run on this worker only (default: any idle worker of the robot).
+    pub worker: Option<String>,
+}
+
+/// An execution.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ExecutionDto {
+    pub id: String,
+    pub robot: String,
+    pub mode: Mode,
+    /// `queued`, `running`, `succeeded`, `failed`, `aborted`, `cancelled` or `interrupted`.
+    pub state: String,
+    /// Why it failed, aborted, was cancelled or interrupted.
+    pub reason: Option<String>,
+    /// `trajectory` or `model`.
+    pub kind: String,
+    /// The stored trajectory or model it came from (`inline` for an inline trajectory).
+    pub source_id: String,
+    /// The requested worker (None: any).
+    pub worker: Option<String>,
+    /// The worker that ran it.
+    pub assigned_worker: Option<String>,
+    pub cancel_requested: bool,
+    /// The latest feedback (kept when interrupted).
+    pub last_feedback: Option<Feedback>,
+    pub tracking: Option<TrackingSummary>,
+    pub created_at: String,
+    pub dispatched_at: Option<String>,
+    pub finished_at: Option<String>,
+}
+
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct ListExecutionsQuery {
+    /// Only executions in this state.
+    pub state: Option<String>,
+    /// Only executions of this robot.
+    pub robot: Option<String>,
+    /// Page size, 1 to 500 (default 50).
+    pub limit: Option<u32>,
+    /// Executions to skip (default 0).
+    pub offset: Option<u32>,
+}
+
+/// A page of executions, newest first.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct ExecutionList {
+    pub items: Vec<ExecutionDto>,
+    pub limit: u32,
+    pub offset: u32,
+}
+
+// ------------------------------------------------------------------------------------ views
+
+/// The execution's view: the stored row with the live feedback overlaid while it runs.
+pub async fn view(state: &AppState, row: repo::ExecutionRow) -> ExecutionDto {
+    let live = (row.state == repo::RUNNING)
+        .then(|| state.bridges.live(&row.id))
+        .flatten();
+    let (last_feedback, tracking) = match live {
+        Some((fb, tr)) => (fb, Some(tr)),
+        None => (
+            row.last_feedback
+                .as_deref()
+                .and_then(|s| serde_json::from_str::<Option<Feedback>>(s).ok())
+                .flatten(),
+            row.tracking
+                .as_deref()
+                .and_then(|s| serde_json::from_str(s).ok()),
+        ),
+    };
+    ExecutionDto {
+        mode: Mode::parse(&row.mode).unwrap_or(Mode::OpenLoop),
+        id: row.id,
+        robot: row.robot,
+        state: row.state,
+        reason: row.reason,
+        kind: row.kind,
+        source_id: row.source_id,
+        worker: row.worker,
+        assigned_worker: row.assigned_worker,
+        cancel_requested: row.cancel_requested,
+        last_feedback,
+        tracking,
+        created_at: row.created_at,
+        dispatched_at: row.dispatched_at,
+        finished_at: row.finished_at,
+    }
+}
+
+async fn load(state: &AppState, id: &Uuid) -> Result<ExecutionDto, ApiError> {
+    let row = repo::get(&state.db, &id.to_string())
+        .await?
+        .ok_or_else(|| ApiError::not_found("execution", id))?;
+    Ok(view(state, row).await)
+}
+
+// ------------------------------------------------------------------------------------ payloads
+
+/// Resolves the request into the payload the execution keeps, with error paths of the body.
+async fn resolve(
+    state: &AppState,
+    body: CreateExecution,
+) -> Result<(ExecutionPayload, PayloadPaths), ApiError> {
+    let given = [
+        body.trajectory_id.is_some(),
+        body.trajectory.is_some(),
+        body.model_id.is_some(),
+    ];
+    if given.iter().filter(|g| **g).count() != 1 {
+        return Err(ApiError::invalid_field(
+            "$.trajectory_id",
+            "give exactly one of trajectory_id, trajectory and model_id",
+        ));
+    }
+    if let Some(t) = body.trajectory {
+        if body.goal.is_some() {
+            return Err(ApiError::invalid_field(
+                "$.goal",
+                "a trajectory ends at its own last point; goal is only for model_id",
+            ));
+        }
+        return Ok((
+            ExecutionPayload::Trajectory {
+                trajectory_id: "inline".into(),
+                joint_names: t.joint_names,
+                points: t.points,
+            },
+            PayloadPaths {
+                joint_names: "$.trajectory.joint_names".into(),
+                points: "$.trajectory.points".into(),
+                goal: "$.goal".into(),
+            },
+        ));
+    }
+    stored::resolve(state, body).await
+}
+
+/// Orders named joint values like `names`; errors name `$.goal...`.
+fn ordered_goal(goal: &JointValues, names: &[String]) -> Result<Vec<f64>, ApiError> {
+    if goal.joint_names.len() != goal.positions.len() {
+        return Err(ApiError::invalid_field(
+            "$.goal.positions",
+            format!(
+                "{} positions for {} joint names",
+                goal.positions.len(),
+                goal.joint_names.len()
+            ),
+        ));
+    }
+    let mut errors = Vec::new();
+    let mut out = Vec::with_capacity(names.len());
+    for n in names {
+        match goal.joint_names.iter().position(|g| g == n) {
+            Some(i) => out.push(goal.positions[i]),
+            None => errors.push(FieldError::new(
+                "$.goal.joint_names",
+                format!("joint '{n}' is missing"),
+            )),
+        }
+    }
+    for (i, g) in goal.joint_names.iter().enumerate() {
+        if !names.contains(g) {
+            errors.push(FieldError::new(
+                format!("$.goal.joint_names[{i}]"),
+                format!("'{g}' is not a joint of this robot"),
+            ));
+        }
+    }
+    if errors.is_empty() {
+        Ok(out)
+    } else {
+        Err(ApiError::validation(errors))
+    }
+}
+
+/// Stored trajectories and models (the `models` resource's store).
+mod stored {
+    use super::*;
+
+    pub(super) async fn resolve(
+        _state: &AppState,
+        body: CreateExecution,
+    ) -> Result<(ExecutionPayload, PayloadPaths), ApiError> {
+        let _ = ordered_goal;
+        match (body.trajectory_id, body.model_id) {
+            (Some(id), _) => Err(ApiError::invalid_field(
+                "$.trajectory_id",
+                format!("unknown trajectory '{id}'"),
+            )),
+            (_, Some(id)) => Err(ApiError::invalid_field(
+                "$.model_id",
+                format!("unknown model '{id}'"),
+            )),
+            _ => unreachable!("resolve checked one source is given"),
+        }
+    }
+}
+
+// ------------------------------------------------------------------------------------ handlers
+
+/// Queue an execution for a bridge worker of the robot.
+///
+/// The execution stores its own resolved copy of what it runs. It is dispatched to an idle
+/// connected worker of the robot (the requested one, if any) with the mode's capability; one
+/// execution per worker at a time, oldest first. While no compatible worker is connected it
+/// stays `queued`; after the configured queue timeout it fails with `no worker`.
+#[utoipa::path(post, path = "/v1/executions", tag = "executions", request_body = CreateExecution,
+    responses(
+        (status = 202, description = "Queued; follow `Location`", body = ExecutionDto),
+        (status = 400, description = "Malformed JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid request (unknown robot, joint names, limits, ...)", body = Problem,
+         content_type = "application/problem+json"),
+    ))]
+async fn create_execution(
+    State(state): State<AppState>,
+    Json(body): Json<CreateExecution>,
+) -> Result<impl IntoResponse, ApiError> {
+    let robot = body.robot.clone();
+    let mode = body.mode;
+    let worker = body.worker.clone();
+    let (payload, paths) = resolve(&state, body).await?;
+    let id = crate::bridge::enqueue_checked(&state, &robot, mode, payload, worker, &paths).await?;
+    let dto = load(&state, &id.parse().map_err(ApiError::internal)?).await?;
+    Ok((
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, format!("/v1/executions/{id}"))],
+        Json(dto),
+    ))
+}
+
+/// List executions, newest first.
+#[utoipa::path(get, path = "/v1/executions", tag = "executions", params(ListExecutionsQuery),
+    responses(
+        (status = 200, description = "A page of executions", body = ExecutionList),
+        (status = 400, description = "Bad query parameter", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn list_executions(
+    State(state): State<AppState>,
+    Query(q): Query<ListExecutionsQuery>,
+) -> Result<Json<ExecutionList>, ApiError> {
+    let limit = super::extract::page_limit(q.limit)?;
+    let offset = q.offset.unwrap_or(0);
+    if let Some(s) = &q.state
+        && ![
+            repo::QUEUED,
+            repo::RUNNING,
+            repo::SUCCEEDED,
+            repo::FAILED,
+            repo::ABORTED,
+            repo::CANCELLED,
+            repo::INTERRUPTED,
+        ]
+        .contains(&s.as_str())
+    {
+        return Err(ApiError::invalid_parameter(
+            "state",
+            format!("unknown state '{s}'"),
+        ));
+    }
+    let rows = repo::list(
+        &state.db,
+        q.state.as_deref(),
+        q.robot.as_deref(),
+        limit,
+        offset,
+    )
+    .await?;
+    let mut items = Vec::with_capacity(rows.len());
+    for r in rows {
+        items.push(view(&state, r).await);
+    }
+    Ok(Json(ExecutionList {
+        items,
+        limit,
+        offset,
+    }))
+}
+
+/// One execution: state, last feedback, tracking error summary.
+#[utoipa::path(get, path = "/v1/executions/{id}", tag = "executions",
+    params(("id" = Uuid, Path, description = "Execution id")),
+    responses(
+        (status = 200, description = "The execution", body = ExecutionDto),
+        (status = 404, description = "Unknown execution", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn get_execution(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+) -> Result<Json<ExecutionDto>, ApiError> {
+    Ok(Json(load(&state, &id).await?))
+}
+
+/// Cancel a queued or running execution.
+///
+/// A queued execution is `cancelled` at once; a running one is cancelled on its worker and
+/// becomes `cancelled` when the worker confirms (follow the events).
+#[utoipa::path(post, path = "/v1/executions/{id}/cancel", tag = "executions",
+    params(("id" = Uuid, Path, description = "Execution id")),
+    responses(
+        (status = 202, description = "Cancellation requested", body = ExecutionDto),
+        (status = 404, description = "Unknown execution", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "Already finished", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn cancel_execution(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+) -> Result<(StatusCode, Json<ExecutionDto>), ApiError> {
+    state.bridges.cancel(&id.to_string()).await?;
+    Ok((StatusCode::ACCEPTED, Json(load(&state, &id).await?)))
+}
+
+/// Server-Sent Events of an execution until it finishes.
+///
+/// Each event's data is the execution (as in `GET /v1/executions/{id}`). Events named
+/// `progress` carry `queued`/`running` snapshots with the latest feedback (updates are
+/// coalesced); the stream ends with one event named `final`.
+#[utoipa::path(get, path = "/v1/executions/{id}/events", tag = "executions",
+    params(("id" = Uuid, Path, description = "Execution id")),
+    responses(
+        (status = 200, description = "`text/event-stream` of `progress` events, then one `final` event; data: the execution",
+         body = ExecutionDto, content_type = "text/event-stream"),
+        (status = 404, description = "Unknown execution", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn execution_events(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
+    let key = id.to_string();
+    // Subscribe before the first read so no change in between is missed.
+    let rx = state.bridges.subscribe(&key);
+    load(&state, &id).await?;
+    let stream = futures::stream::unfold(
+        (Some(rx), 0u64, true),
+        move |(rx, seq, first)| {
+            let state = state.clone();
+            let key = key.clone();
+            async move {
+                let mut rx = rx?;
+                if !first {
+                    tokio::select! {
+                        // A closed channel means the execution finished; a timeout re-reads
+                        // the store in case a change was coalesced away.
+                        _ = rx.changed() => {}
+                        () = tokio::time::sleep(Duration::from_secs(1)) => {}
+                        () = state.shutdown.wait() => return None,
+                    }
+                    // Coalesce bursts of feedback into one event per 20 ms.
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                    rx.borrow_and_update();
+                }
+                let row = repo::get(&state.db, &key).await.ok().flatten()?;
+                let dto = view(&state, row).await;
+                let last = repo::is_final(&dto.state);
+                let event = Event::default()
+                    .event(if last { "final" } else { "progress" })
+                    .id(seq.to_string())
+                    .json_data(&dto)
+                    .expect("an execution serialises");
+                Some((Ok(event), (if last { None } else { Some(rx) }, seq + 1, false)))
+            }
+        },
+    );
+    Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
+}

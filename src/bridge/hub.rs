@@ -1,0 +1,919 @@
+//! The service side: connected workers (in memory), the dispatcher over the SQLite queue, and
+//! one task per WebSocket connection.
+//!
+//! Ownership rules: the dispatcher task is the only one that moves an execution `queued` →
+//! `running` (so an execution is never sent twice), and a worker holds at most one execution
+//! (it drives one physical robot; executions for the same robot system run in parallel on
+//! different workers). Everything else (feedback, results, cancellation, disconnects) is
+//! handled on the connection's own task; one misbehaving connection never blocks the others
+//! (sends to a worker are `try_send` on a bounded channel, locks are never held across `.await`).
+
+use std::collections::HashMap;
+use std::fmt;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use axum::extract::ws::{CloseFrame, Message, WebSocket};
+use futures::{SinkExt, StreamExt};
+use serde::{Deserialize, Serialize};
+use sqlx::SqlitePool;
+use tokio::sync::{Notify, mpsc, watch};
+use utoipa::ToSchema;
+
+use super::protocol::{
+    Capability, ErrorCode, ErrorReply, Execute, ExecutionPayload, ExecutionResult, Feedback,
+    Hello, Mode, Outcome, PROTOCOL_VERSION, ServiceMessage, Welcome, WorkerMessage,
+    decode_worker_message,
+};
+use crate::api::{ApiError, AppState, Shutdown};
+use crate::store::executions as repo;
+
+/// Feedback and tracking are written to SQLite at most this often per execution (the live view
+/// in memory is always current).
+const FLUSH_EVERY: Duration = Duration::from_millis(250);
+/// Bad frames tolerated on one connection before it is closed.
+const MAX_ERRORS: u32 = 20;
+/// A new connection must say `hello` within this time.
+const HELLO_TIMEOUT: Duration = Duration::from_secs(10);
+/// Outgoing frames queued per connection (a worker that stops reading is disconnected when full).
+const OUTBOX: usize = 64;
+
+/// Bridge settings resolved at start.
+#[derive(Clone)]
+pub struct HubSettings {
+    /// The token workers present as `Authorization: Bearer <token>`.
+    pub token: String,
+    pub heartbeat_interval: Duration,
+    pub heartbeat_timeout: Duration,
+    /// Queued executions with no compatible worker connected fail after this long (None: never).
+    pub queue_timeout: Option<Duration>,
+}
+
+/// Running-error statistics of an execution's feedback.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct TrackingSummary {
+    /// Feedback messages received.
+    pub samples: u64,
+    /// Largest reported tracking error.
+    pub max_error: f64,
+    /// Root mean square of the reported tracking errors.
+    pub rms_error: f64,
+    /// The latest reported tracking error.
+    pub last_error: f64,
+    /// Sum of squared errors (keeps `rms_error` exact across flushes).
+    pub sum_squared: f64,
+}
+
+impl TrackingSummary {
+    fn add(&mut self, e: f64) {
+        self.samples += 1;
+        self.max_error = self.max_error.max(e);
+        self.last_error = e;
+        self.sum_squared += e * e;
+        self.rms_error = (self.sum_squared / self.samples as f64).sqrt();
+    }
+}
+
+/// A connected worker as `GET /v1/bridges` shows it.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct WorkerSnapshot {
+    pub name: String,
+    pub robot: String,
+    pub joint_names: Vec<String>,
+    pub capabilities: Vec<Capability>,
+    pub connected_at: String,
+    pub last_heartbeat_at: Option<String>,
+    /// The execution it runs (None: idle).
+    pub execution_id: Option<String>,
+    /// Heartbeats received on this connection.
+    pub heartbeats: u64,
+    /// Longest time between two consecutive heartbeats on this connection (ms).
+    pub max_heartbeat_gap_ms: f64,
+    /// Frames received on this connection.
+    pub messages: u64,
+    /// Last measured positions (from heartbeats and feedback), joint order of `joint_names`.
+    pub positions: Vec<f64>,
+}
+
+struct Worker {
+    snapshot: WorkerSnapshot,
+    last_heartbeat: Option<Instant>,
+    tx: mpsc::Sender<ServiceMessage>,
+}
+
+struct Live {
+    conn: u64,
+    n_joints: usize,
+    feedback: Option<Feedback>,
+    tracking: TrackingSummary,
+    last_flush: Instant,
+    cancel_requested: bool,
+}
+
+#[derive(Default)]
+struct State {
+    workers: HashMap<u64, Worker>,
+    live: HashMap<String, Live>,
+    watchers: HashMap<String, watch::Sender<u64>>,
+}
+
+struct Inner {
+    db: SqlitePool,
+    settings: HubSettings,
+    state: Mutex<State>,
+    wake: Notify,
+    next_conn: AtomicU64,
+}
+
+/// The bridge hub (cheap to clone; lives in [`AppState`]).
+#[derive(Clone)]
+pub struct Hub(Arc<Inner>);
+
+impl fmt::Debug for Hub {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Hub").finish_non_exhaustive()
+    }
+}
+
+/// Constant-time comparison, so the token cannot be guessed byte by byte from response times.
+fn same_token(a: &str, b: &str) -> bool {
+    let (a, b) = (a.as_bytes(), b.as_bytes());
+    if a.len() != b.len() {
+        return false;
+    }
+    a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+pub(crate) fn valid_worker_name(name: &str) -> bool {
+    (1..=64).contains(&name.len())
+        && name
+            .bytes()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, b'-' | b'_' | b'.'))
+}
+
+fn error(code: ErrorCode, message: impl Into<String>, fatal: bool) -> ErrorReply {
+    ErrorReply {
+        code,
+        message: message.into(),
+        fatal,
+        execution_id: None,
+    }
+}
+
+impl Hub {
+    pub fn new(db: SqlitePool, settings: HubSettings) -> Hub {
+        Hub(Arc::new(Inner {
+            db,
+            settings,
+            state: Mutex::new(State::default()),
+            wake: Notify::new(),
+            next_conn: AtomicU64::new(1),
+        }))
+    }
+
+    pub fn settings(&self) -> &HubSettings {
+        &self.0.settings
+    }
+
+    /// Whether an `Authorization` header value carries the configured token.
+    pub fn authorized(&self, authorization: Option<&str>) -> bool {
+        authorization
+            .and_then(|v| v.strip_prefix("Bearer "))
+            .is_some_and(|t| same_token(t.trim(), &self.0.settings.token))
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
+        // A panic while holding the lock leaves plain data behind; keep serving.
+        self.0.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Wakes the dispatcher (a new execution, a free worker).
+    pub fn wake(&self) {
+        self.0.wake.notify_one();
+    }
+
+    /// Connected workers, by name.
+    pub fn workers(&self) -> Vec<WorkerSnapshot> {
+        let mut v: Vec<_> = self
+            .lock()
+            .workers
+            .values()
+            .map(|w| w.snapshot.clone())
+            .collect();
+        v.sort_by(|a, b| a.name.cmp(&b.name));
+        v
+    }
+
+    /// The live feedback and tracking of a running execution.
+    pub fn live(&self, id: &str) -> Option<(Option<Feedback>, TrackingSummary)> {
+        self.lock()
+            .live
+            .get(id)
+            .map(|l| (l.feedback.clone(), l.tracking.clone()))
+    }
+
+    /// A receiver that changes whenever the execution's state or feedback does.
+    pub fn subscribe(&self, id: &str) -> watch::Receiver<u64> {
+        let mut s = self.lock();
+        s.watchers
+            .entry(id.to_owned())
+            .or_insert_with(|| watch::channel(0).0)
+            .subscribe()
+    }
+
+    fn touch(state: &mut State, id: &str, last: bool) {
+        if last {
+            if let Some(tx) = state.watchers.remove(id) {
+                tx.send_modify(|v| *v += 1);
+            }
+        } else if let Some(tx) = state.watchers.get(id) {
+            tx.send_modify(|v| *v += 1);
+        }
+    }
+
+    fn notify_final(&self, id: &str) {
+        Self::touch(&mut self.lock(), id, true);
+    }
+
+    // ------------------------------------------------------------------ queue and dispatch
+
+    /// Queues a validated execution and wakes the dispatcher.
+    pub(crate) async fn insert(
+        &self,
+        robot: &str,
+        mode: Mode,
+        payload: &ExecutionPayload,
+        worker: Option<&str>,
+    ) -> Result<String, ApiError> {
+        let row = repo::insert(&self.0.db, robot, mode.as_str(), payload, worker).await?;
+        self.wake();
+        Ok(row.id)
+    }
+
+    /// Starts the dispatcher task; it stops at shutdown.
+    pub fn spawn_dispatcher(&self, shutdown: Shutdown) {
+        let hub = self.clone();
+        tokio::spawn(async move {
+            loop {
+                if let Err(e) = hub.dispatch().await {
+                    tracing::error!(error = %e, "bridge dispatch failed");
+                }
+                tokio::select! {
+                    () = hub.0.wake.notified() => {}
+                    // Also runs periodically for the queue timeout.
+                    () = tokio::time::sleep(Duration::from_secs(1)) => {}
+                    () = shutdown.wait() => break,
+                }
+            }
+        });
+    }
+
+    /// One pass over the queue: each queued execution goes to an idle compatible worker, or
+    /// fails when it waited longer than the queue timeout with no compatible worker connected.
+    async fn dispatch(&self) -> Result<(), sqlx::Error> {
+        let queued = repo::queued(&self.0.db).await?;
+        if queued.is_empty() {
+            return Ok(());
+        }
+        let deadline = self.0.settings.queue_timeout.map(|t| {
+            crate::store::format_timestamp(
+                time::OffsetDateTime::now_utc()
+                    - time::Duration::try_from(t).unwrap_or(time::Duration::ZERO),
+            )
+        });
+        for row in queued {
+            let Some(mode) = Mode::parse(&row.mode) else {
+                continue;
+            };
+            let cap = match mode {
+                Mode::OpenLoop => Capability::OpenLoop,
+                Mode::ClosedLoop => Capability::ClosedLoop,
+            };
+            let compatible = |w: &Worker| {
+                w.snapshot.robot == row.robot
+                    && w.snapshot.capabilities.contains(&cap)
+                    && row.worker.as_ref().is_none_or(|n| *n == w.snapshot.name)
+            };
+            let (pick, any) = {
+                let mut s = self.lock();
+                let any = s.workers.values().any(&compatible);
+                let pick = s
+                    .workers
+                    .iter_mut()
+                    .filter(|(_, w)| w.snapshot.execution_id.is_none() && compatible(w))
+                    .min_by_key(|(c, _)| **c)
+                    .map(|(c, w)| {
+                        w.snapshot.execution_id = Some(row.id.clone());
+                        (*c, w.snapshot.name.clone(), w.tx.clone())
+                    });
+                (pick, any)
+            };
+            let Some((conn, name, tx)) = pick else {
+                if !any
+                    && let Some(d) = &deadline
+                    && row.created_at < *d
+                {
+                    let secs = self.0.settings.queue_timeout.unwrap_or_default().as_secs();
+                    let reason = format!(
+                        "no worker: no compatible worker for robot '{}'{} connected within {secs} s",
+                        row.robot,
+                        row.worker
+                            .as_ref()
+                            .map(|w| format!(" named '{w}'"))
+                            .unwrap_or_default()
+                    );
+                    if repo::finish(&self.0.db, &row.id, repo::FAILED, Some(&reason), None, None)
+                        .await?
+                    {
+                        tracing::info!(execution = %row.id, "execution failed: no worker");
+                        self.notify_final(&row.id);
+                    }
+                }
+                continue;
+            };
+            let release = |hub: &Hub| {
+                let mut s = hub.lock();
+                s.live.remove(&row.id);
+                if let Some(w) = s.workers.get_mut(&conn)
+                    && w.snapshot.execution_id.as_deref() == Some(row.id.as_str())
+                {
+                    w.snapshot.execution_id = None;
+                }
+            };
+            let payload = match repo::payload(&self.0.db, &row.id).await {
+                Ok(Some(p)) => p,
+                Ok(None) => {
+                    release(self);
+                    continue;
+                }
+                Err(e) => {
+                    release(self);
+                    return Err(e);
+                }
+            };
+            if !repo::mark_running(&self.0.db, &row.id, &name).await? {
+                release(self); // cancelled meanwhile
+                continue;
+            }
+            {
+                let mut s = self.lock();
+                s.live.insert(
+                    row.id.clone(),
+                    Live {
+                        conn,
+                        n_joints: payload.joint_names().len(),
+                        feedback: None,
+                        tracking: TrackingSummary::default(),
+                        last_flush: Instant::now(),
+                        cancel_requested: false,
+                    },
+                );
+                Self::touch(&mut s, &row.id, false);
+            }
+            let msg = ServiceMessage::Execute(Execute {
+                execution_id: row.id.clone(),
+                mode,
+                payload,
+            });
+            if tx.try_send(msg).is_err() {
+                // The connection is closing or not reading: put the execution back.
+                release(self);
+                repo::requeue(&self.0.db, &row.id).await?;
+                continue;
+            }
+            tracing::info!(execution = %row.id, worker = %name, "execution dispatched");
+        }
+        Ok(())
+    }
+
+    /// Cancels a live execution: a queued one at once, a running one by asking its worker
+    /// (it becomes `cancelled` when the worker confirms). Errors: unknown id, already final.
+    pub async fn cancel(&self, id: &str) -> Result<(), ApiError> {
+        let row = repo::get(&self.0.db, id)
+            .await?
+            .ok_or_else(|| ApiError::not_found("execution", id))?;
+        if repo::is_final(&row.state) {
+            return Err(ApiError::conflict(format!(
+                "execution {id} has already finished ({})",
+                row.state
+            )));
+        }
+        if row.state == repo::QUEUED
+            && repo::finish(
+                &self.0.db,
+                id,
+                repo::CANCELLED,
+                Some("cancelled before it was dispatched"),
+                None,
+                None,
+            )
+            .await?
+        {
+            self.notify_final(id);
+            return Ok(());
+        }
+        repo::set_cancel_requested(&self.0.db, id).await?;
+        let tx = {
+            let mut s = self.lock();
+            let conn = s.live.get_mut(id).map(|l| {
+                l.cancel_requested = true;
+                l.conn
+            });
+            conn.and_then(|c| s.workers.get(&c).map(|w| w.tx.clone()))
+        };
+        if let Some(tx) = tx {
+            // Full outbox: the worker is not reading and will be dropped by its heartbeat check.
+            let _ = tx.try_send(ServiceMessage::Cancel(super::protocol::Cancel {
+                execution_id: id.to_owned(),
+            }));
+        }
+        Ok(())
+    }
+
+    // ------------------------------------------------------------------ connections
+
+    /// Checks a hello against the robot library; returns the refusal to send otherwise.
+    async fn check_hello(&self, state: &AppState, hello: &Hello) -> Result<(), ErrorReply> {
+        if hello.protocol_version != PROTOCOL_VERSION {
+            return Err(error(
+                ErrorCode::UnsupportedVersion,
+                format!(
+                    "protocol version {} is not supported; this service speaks {PROTOCOL_VERSION}",
+                    hello.protocol_version
+                ),
+                true,
+            ));
+        }
+        let refuse = |m: String| Err(error(ErrorCode::HelloRefused, m, true));
+        if !valid_worker_name(&hello.worker) {
+            return refuse(format!(
+                "worker name '{}' must be 1-64 letters, digits, '-', '_' or '.'",
+                hello.worker
+            ));
+        }
+        if hello.capabilities.is_empty() {
+            return refuse("capabilities must not be empty (open_loop, closed_loop)".into());
+        }
+        match crate::store::robots::get(&self.0.db, &hello.robot).await {
+            Ok(Some(_)) => {}
+            Ok(None) => return refuse(format!("unknown robot '{}'", hello.robot)),
+            Err(e) => {
+                tracing::error!(error = %e, "cannot read robots");
+                return Err(error(ErrorCode::HelloRefused, "database unavailable", true));
+            }
+        }
+        let system = crate::api::robots::system(state, &hello.robot)
+            .await
+            .map_err(|e| error(ErrorCode::HelloRefused, e.detail().to_string(), true))?;
+        let expected = system.model.joint_names();
+        if hello.joint_names != expected {
+            let detail = match expected
+                .iter()
+                .zip(&hello.joint_names)
+                .position(|(a, b)| a != b)
+            {
+                Some(i) => format!(
+                    "joint_names[{i}] is '{}', robot '{}' has '{}' there",
+                    hello.joint_names[i], hello.robot, expected[i]
+                ),
+                None => format!(
+                    "{} joint names given, robot '{}' has {}",
+                    hello.joint_names.len(),
+                    hello.robot,
+                    expected.len()
+                ),
+            };
+            return refuse(format!(
+                "joint names do not match the robot: {detail} (expected {expected:?})"
+            ));
+        }
+        Ok(())
+    }
+
+    fn register(
+        &self,
+        hello: &Hello,
+        tx: mpsc::Sender<ServiceMessage>,
+    ) -> Result<u64, ErrorReply> {
+        let mut s = self.lock();
+        if s.workers.values().any(|w| w.snapshot.name == hello.worker) {
+            return Err(error(
+                ErrorCode::NameInUse,
+                format!("a worker named '{}' is already connected", hello.worker),
+                true,
+            ));
+        }
+        let conn = self.0.next_conn.fetch_add(1, Ordering::Relaxed);
+        s.workers.insert(
+            conn,
+            Worker {
+                snapshot: WorkerSnapshot {
+                    name: hello.worker.clone(),
+                    robot: hello.robot.clone(),
+                    joint_names: hello.joint_names.clone(),
+                    capabilities: hello.capabilities.clone(),
+                    connected_at: crate::store::now(),
+                    last_heartbeat_at: None,
+                    execution_id: None,
+                    heartbeats: 0,
+                    max_heartbeat_gap_ms: 0.0,
+                    messages: 1,
+                    positions: Vec::new(),
+                },
+                last_heartbeat: None,
+                tx,
+            },
+        );
+        Ok(conn)
+    }
+
+    /// Removes a connection; its execution (if any) becomes `interrupted` with its last feedback.
+    async fn disconnect(&self, conn: u64, why: &str) {
+        let (name, held) = {
+            let mut s = self.lock();
+            let Some(w) = s.workers.remove(&conn) else {
+                return;
+            };
+            let held = w
+                .snapshot
+                .execution_id
+                .as_ref()
+                .and_then(|id| s.live.remove(id).map(|l| (id.clone(), l)));
+            (w.snapshot.name, held)
+        };
+        tracing::info!(worker = %name, reason = why, "bridge worker disconnected");
+        if let Some((id, live)) = held {
+            let fb = live
+                .feedback
+                .as_ref()
+                .and_then(|f| serde_json::to_string(f).ok());
+            let tr = serde_json::to_string(&live.tracking).ok();
+            let reason = format!("worker '{name}' disconnected mid-execution: {why}");
+            match repo::finish(
+                &self.0.db,
+                &id,
+                repo::INTERRUPTED,
+                Some(&reason),
+                fb.as_deref(),
+                tr.as_deref(),
+            )
+            .await
+            {
+                Ok(_) => tracing::warn!(execution = %id, "execution interrupted"),
+                Err(e) => tracing::error!(execution = %id, error = %e, "cannot record an interrupted execution"),
+            }
+            self.notify_final(&id);
+        }
+        if let Err(e) = repo::touch_bridge(&self.0.db, &name).await {
+            tracing::warn!(error = %e, "cannot record the worker's last contact");
+        }
+        self.wake();
+    }
+
+    fn on_heartbeat(&self, conn: u64, positions: Vec<f64>) {
+        let mut s = self.lock();
+        if let Some(w) = s.workers.get_mut(&conn) {
+            let now = Instant::now();
+            if let Some(prev) = w.last_heartbeat {
+                let gap = now.duration_since(prev).as_secs_f64() * 1e3;
+                w.snapshot.max_heartbeat_gap_ms = w.snapshot.max_heartbeat_gap_ms.max(gap);
+            }
+            w.last_heartbeat = Some(now);
+            w.snapshot.heartbeats += 1;
+            w.snapshot.last_heartbeat_at = Some(crate::store::now());
+            if positions.len() == w.snapshot.joint_names.len()
+                && positions.iter().all(|x| x.is_finite())
+            {
+                w.snapshot.positions = positions;
+            }
+        }
+    }
+
+    fn holding_error(id: &str) -> ErrorReply {
+        ErrorReply {
+            code: ErrorCode::NotHolding,
+            message: format!("this worker does not hold execution {id}"),
+            fatal: false,
+            execution_id: Some(id.to_owned()),
+        }
+    }
+
+    async fn on_feedback(&self, conn: u64, fb: Feedback) -> Result<(), ErrorReply> {
+        let flush = {
+            let mut s = self.lock();
+            let s = &mut *s;
+            let Some(w) = s.workers.get_mut(&conn) else {
+                return Ok(());
+            };
+            if w.snapshot.execution_id.as_deref() != Some(fb.execution_id.as_str()) {
+                return Err(Self::holding_error(&fb.execution_id));
+            }
+            let Some(live) = s.live.get_mut(&fb.execution_id) else {
+                return Err(Self::holding_error(&fb.execution_id));
+            };
+            let ok = fb.positions.len() == live.n_joints
+                && fb.velocities.len() == live.n_joints
+                && fb
+                    .positions
+                    .iter()
+                    .chain(&fb.velocities)
+                    .chain([&fb.t, &fb.progress, &fb.tracking_error])
+                    .all(|x| x.is_finite())
+                && fb.tracking_error >= 0.0;
+            if !ok {
+                return Err(ErrorReply {
+                    code: ErrorCode::Malformed,
+                    message: format!(
+                        "feedback needs {} finite positions and velocities and finite t, progress, \
+                         tracking_error >= 0",
+                        live.n_joints
+                    ),
+                    fatal: false,
+                    execution_id: Some(fb.execution_id.clone()),
+                });
+            }
+            w.snapshot.positions.clone_from(&fb.positions);
+            live.tracking.add(fb.tracking_error);
+            let id = fb.execution_id.clone();
+            live.feedback = Some(fb);
+            let flush = (live.last_flush.elapsed() >= FLUSH_EVERY).then(|| {
+                live.last_flush = Instant::now();
+                (
+                    id.clone(),
+                    serde_json::to_string(&live.feedback).unwrap_or_default(),
+                    serde_json::to_string(&live.tracking).unwrap_or_default(),
+                )
+            });
+            Self::touch(s, &id, false);
+            flush
+        };
+        if let Some((id, fb, tr)) = flush
+            && let Err(e) = repo::save_progress(&self.0.db, &id, &fb, &tr).await
+        {
+            tracing::warn!(execution = %id, error = %e, "cannot store feedback");
+        }
+        Ok(())
+    }
+
+    async fn on_result(&self, conn: u64, r: ExecutionResult) -> Result<(), ErrorReply> {
+        let live = {
+            let mut s = self.lock();
+            let Some(w) = s.workers.get_mut(&conn) else {
+                return Ok(());
+            };
+            if w.snapshot.execution_id.as_deref() != Some(r.execution_id.as_str()) {
+                return Err(Self::holding_error(&r.execution_id));
+            }
+            w.snapshot.execution_id = None;
+            if r.positions.len() == w.snapshot.joint_names.len() {
+                w.snapshot.positions.clone_from(&r.positions);
+            }
+            s.live.remove(&r.execution_id)
+        };
+        let cancel_requested = live.as_ref().is_some_and(|l| l.cancel_requested);
+        let state = match r.outcome {
+            Outcome::Succeeded => repo::SUCCEEDED,
+            Outcome::Failed => repo::FAILED,
+            Outcome::Aborted if cancel_requested => repo::CANCELLED,
+            Outcome::Aborted => repo::ABORTED,
+        };
+        let fb = live
+            .as_ref()
+            .and_then(|l| l.feedback.as_ref())
+            .and_then(|f| serde_json::to_string(f).ok());
+        let tr = live
+            .as_ref()
+            .and_then(|l| serde_json::to_string(&l.tracking).ok());
+        let reason = r.reason.as_deref().filter(|s| !s.is_empty());
+        match repo::finish(
+            &self.0.db,
+            &r.execution_id,
+            state,
+            reason,
+            fb.as_deref(),
+            tr.as_deref(),
+        )
+        .await
+        {
+            Ok(_) => tracing::info!(execution = %r.execution_id, state, "execution finished"),
+            Err(e) => {
+                tracing::error!(execution = %r.execution_id, error = %e, "cannot record a result")
+            }
+        }
+        self.notify_final(&r.execution_id);
+        self.wake();
+        Ok(())
+    }
+
+    /// Serves one authenticated WebSocket connection until it closes.
+    pub async fn serve(self, state: AppState, socket: WebSocket) {
+        let (mut sink, mut stream) = socket.split();
+        let shutdown = state.shutdown.clone();
+        let send = |m: &ServiceMessage| {
+            Message::Text(
+                serde_json::to_string(m)
+                    .expect("service messages serialise")
+                    .into(),
+            )
+        };
+        let close_with = |e: &ErrorReply| {
+            Message::Close(Some(CloseFrame {
+                // 1008: policy violation; 1001: going away.
+                code: if e.code == ErrorCode::ShuttingDown {
+                    1001
+                } else {
+                    1008
+                },
+                reason: e.message.chars().take(120).collect::<String>().into(),
+            }))
+        };
+
+        // 1. hello
+        let first = tokio::time::timeout(HELLO_TIMEOUT, stream.next()).await;
+        let hello = match first {
+            Ok(Some(Ok(Message::Text(t)))) => match decode_worker_message(t.as_str()) {
+                Ok(WorkerMessage::Hello(h)) => Ok(h),
+                Ok(_) => Err(error(
+                    ErrorCode::UnexpectedMessage,
+                    "the first message must be `hello`",
+                    true,
+                )),
+                Err(e) => Err(error(e.code, e.message, true)),
+            },
+            Ok(Some(Ok(_))) => Err(error(
+                ErrorCode::Malformed,
+                "the first message must be a `hello` text frame",
+                true,
+            )),
+            Ok(None | Some(Err(_))) => return,
+            Err(_) => Err(error(
+                ErrorCode::UnexpectedMessage,
+                "no `hello` within 10 s",
+                true,
+            )),
+        };
+        let hello = match hello {
+            Ok(h) => h,
+            Err(e) => {
+                let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
+                let _ = sink.send(close_with(&e)).await;
+                return;
+            }
+        };
+        let (tx, mut rx) = mpsc::channel(OUTBOX);
+        let checked = match self.check_hello(&state, &hello).await {
+            Ok(()) => self.register(&hello, tx),
+            Err(e) => Err(e),
+        };
+        let conn = match checked {
+            Ok(c) => c,
+            Err(e) => {
+                tracing::info!(worker = %hello.worker, reason = %e.message, "bridge hello refused");
+                let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
+                let _ = sink.send(close_with(&e)).await;
+                return;
+            }
+        };
+        let caps = serde_json::to_string(&hello.capabilities).unwrap_or_default();
+        let names = serde_json::to_string(&hello.joint_names).unwrap_or_default();
+        if let Err(e) =
+            repo::upsert_bridge(&self.0.db, &hello.worker, &hello.robot, &names, &caps).await
+        {
+            tracing::warn!(error = %e, "cannot record the worker");
+        }
+        tracing::info!(worker = %hello.worker, robot = %hello.robot, "bridge worker connected");
+        let welcome = ServiceMessage::Welcome(Welcome {
+            protocol_version: PROTOCOL_VERSION,
+            worker: hello.worker.clone(),
+            heartbeat_interval_ms: self.0.settings.heartbeat_interval.as_millis() as u64,
+            heartbeat_timeout_ms: self.0.settings.heartbeat_timeout.as_millis() as u64,
+        });
+        if sink.send(send(&welcome)).await.is_err() {
+            self.disconnect(conn, "closed before welcome").await;
+            return;
+        }
+        self.wake();
+
+        // 2. the session
+        let mut errors = 0u32;
+        let mut last_heard = Instant::now();
+        let mut check = tokio::time::interval(self.0.settings.heartbeat_interval / 2);
+        let stopping = shutdown.wait();
+        tokio::pin!(stopping);
+        let why: String = loop {
+            let reply: Option<ErrorReply> = tokio::select! {
+                frame = stream.next() => {
+                    last_heard = Instant::now();
+                    if let Some(w) = self.lock().workers.get_mut(&conn) {
+                        w.snapshot.messages += 1;
+                    }
+                    match frame {
+                        None => break "connection closed".into(),
+                        Some(Err(e)) => {
+                            let e = error(ErrorCode::Oversized, format!("unreadable frame: {e}"), true);
+                            let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
+                            let _ = sink.send(close_with(&e)).await;
+                            break e.message;
+                        }
+                        Some(Ok(Message::Close(_))) => break "closed by the worker".into(),
+                        Some(Ok(Message::Ping(_) | Message::Pong(_))) => None,
+                        Some(Ok(Message::Binary(_))) => Some(error(
+                            ErrorCode::Malformed, "binary frames are not part of the protocol", false)),
+                        Some(Ok(Message::Text(t))) => match decode_worker_message(t.as_str()) {
+                            Err(e) => Some(error(e.code, e.message, false)),
+                            Ok(WorkerMessage::Hello(_)) => Some(error(
+                                ErrorCode::UnexpectedMessage, "`hello` was already received", false)),
+                            Ok(WorkerMessage::Heartbeat(h)) => {
+                                self.on_heartbeat(conn, h.positions);
+                                None
+                            }
+                            Ok(WorkerMessage::Feedback(f)) => self.on_feedback(conn, f).await.err(),
+                            Ok(WorkerMessage::Result(r)) => self.on_result(conn, r).await.err(),
+                        },
+                    }
+                }
+                out = rx.recv() => match out {
+                    Some(m) => {
+                        if sink.send(send(&m)).await.is_err() {
+                            break "send failed".into();
+                        }
+                        None
+                    }
+                    None => break "hub closed".into(),
+                },
+                _ = check.tick() => {
+                    if last_heard.elapsed() > self.0.settings.heartbeat_timeout {
+                        let e = error(ErrorCode::HeartbeatTimeout, format!(
+                            "nothing received for {} ms", self.0.settings.heartbeat_timeout.as_millis()), true);
+                        let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
+                        let _ = sink.send(close_with(&e)).await;
+                        break e.message;
+                    }
+                    None
+                }
+                () = &mut stopping => {
+                    let e = error(ErrorCode::ShuttingDown, "the service is shutting down", true);
+                    let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
+                    let _ = sink.send(close_with(&e)).await;
+                    break e.message;
+                }
+            };
+            if let Some(e) = reply {
+                errors += 1;
+                tracing::debug!(worker = %hello.worker, code = ?e.code, message = %e.message, "bad bridge message");
+                if sink
+                    .send(send(&ServiceMessage::Error(e.clone())))
+                    .await
+                    .is_err()
+                {
+                    break "send failed".into();
+                }
+                if errors >= MAX_ERRORS {
+                    let e = error(
+                        ErrorCode::TooManyErrors,
+                        format!("{MAX_ERRORS} bad messages; closing"),
+                        true,
+                    );
+                    let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
+                    let _ = sink.send(close_with(&e)).await;
+                    break e.message;
+                }
+            }
+        };
+        self.disconnect(conn, &why).await;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tokens_compare_whole() {
+        assert!(same_token("abc", "abc"));
+        assert!(!same_token("abc", "abd"));
+        assert!(!same_token("abc", "abcd"));
+        assert!(!same_token("", "a"));
+    }
+
+    #[test]
+    fn tracking_summary_is_exact() {
+        let mut t = TrackingSummary::default();
+        for e in [3.0, 4.0] {
+            t.add(e);
+        }
+        assert_eq!(t.samples, 2);
+        assert_eq!(t.max_error, 4.0);
+        assert!((t.rms_error - (12.5f64).sqrt()).abs() < 1e-12);
+        assert_eq!(t.last_error, 4.0);
+    }
+
+    #[test]
+    fn worker_names_are_checked() {
+        assert!(valid_worker_name("sim-1.lab_a"));
+        assert!(!valid_worker_name(""));
+        assert!(!valid_worker_name("a b"));
+        assert!(!valid_worker_name(&"x".repeat(65)));
+    }
+}

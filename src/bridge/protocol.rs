@@ -1,0 +1,381 @@
+//! The bridge wire protocol (version [`PROTOCOL_VERSION`]): JSON text frames over the WebSocket
+//! at `/v1/bridges/connect`, each an object whose `type` names the message.
+//!
+//! Worker → service: [`WorkerMessage`] (`hello`, `heartbeat`, `feedback`, `result`).
+//! Service → worker: [`ServiceMessage`] (`welcome`, `execute`, `cancel`, `error`).
+//!
+//! The first frame a worker sends is `hello`, carrying the protocol version it speaks; the
+//! service answers `welcome` (or `error` with `fatal: true` and closes). These types are shared
+//! by the service and the reference worker, and their schemas are in the OpenAPI document.
+//! Pure data: no I/O here.
+
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::motion::{ControlParams, TrajectoryPoint};
+
+/// The protocol version this build speaks (in `hello` and `welcome`).
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// Largest frame a worker may send (feedback and hello are small; a larger frame is refused
+/// and the connection closed).
+pub const MAX_WORKER_MESSAGE_BYTES: usize = 64 * 1024;
+
+/// Execution mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Follow the forwarded trajectory (feedforward velocity + proportional tracking).
+    OpenLoop,
+    /// Run the model's closed-loop law `u(q)` on the measured state until the goal is reached.
+    ClosedLoop,
+}
+
+impl Mode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Mode::OpenLoop => "open_loop",
+            Mode::ClosedLoop => "closed_loop",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Mode> {
+        match s {
+            "open_loop" => Some(Mode::OpenLoop),
+            "closed_loop" => Some(Mode::ClosedLoop),
+            _ => None,
+        }
+    }
+}
+
+/// One timed point of a trajectory (the schema of `motion::TrajectoryPoint`): joint values in
+/// the order of the trajectory's `joint_names`, radians (metres for prismatic joints), seconds.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct TrajectoryPointSchema {
+    /// Time from the trajectory's start (s).
+    pub t: f64,
+    pub positions: Vec<f64>,
+    pub velocities: Vec<f64>,
+    pub accelerations: Vec<f64>,
+}
+
+/// What an execution runs: its own resolved copy, stored with the execution.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ExecutionPayload {
+    /// A timed trajectory (open loop).
+    Trajectory {
+        /// Stored trajectory id, or `inline` for a trajectory given in the request.
+        trajectory_id: String,
+        joint_names: Vec<String>,
+        #[schema(value_type = Vec<TrajectoryPointSchema>)]
+        points: Vec<TrajectoryPoint>,
+    },
+    /// The model's closed-loop law and a goal (closed loop).
+    Model {
+        model_id: String,
+        /// `ControlParams` of the model (as `GET /v1/models/{id}/params` returns them).
+        #[schema(value_type = Object)]
+        params: ControlParams,
+        /// Goal joint values in the order of `params.joint_names`.
+        goal: Vec<f64>,
+    },
+}
+
+impl ExecutionPayload {
+    pub fn joint_names(&self) -> &[String] {
+        match self {
+            ExecutionPayload::Trajectory { joint_names, .. } => joint_names,
+            ExecutionPayload::Model { params, .. } => &params.joint_names,
+        }
+    }
+
+    /// The mode this payload can run in.
+    pub fn mode(&self) -> Mode {
+        match self {
+            ExecutionPayload::Trajectory { .. } => Mode::OpenLoop,
+            ExecutionPayload::Model { .. } => Mode::ClosedLoop,
+        }
+    }
+
+    /// `trajectory` or `model`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            ExecutionPayload::Trajectory { .. } => "trajectory",
+            ExecutionPayload::Model { .. } => "model",
+        }
+    }
+
+    /// The stored trajectory or model id (`inline` for an inline trajectory).
+    pub fn source_id(&self) -> &str {
+        match self {
+            ExecutionPayload::Trajectory { trajectory_id, .. } => trajectory_id,
+            ExecutionPayload::Model { model_id, .. } => model_id,
+        }
+    }
+}
+
+/// What a worker can do (announced in `hello`); executions are only sent to a worker with the
+/// capability of their mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Capability {
+    OpenLoop,
+    ClosedLoop,
+}
+
+/// First message of a worker.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Hello {
+    /// The protocol version the worker speaks (must be [`PROTOCOL_VERSION`]).
+    pub protocol_version: u32,
+    /// Unique name of the worker (1-64 characters: letters, digits, `-`, `_`, `.`).
+    pub worker: String,
+    /// Robot system id it drives (`GET /v1/robots`).
+    pub robot: String,
+    /// The system's independent joints in model order (as `GET /v1/robots/{id}` lists them).
+    pub joint_names: Vec<String>,
+    pub capabilities: Vec<Capability>,
+}
+
+/// Liveness, sent every `heartbeat_interval_ms`; carries the measured positions so clients can
+/// plan from the robot's current state (`GET /v1/bridges`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Heartbeat {
+    pub seq: u64,
+    #[serde(default)]
+    pub positions: Vec<f64>,
+}
+
+/// Measured state during an execution.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Feedback {
+    pub execution_id: String,
+    /// Seconds since the execution started on the worker.
+    pub t: f64,
+    /// Measured joint positions and velocities (joint order of the execution).
+    pub positions: Vec<f64>,
+    pub velocities: Vec<f64>,
+    /// 0..1: time fraction of the trajectory (open loop) or of the initial distance to the goal
+    /// covered (closed loop).
+    pub progress: f64,
+    /// Largest joint deviation from the reference (open loop) or from the goal (closed loop).
+    pub tracking_error: f64,
+}
+
+/// How an execution ended on the worker.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    Succeeded,
+    Failed,
+    /// Stopped before the end (a `cancel`, or the robot's own stop).
+    Aborted,
+}
+
+/// The end of an execution.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct ExecutionResult {
+    pub execution_id: String,
+    pub outcome: Outcome,
+    #[serde(default)]
+    pub reason: Option<String>,
+    /// Final measured positions.
+    #[serde(default)]
+    pub positions: Vec<f64>,
+}
+
+/// Messages a worker sends.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum WorkerMessage {
+    Hello(Hello),
+    Heartbeat(Heartbeat),
+    Feedback(Feedback),
+    Result(ExecutionResult),
+}
+
+/// The service's answer to a valid `hello`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Welcome {
+    pub protocol_version: u32,
+    pub worker: String,
+    /// Send a heartbeat at least this often.
+    pub heartbeat_interval_ms: u64,
+    /// A worker silent for this long is disconnected (its execution becomes `interrupted`).
+    pub heartbeat_timeout_ms: u64,
+}
+
+/// Run an execution.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Execute {
+    pub execution_id: String,
+    pub mode: Mode,
+    pub payload: ExecutionPayload,
+}
+
+/// Stop an execution (the worker answers with a `result`, outcome `aborted`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Cancel {
+    pub execution_id: String,
+}
+
+/// Stable error codes of the `error` message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    /// Not JSON, a binary frame, or a known message with bad fields.
+    Malformed,
+    /// Larger than [`MAX_WORKER_MESSAGE_BYTES`].
+    Oversized,
+    /// `type` missing or not a worker message.
+    UnknownType,
+    /// `hello` with a protocol version the service does not speak.
+    UnsupportedVersion,
+    /// `hello` refused: unknown robot, wrong joint names, bad worker name or capabilities.
+    HelloRefused,
+    /// `hello` refused because a worker of that name is connected (retry later).
+    NameInUse,
+    /// A message out of order (anything before `hello`, a second `hello`).
+    UnexpectedMessage,
+    /// `feedback` or `result` for an execution the worker does not hold.
+    NotHolding,
+    /// Too many bad messages; the connection is closed.
+    TooManyErrors,
+    /// No heartbeat within the timeout.
+    HeartbeatTimeout,
+    /// The service is shutting down.
+    ShuttingDown,
+}
+
+/// An error reply; with `fatal: true` the service closes the connection after sending it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct ErrorReply {
+    pub code: ErrorCode,
+    pub message: String,
+    pub fatal: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub execution_id: Option<String>,
+}
+
+/// Messages the service sends.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ServiceMessage {
+    Welcome(Welcome),
+    Execute(Execute),
+    Cancel(Cancel),
+    Error(ErrorReply),
+}
+
+/// Why a text frame is not a [`WorkerMessage`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecodeError {
+    pub code: ErrorCode,
+    pub message: String,
+}
+
+/// Parses a worker frame, telling unknown message types apart from malformed ones.
+pub fn decode_worker_message(text: &str) -> Result<WorkerMessage, DecodeError> {
+    if text.len() > MAX_WORKER_MESSAGE_BYTES {
+        return Err(DecodeError {
+            code: ErrorCode::Oversized,
+            message: format!(
+                "frame of {} bytes exceeds the limit of {MAX_WORKER_MESSAGE_BYTES}",
+                text.len()
+            ),
+        });
+    }
+    match serde_json::from_str::<WorkerMessage>(text) {
+        Ok(m) => Ok(m),
+        Err(e) => {
+            let value: serde_json::Value = serde_json::from_str(text).map_err(|e| DecodeError {
+                code: ErrorCode::Malformed,
+                message: format!("not JSON: {e}"),
+            })?;
+            let ty = value.get("type").and_then(|t| t.as_str());
+            match ty {
+                Some("hello" | "heartbeat" | "feedback" | "result") => Err(DecodeError {
+                    code: ErrorCode::Malformed,
+                    message: format!("invalid `{}` message: {e}", ty.unwrap_or_default()),
+                }),
+                Some(other) => Err(DecodeError {
+                    code: ErrorCode::UnknownType,
+                    message: format!(
+                        "unknown message type `{other}` (hello, heartbeat, feedback, result)"
+                    ),
+                }),
+                None => Err(DecodeError {
+                    code: ErrorCode::UnknownType,
+                    message: "the message has no string `type` field".into(),
+                }),
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn messages_round_trip_with_a_type_tag() {
+        let m = WorkerMessage::Feedback(Feedback {
+            execution_id: "e".into(),
+            t: 0.5,
+            positions: vec![0.1, 0.2],
+            velocities: vec![0.0, 0.0],
+            progress: 0.25,
+            tracking_error: 0.01,
+        });
+        let text = serde_json::to_string(&m).unwrap();
+        assert!(text.contains("\"type\":\"feedback\""), "{text}");
+        assert_eq!(decode_worker_message(&text).unwrap(), m);
+        let s = ServiceMessage::Execute(Execute {
+            execution_id: "e".into(),
+            mode: Mode::OpenLoop,
+            payload: ExecutionPayload::Trajectory {
+                trajectory_id: "inline".into(),
+                joint_names: vec!["a".into()],
+                points: vec![TrajectoryPoint {
+                    t: 0.0,
+                    positions: vec![0.0],
+                    velocities: vec![0.0],
+                    accelerations: vec![0.0],
+                }],
+            },
+        });
+        let text = serde_json::to_string(&s).unwrap();
+        assert!(text.contains("\"type\":\"execute\"") && text.contains("\"kind\":\"trajectory\""));
+        assert_eq!(serde_json::from_str::<ServiceMessage>(&text).unwrap(), s);
+    }
+
+    #[test]
+    fn bad_frames_are_classified() {
+        assert_eq!(
+            decode_worker_message("{not json").unwrap_err().code,
+            ErrorCode::Malformed
+        );
+        assert_eq!(
+            decode_worker_message(r#"{"type":"dance"}"#)
+                .unwrap_err()
+                .code,
+            ErrorCode::UnknownType
+        );
+        assert_eq!(
+            decode_worker_message(r#"{"seq":1}"#).unwrap_err().code,
+            ErrorCode::UnknownType
+        );
+        let e = decode_worker_message(r#"{"type":"heartbeat","seq":"x"}"#).unwrap_err();
+        assert_eq!(e.code, ErrorCode::Malformed);
+        assert!(e.message.contains("heartbeat"), "{}", e.message);
+        let big = format!(
+            r#"{{"type":"heartbeat","seq":1,"pad":"{}"}}"#,
+            "x".repeat(MAX_WORKER_MESSAGE_BYTES)
+        );
+        assert_eq!(
+            decode_worker_message(&big).unwrap_err().code,
+            ErrorCode::Oversized
+        );
+    }
+}

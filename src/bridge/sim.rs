@@ -1,0 +1,546 @@
+//! The simulated robot of the reference worker and the two execution controllers (no I/O).
+//!
+//! The robot integrates a joint velocity command at a fixed control rate under per-joint
+//! velocity and acceleration limits and clamps positions to the joint limits (a real arm's
+//! servo layer does the same). Open loop tracks the trajectory with feedforward velocity plus a
+//! proportional term; closed loop runs the model's law `u(q)` (`ControlParams::control`,
+//! DESIGN §5) on the measured state.
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::protocol::{Execute, ExecutionPayload, Feedback, Mode, Outcome};
+use crate::motion::{ControlParams, TrajectoryPoint};
+
+/// Default joint acceleration limit (rad/s²) where the system descriptor gives none (URDFs
+/// carry only velocity limits); a conservative figure for a 7-DoF arm like the WAM.
+pub const DEFAULT_ACCELERATION_LIMIT: f64 = 4.0;
+/// Velocity limit (rad/s) used for a joint whose URDF gives none (or zero).
+pub const DEFAULT_VELOCITY_LIMIT: f64 = 1.5;
+
+/// Joint limits of the simulated robot.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimLimits {
+    pub lower: Vec<f64>,
+    pub upper: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub acceleration: Vec<f64>,
+}
+
+impl SimLimits {
+    /// From URDF limits (missing or non-positive velocity limits get the default).
+    pub fn new(lower: &[f64], upper: &[f64], velocity: &[f64], acceleration: f64) -> SimLimits {
+        SimLimits {
+            lower: lower.to_vec(),
+            upper: upper.to_vec(),
+            velocity: velocity
+                .iter()
+                .map(|&v| {
+                    if v.is_finite() && v > 0.0 {
+                        v
+                    } else {
+                        DEFAULT_VELOCITY_LIMIT
+                    }
+                })
+                .collect(),
+            acceleration: vec![acceleration; lower.len()],
+        }
+    }
+
+    pub fn n(&self) -> usize {
+        self.lower.len()
+    }
+
+    /// A position inside the limits: 0 where allowed, else the middle of the range.
+    pub fn home(&self) -> Vec<f64> {
+        self.lower
+            .iter()
+            .zip(&self.upper)
+            .map(|(&l, &u)| {
+                if (l..=u).contains(&0.0) {
+                    0.0
+                } else if l.is_finite() && u.is_finite() {
+                    0.5 * (l + u)
+                } else {
+                    l.max(0.0).min(u)
+                }
+            })
+            .collect()
+    }
+}
+
+/// The simulated robot's state.
+#[derive(Debug, Clone)]
+pub struct SimRobot {
+    pub q: Vec<f64>,
+    pub qd: Vec<f64>,
+    pub limits: SimLimits,
+}
+
+impl SimRobot {
+    pub fn new(limits: SimLimits, q: Vec<f64>) -> SimRobot {
+        let n = limits.n();
+        let q = q
+            .iter()
+            .zip(limits.lower.iter().zip(&limits.upper))
+            .map(|(&x, (&l, &u))| x.clamp(l, u))
+            .collect();
+        SimRobot {
+            q,
+            qd: vec![0.0; n],
+            limits,
+        }
+    }
+
+    /// One control period: the command saturates at the velocity limit, the velocity change at
+    /// the acceleration limit; a joint reaching a position limit stops there.
+    pub fn step(&mut self, command: &[f64], dt: f64) {
+        let l = &self.limits;
+        for j in 0..self.q.len() {
+            let c = if command[j].is_finite() {
+                command[j]
+            } else {
+                0.0
+            };
+            let target = c.clamp(-l.velocity[j], l.velocity[j]);
+            let dv_max = l.acceleration[j] * dt;
+            self.qd[j] += (target - self.qd[j]).clamp(-dv_max, dv_max);
+            self.q[j] += self.qd[j] * dt;
+            if self.q[j] < l.lower[j] || self.q[j] > l.upper[j] {
+                self.q[j] = self.q[j].clamp(l.lower[j], l.upper[j]);
+                self.qd[j] = 0.0;
+            }
+        }
+    }
+
+    /// Brakes towards standstill (no execution).
+    pub fn hold(&mut self, dt: f64) {
+        let zero = vec![0.0; self.q.len()];
+        self.step(&zero, dt);
+    }
+
+    /// A random position kick of up to `magnitude` per joint (kept inside the limits).
+    pub fn kick(&mut self, rng: &mut ChaCha8Rng, magnitude: f64) {
+        let l = &self.limits;
+        for j in 0..self.q.len() {
+            self.q[j] = (self.q[j] + rng.random_range(-magnitude..=magnitude))
+                .clamp(l.lower[j], l.upper[j]);
+        }
+    }
+}
+
+/// Random state kicks during motion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Perturbation {
+    /// Largest kick per joint (rad).
+    pub magnitude: f64,
+    /// Mean time between kicks (s).
+    pub mean_interval: f64,
+    /// Most kicks per execution (the motion must be allowed to finish).
+    pub max_kicks: u32,
+    pub seed: u64,
+}
+
+impl Default for Perturbation {
+    fn default() -> Self {
+        Perturbation {
+            magnitude: 0.08,
+            mean_interval: 0.4,
+            max_kicks: 4,
+            seed: 7,
+        }
+    }
+}
+
+/// Tolerances and gains of an execution on the simulated robot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunOptions {
+    /// Final error (largest joint deviation from the goal) that counts as arrived (rad).
+    pub goal_tolerance: f64,
+    /// Largest joint speed that counts as stopped (rad/s).
+    pub stop_velocity: f64,
+    /// Largest deviation of the robot from the trajectory's first point (rad).
+    pub start_tolerance: f64,
+    /// Open loop: proportional tracking gain (1/s).
+    pub tracking_gain: f64,
+    /// Open loop: time allowed after the trajectory's end to settle (s).
+    pub settle_time: f64,
+    /// Closed loop: time allowed to converge (s).
+    pub closed_loop_timeout: f64,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            goal_tolerance: 0.01,
+            stop_velocity: 0.05,
+            start_tolerance: 0.25,
+            tracking_gain: 8.0,
+            settle_time: 2.0,
+            closed_loop_timeout: 30.0,
+        }
+    }
+}
+
+enum Controller {
+    Track {
+        points: Vec<TrajectoryPoint>,
+        cursor: usize,
+    },
+    Law {
+        params: Box<ControlParams>,
+        goal: Vec<f64>,
+        initial_error: f64,
+    },
+}
+
+/// One execution on the simulated robot.
+pub struct Run {
+    pub id: String,
+    controller: Controller,
+    opts: RunOptions,
+    /// Seconds since start.
+    pub t: f64,
+    command: Vec<f64>,
+    reference: Vec<f64>,
+    ref_velocity: Vec<f64>,
+    pub tracking_error: f64,
+    pub progress: f64,
+    perturb: Option<(Perturbation, ChaCha8Rng, u32)>,
+}
+
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+impl Run {
+    /// Checks an `execute` against this robot; the error is the `result` reason.
+    pub fn new(
+        execute: &Execute,
+        joint_names: &[String],
+        robot: &SimRobot,
+        opts: RunOptions,
+        perturb: Option<Perturbation>,
+    ) -> Result<Run, String> {
+        let n = joint_names.len();
+        if execute.payload.joint_names() != joint_names {
+            return Err(format!(
+                "joint names {:?} do not match this robot's {joint_names:?}",
+                execute.payload.joint_names()
+            ));
+        }
+        if execute.mode != execute.payload.mode() {
+            return Err(format!(
+                "mode {} does not fit a {} payload",
+                execute.mode.as_str(),
+                execute.payload.kind()
+            ));
+        }
+        let l = &robot.limits;
+        let inside = |q: &[f64]| {
+            q.iter()
+                .zip(l.lower.iter().zip(&l.upper))
+                .all(|(&x, (&lo, &hi))| x >= lo - 1e-6 && x <= hi + 1e-6)
+        };
+        let controller = match &execute.payload {
+            ExecutionPayload::Trajectory { points, .. } => {
+                if points.is_empty() {
+                    return Err("the trajectory has no points".into());
+                }
+                for (i, p) in points.iter().enumerate() {
+                    let ok = p.positions.len() == n
+                        && p.velocities.len() == n
+                        && p.accelerations.len() == n
+                        && p.t.is_finite()
+                        && p.positions.iter().chain(&p.velocities).all(|x| x.is_finite())
+                        && (i == 0 || p.t > points[i - 1].t);
+                    if !ok {
+                        return Err(format!("trajectory point {i} is invalid"));
+                    }
+                    if !inside(&p.positions) {
+                        return Err(format!("trajectory point {i} is outside the joint limits"));
+                    }
+                }
+                let d = max_abs_diff(&points[0].positions, &robot.q);
+                if d > opts.start_tolerance {
+                    return Err(format!(
+                        "the robot is {d:.3} rad from the trajectory's start (tolerance {})",
+                        opts.start_tolerance
+                    ));
+                }
+                Controller::Track {
+                    points: points.clone(),
+                    cursor: 0,
+                }
+            }
+            ExecutionPayload::Model { params, goal, .. } => {
+                if params.n_joints() != n || goal.len() != n {
+                    return Err(format!(
+                        "the model has {} joints and the goal {}, this robot {n}",
+                        params.n_joints(),
+                        goal.len()
+                    ));
+                }
+                if !goal.iter().all(|x| x.is_finite()) || !inside(goal) {
+                    return Err("the goal is not finite or outside the joint limits".into());
+                }
+                Controller::Law {
+                    params: Box::new(params.clone()),
+                    initial_error: max_abs_diff(&robot.q, goal).max(1e-9),
+                    goal: goal.clone(),
+                }
+            }
+        };
+        Ok(Run {
+            id: execute.execution_id.clone(),
+            controller,
+            opts,
+            t: 0.0,
+            command: vec![0.0; n],
+            reference: robot.q.clone(),
+            ref_velocity: vec![0.0; n],
+            tracking_error: 0.0,
+            progress: 0.0,
+            perturb: perturb.map(|p| (p, ChaCha8Rng::seed_from_u64(p.seed), 0)),
+        })
+    }
+
+    pub fn mode(&self) -> Mode {
+        match self.controller {
+            Controller::Track { .. } => Mode::OpenLoop,
+            Controller::Law { .. } => Mode::ClosedLoop,
+        }
+    }
+
+    /// One control period: command, integrate, perturb, check the end. Returns the outcome
+    /// once finished.
+    pub fn tick(&mut self, robot: &mut SimRobot, dt: f64) -> Option<(Outcome, Option<String>)> {
+        let n = robot.q.len();
+        match &mut self.controller {
+            Controller::Track { points, cursor } => {
+                let t_end = points.last().map_or(0.0, |p| p.t);
+                // Reference by linear interpolation between the bracketing points.
+                while *cursor + 1 < points.len() && points[*cursor + 1].t <= self.t {
+                    *cursor += 1;
+                }
+                let a = &points[*cursor];
+                if *cursor + 1 < points.len() && self.t >= a.t {
+                    let b = &points[*cursor + 1];
+                    let s = ((self.t - a.t) / (b.t - a.t)).clamp(0.0, 1.0);
+                    for j in 0..n {
+                        self.reference[j] = a.positions[j] + s * (b.positions[j] - a.positions[j]);
+                        self.ref_velocity[j] =
+                            a.velocities[j] + s * (b.velocities[j] - a.velocities[j]);
+                    }
+                } else {
+                    let p = if self.t < a.t { a } else { &points[*cursor] };
+                    self.reference.clone_from(&p.positions);
+                    let moving = self.t < t_end;
+                    for j in 0..n {
+                        self.ref_velocity[j] = if moving { p.velocities[j] } else { 0.0 };
+                    }
+                }
+                for j in 0..n {
+                    self.command[j] = self.ref_velocity[j]
+                        + self.opts.tracking_gain * (self.reference[j] - robot.q[j]);
+                }
+                self.progress = if t_end > 0.0 {
+                    (self.t / t_end).min(1.0)
+                } else {
+                    1.0
+                };
+            }
+            Controller::Law { params, goal, .. } => {
+                params.control(&robot.q, goal, &mut self.command);
+                self.reference.clone_from(goal);
+            }
+        }
+        robot.step(&self.command, dt);
+        self.t += dt;
+        if let Some((p, rng, kicks)) = &mut self.perturb
+            && *kicks < p.max_kicks
+            && self.progress < 0.9
+            && rng.random_range(0.0..1.0) < dt / p.mean_interval
+        {
+            robot.kick(rng, p.magnitude);
+            *kicks += 1;
+        }
+        self.tracking_error = max_abs_diff(&robot.q, &self.reference);
+        let speed = robot.qd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        match &self.controller {
+            Controller::Track { points, .. } => {
+                let t_end = points.last().map_or(0.0, |p| p.t);
+                if self.t < t_end {
+                    return None;
+                }
+                let last = &points[points.len() - 1].positions;
+                let err = max_abs_diff(&robot.q, last);
+                if err <= self.opts.goal_tolerance && speed <= self.opts.stop_velocity {
+                    Some((Outcome::Succeeded, None))
+                } else if self.t >= t_end + self.opts.settle_time {
+                    Some((
+                        Outcome::Failed,
+                        Some(format!(
+                            "final error {err:.4} rad exceeds the tolerance {} after settling",
+                            self.opts.goal_tolerance
+                        )),
+                    ))
+                } else {
+                    None
+                }
+            }
+            Controller::Law {
+                initial_error,
+                goal,
+                ..
+            } => {
+                let err = max_abs_diff(&robot.q, goal);
+                self.progress = (1.0 - err / initial_error).clamp(0.0, 1.0);
+                if err <= self.opts.goal_tolerance && speed <= self.opts.stop_velocity {
+                    Some((Outcome::Succeeded, None))
+                } else if self.t >= self.opts.closed_loop_timeout {
+                    Some((
+                        Outcome::Failed,
+                        Some(format!(
+                            "did not converge: error {err:.4} rad after {:.1} s",
+                            self.t
+                        )),
+                    ))
+                } else {
+                    None
+                }
+            }
+        }
+    }
+
+    pub fn feedback(&self, robot: &SimRobot) -> Feedback {
+        Feedback {
+            execution_id: self.id.clone(),
+            t: self.t,
+            positions: robot.q.clone(),
+            velocities: robot.qd.clone(),
+            progress: self.progress,
+            tracking_error: self.tracking_error,
+        }
+    }
+}
+
+/// A minimum-jerk trajectory from `a` to `b` over `duration` s sampled at `rate` Hz (tests,
+/// benches, and inline executions).
+pub fn min_jerk(a: &[f64], b: &[f64], duration: f64, rate: f64) -> Vec<TrajectoryPoint> {
+    let steps = ((duration * rate).ceil() as usize).max(1);
+    (0..=steps)
+        .map(|k| {
+            let t = duration * k as f64 / steps as f64;
+            let (s, ds, dds) = crate::motion::MinimumJerk::eval(t / duration);
+            TrajectoryPoint {
+                t,
+                positions: a.iter().zip(b).map(|(x, y)| x + s * (y - x)).collect(),
+                velocities: a
+                    .iter()
+                    .zip(b)
+                    .map(|(x, y)| ds * (y - x) / duration)
+                    .collect(),
+                accelerations: a
+                    .iter()
+                    .zip(b)
+                    .map(|(x, y)| dds * (y - x) / (duration * duration))
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn limits(n: usize) -> SimLimits {
+        SimLimits::new(&vec![-2.0; n], &vec![2.0; n], &vec![1.0; n], 4.0)
+    }
+
+    #[test]
+    fn the_robot_respects_velocity_and_acceleration_limits() {
+        let mut r = SimRobot::new(limits(2), vec![0.0, 0.0]);
+        let dt = 0.01;
+        let mut prev = r.qd.clone();
+        for _ in 0..200 {
+            r.step(&[100.0, -100.0], dt);
+            for j in 0..2 {
+                assert!(r.qd[j].abs() <= 1.0 + 1e-12);
+                assert!((r.qd[j] - prev[j]).abs() <= 4.0 * dt + 1e-12);
+            }
+            prev.clone_from(&r.qd);
+        }
+        // reached a position limit and stopped there
+        assert_eq!(r.q, vec![2.0, -2.0]);
+    }
+
+    #[test]
+    fn min_jerk_ends_at_rest_on_the_goal() {
+        let p = min_jerk(&[0.0, 1.0], &[1.0, -1.0], 2.0, 50.0);
+        assert_eq!(p.len(), 101);
+        let last = p.last().unwrap();
+        assert!((last.t - 2.0).abs() < 1e-12);
+        assert!((last.positions[0] - 1.0).abs() < 1e-12 && (last.positions[1] + 1.0).abs() < 1e-12);
+        assert!(last.velocities.iter().all(|v| v.abs() < 1e-12));
+        // velocity is the derivative of position (central difference)
+        let k = 40;
+        let fd = (p[k + 1].positions[0] - p[k - 1].positions[0]) / (p[k + 1].t - p[k - 1].t);
+        assert!((fd - p[k].velocities[0]).abs() < 1e-3);
+    }
+
+    #[test]
+    fn open_loop_tracking_arrives_with_a_small_error() {
+        let names: Vec<String> = vec!["a".into(), "b".into()];
+        let mut robot = SimRobot::new(limits(2), vec![0.0, 0.0]);
+        let exec = Execute {
+            execution_id: "e".into(),
+            mode: Mode::OpenLoop,
+            payload: ExecutionPayload::Trajectory {
+                trajectory_id: "inline".into(),
+                joint_names: names.clone(),
+                points: min_jerk(&[0.0, 0.0], &[0.8, -0.5], 2.0, 100.0),
+            },
+        };
+        let mut run = Run::new(&exec, &names, &robot, RunOptions::default(), None).unwrap();
+        let mut worst = 0.0f64;
+        let mut outcome = None;
+        for _ in 0..1000 {
+            if let Some(o) = run.tick(&mut robot, 0.01) {
+                outcome = Some(o);
+                break;
+            }
+            worst = worst.max(run.tracking_error);
+        }
+        assert_eq!(outcome.unwrap().0, Outcome::Succeeded);
+        assert!(worst < 0.05, "tracking error {worst}");
+        assert!((robot.q[0] - 0.8).abs() <= 0.01);
+    }
+
+    #[test]
+    fn a_far_start_or_wrong_joints_are_refused() {
+        let names: Vec<String> = vec!["a".into(), "b".into()];
+        let robot = SimRobot::new(limits(2), vec![1.0, 0.0]);
+        let mut exec = Execute {
+            execution_id: "e".into(),
+            mode: Mode::OpenLoop,
+            payload: ExecutionPayload::Trajectory {
+                trajectory_id: "inline".into(),
+                joint_names: names.clone(),
+                points: min_jerk(&[0.0, 0.0], &[0.8, -0.5], 2.0, 100.0),
+            },
+        };
+        let e = Run::new(&exec, &names, &robot, RunOptions::default(), None)
+            .err()
+            .unwrap();
+        assert!(e.contains("start"), "{e}");
+        exec.mode = Mode::ClosedLoop;
+        assert!(Run::new(&exec, &names, &robot, RunOptions::default(), None).is_err());
+        let other: Vec<String> = vec!["a".into(), "c".into()];
+        assert!(Run::new(&exec, &other, &robot, RunOptions::default(), None).is_err());
+    }
+}

@@ -1,0 +1,405 @@
+//! Executions and known bridge workers (migration 0007).
+//!
+//! The payload's trajectory points are stored as one numeric BLOB (`[n, 1 + 3 n_joints]`:
+//! `t`, positions, velocities, accelerations per row); the rest of the payload as JSON.
+
+use sqlx::SqlitePool;
+use uuid::Uuid;
+
+use super::{blob, now};
+use crate::bridge::ExecutionPayload;
+use crate::motion::TrajectoryPoint;
+
+/// Execution states. `queued` and `running` are live; the others are final.
+pub const QUEUED: &str = "queued";
+pub const RUNNING: &str = "running";
+pub const SUCCEEDED: &str = "succeeded";
+pub const FAILED: &str = "failed";
+pub const ABORTED: &str = "aborted";
+pub const CANCELLED: &str = "cancelled";
+pub const INTERRUPTED: &str = "interrupted";
+
+pub fn is_final(state: &str) -> bool {
+    !matches!(state, QUEUED | RUNNING)
+}
+
+/// An execution row without its payload.
+#[derive(Debug, Clone, sqlx::FromRow)]
+pub struct ExecutionRow {
+    pub id: String,
+    pub robot: String,
+    pub mode: String,
+    pub kind: String,
+    pub source_id: String,
+    pub worker: Option<String>,
+    pub state: String,
+    pub assigned_worker: Option<String>,
+    pub reason: Option<String>,
+    pub cancel_requested: bool,
+    pub last_feedback: Option<String>,
+    pub tracking: Option<String>,
+    pub created_at: String,
+    pub dispatched_at: Option<String>,
+    pub finished_at: Option<String>,
+}
+
+/// The columns of [`ExecutionRow`] (a macro so queries stay `&'static str` literals).
+macro_rules! columns {
+    () => {
+        "id, robot, mode, kind, source_id, worker, state, assigned_worker, reason, \
+         cancel_requested, last_feedback, tracking, created_at, dispatched_at, finished_at"
+    };
+}
+
+/// The JSON part of a payload (points travel in the BLOB).
+fn split_payload(p: &ExecutionPayload) -> Result<(String, Option<Vec<u8>>), sqlx::Error> {
+    let enc = |e: blob::BlobError| sqlx::Error::Encode(Box::new(e));
+    match p {
+        ExecutionPayload::Trajectory {
+            trajectory_id,
+            joint_names,
+            points,
+        } => {
+            let n = joint_names.len();
+            let width = 1 + 3 * n;
+            let mut data = Vec::with_capacity(points.len() * width);
+            for pt in points {
+                data.push(pt.t);
+                data.extend_from_slice(&pt.positions);
+                data.extend_from_slice(&pt.velocities);
+                data.extend_from_slice(&pt.accelerations);
+            }
+            let bytes = blob::encode(&[points.len(), width], &data).map_err(enc)?;
+            let meta = ExecutionPayload::Trajectory {
+                trajectory_id: trajectory_id.clone(),
+                joint_names: joint_names.clone(),
+                points: Vec::new(),
+            };
+            Ok((
+                serde_json::to_string(&meta).map_err(|e| sqlx::Error::Encode(Box::new(e)))?,
+                Some(bytes),
+            ))
+        }
+        ExecutionPayload::Model { .. } => Ok((
+            serde_json::to_string(p).map_err(|e| sqlx::Error::Encode(Box::new(e)))?,
+            None,
+        )),
+    }
+}
+
+fn join_payload(json: &str, points: Option<&[u8]>) -> Result<ExecutionPayload, sqlx::Error> {
+    let dec = |e: Box<dyn std::error::Error + Send + Sync>| sqlx::Error::Decode(e);
+    let mut p: ExecutionPayload = serde_json::from_str(json).map_err(|e| dec(Box::new(e)))?;
+    if let (
+        ExecutionPayload::Trajectory {
+            joint_names,
+            points: out,
+            ..
+        },
+        Some(bytes),
+    ) = (&mut p, points)
+    {
+        let a = blob::decode::<f64>(bytes).map_err(|e| dec(Box::new(e)))?;
+        let n = joint_names.len();
+        let width = 1 + 3 * n;
+        if a.shape.len() != 2 || a.shape[1] != width {
+            return Err(dec(format!(
+                "points blob has shape {:?}, expected [_, {width}]",
+                a.shape
+            )
+            .into()));
+        }
+        *out = a
+            .data
+            .chunks_exact(width)
+            .map(|r| TrajectoryPoint {
+                t: r[0],
+                positions: r[1..1 + n].to_vec(),
+                velocities: r[1 + n..1 + 2 * n].to_vec(),
+                accelerations: r[1 + 2 * n..].to_vec(),
+            })
+            .collect();
+    }
+    Ok(p)
+}
+
+/// Inserts a queued execution; returns its row.
+pub async fn insert(
+    pool: &SqlitePool,
+    robot: &str,
+    mode: &str,
+    payload: &ExecutionPayload,
+    worker: Option<&str>,
+) -> Result<ExecutionRow, sqlx::Error> {
+    let (json, points) = split_payload(payload)?;
+    let row = ExecutionRow {
+        id: Uuid::new_v4().to_string(),
+        robot: robot.to_owned(),
+        mode: mode.to_owned(),
+        kind: payload.kind().to_owned(),
+        source_id: payload.source_id().to_owned(),
+        worker: worker.map(str::to_owned),
+        state: QUEUED.to_owned(),
+        assigned_worker: None,
+        reason: None,
+        cancel_requested: false,
+        last_feedback: None,
+        tracking: None,
+        created_at: now(),
+        dispatched_at: None,
+        finished_at: None,
+    };
+    sqlx::query(
+        "INSERT INTO executions (id, robot, mode, kind, source_id, payload, points, worker, state, created_at) \
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+    )
+    .bind(&row.id)
+    .bind(&row.robot)
+    .bind(&row.mode)
+    .bind(&row.kind)
+    .bind(&row.source_id)
+    .bind(&json)
+    .bind(&points)
+    .bind(&row.worker)
+    .bind(&row.state)
+    .bind(&row.created_at)
+    .execute(pool)
+    .await?;
+    Ok(row)
+}
+
+pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<ExecutionRow>, sqlx::Error> {
+    sqlx::query_as(concat!(
+        "SELECT ",
+        columns!(),
+        " FROM executions WHERE id = ?"
+    ))
+        .bind(id)
+        .fetch_optional(pool)
+        .await
+}
+
+/// The stored payload of an execution.
+pub async fn payload(pool: &SqlitePool, id: &str) -> Result<Option<ExecutionPayload>, sqlx::Error> {
+    let row: Option<(String, Option<Vec<u8>>)> =
+        sqlx::query_as("SELECT payload, points FROM executions WHERE id = ?")
+            .bind(id)
+            .fetch_optional(pool)
+            .await?;
+    row.map(|(json, points)| join_payload(&json, points.as_deref()))
+        .transpose()
+}
+
+/// A page of executions, newest first, optionally of one state and/or robot.
+pub async fn list(
+    pool: &SqlitePool,
+    state: Option<&str>,
+    robot: Option<&str>,
+    limit: u32,
+    offset: u32,
+) -> Result<Vec<ExecutionRow>, sqlx::Error> {
+    sqlx::query_as(concat!(
+        "SELECT ",
+        columns!(),
+        " FROM executions WHERE (?1 IS NULL OR state = ?1) AND (?2 IS NULL OR robot = ?2) \
+         ORDER BY created_at DESC, id LIMIT ?3 OFFSET ?4"
+    ))
+    .bind(state)
+    .bind(robot)
+    .bind(limit as i64)
+    .bind(offset as i64)
+    .fetch_all(pool)
+    .await
+}
+
+/// Queued executions, oldest first (the dispatch order).
+pub async fn queued(pool: &SqlitePool) -> Result<Vec<ExecutionRow>, sqlx::Error> {
+    sqlx::query_as(concat!(
+        "SELECT ",
+        columns!(),
+        " FROM executions WHERE state = 'queued' ORDER BY created_at, id"
+    ))
+    .fetch_all(pool)
+    .await
+}
+
+/// `queued` → `running` on `worker`; false if it was no longer queued (cancelled meanwhile).
+pub async fn mark_running(pool: &SqlitePool, id: &str, worker: &str) -> Result<bool, sqlx::Error> {
+    let r = sqlx::query(
+        "UPDATE executions SET state = 'running', assigned_worker = ?, dispatched_at = ? \
+         WHERE id = ? AND state = 'queued'",
+    )
+    .bind(worker)
+    .bind(now())
+    .bind(id)
+    .execute(pool)
+    .await?;
+    Ok(r.rows_affected() == 1)
+}
+
+/// Back to `queued` (the dispatch could not be delivered).
+pub async fn requeue(pool: &SqlitePool, id: &str) -> Result<(), sqlx::Error> {
+    sqlx::query(
+        "UPDATE executions SET state = 'queued', assigned_worker = NULL, dispatched_at = NULL \
+         WHERE id = ? AND state = 'running'",
+    )
+    .bind(id)
+    .execute(pool)
+    .await
+    .map(|_| ())
+}
+
+/// Stores the latest feedback and tracking summary of a running execution.
+pub async fn save_progress(
+    pool: &SqlitePool,
+    id: &str,
+    last_feedback: &str,
+    tracking: &str,
+) -> Result<(), sqlx::Error> {
+    sqlx::query(
+        "UPDATE executions SET last_feedback = ?, tracking = ? WHERE id = ? AND state = 'running'",
+    )
+    .bind(last_feedback)
+    .bind(tracking)
+    .bind(id)
+    .execute(pool)
+    .await
+    .map(|_| ())
+}
+
+/// Moves a live execution to a final state (with the last feedback, when known); false if it
+/// was already final.
+pub async fn finish(
+    pool: &SqlitePool,
+    id: &str,
+    state: &str,
+    reason: Option<&str>,
+    last_feedback: Option<&str>,
+    tracking: Option<&str>,
+) -> Result<bool, sqlx::Error> {
+    debug_assert!(is_final(state));
+    let r = sqlx::query(
+        "UPDATE executions SET state = ?, reason = ?, finished_at = ?, \
+         last_feedback = COALESCE(?, last_feedback), tracking = COALESCE(?, tracking) \
+         WHERE id = ? AND state IN ('queued', 'running')",
+    )
+    .bind(state)
+    .bind(reason)
+    .bind(now())
+    .bind(last_feedback)
+    .bind(tracking)
+    .bind(id)
+    .execute(pool)
+    .await?;
+    Ok(r.rows_affected() == 1)
+}
+
+pub async fn set_cancel_requested(pool: &SqlitePool, id: &str) -> Result<(), sqlx::Error> {
+    sqlx::query("UPDATE executions SET cancel_requested = 1 WHERE id = ?")
+        .bind(id)
+        .execute(pool)
+        .await
+        .map(|_| ())
+}
+
+/// At start: executions left `running` by a previous process lost their worker connection with
+/// it; they become `interrupted` (their last flushed feedback is kept). Returns how many.
+pub async fn recover_interrupted(pool: &SqlitePool) -> Result<u64, sqlx::Error> {
+    let r = sqlx::query(
+        "UPDATE executions SET state = 'interrupted', finished_at = ?, \
+         reason = 'the service stopped while the execution was running' WHERE state = 'running'",
+    )
+    .bind(now())
+    .execute(pool)
+    .await?;
+    Ok(r.rows_affected())
+}
+
+/// A known worker.
+#[derive(Debug, Clone, sqlx::FromRow)]
+pub struct BridgeRow {
+    pub name: String,
+    pub robot: String,
+    pub joint_names: String,
+    pub capabilities: String,
+    pub first_seen_at: String,
+    pub last_connected_at: String,
+    pub last_seen_at: String,
+}
+
+/// Records a worker's hello.
+pub async fn upsert_bridge(
+    pool: &SqlitePool,
+    name: &str,
+    robot: &str,
+    joint_names: &str,
+    capabilities: &str,
+) -> Result<(), sqlx::Error> {
+    let t = now();
+    sqlx::query(
+        "INSERT INTO bridges (name, robot, joint_names, capabilities, first_seen_at, last_connected_at, last_seen_at) \
+         VALUES (?1, ?2, ?3, ?4, ?5, ?5, ?5) \
+         ON CONFLICT (name) DO UPDATE SET robot = ?2, joint_names = ?3, capabilities = ?4, \
+         last_connected_at = ?5, last_seen_at = ?5",
+    )
+    .bind(name)
+    .bind(robot)
+    .bind(joint_names)
+    .bind(capabilities)
+    .bind(&t)
+    .execute(pool)
+    .await
+    .map(|_| ())
+}
+
+pub async fn touch_bridge(pool: &SqlitePool, name: &str) -> Result<(), sqlx::Error> {
+    sqlx::query("UPDATE bridges SET last_seen_at = ? WHERE name = ?")
+        .bind(now())
+        .bind(name)
+        .execute(pool)
+        .await
+        .map(|_| ())
+}
+
+pub async fn list_bridges(pool: &SqlitePool) -> Result<Vec<BridgeRow>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT name, robot, joint_names, capabilities, first_seen_at, last_connected_at, last_seen_at \
+         FROM bridges ORDER BY name",
+    )
+    .fetch_all(pool)
+    .await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn payload_points_round_trip_through_the_blob_and_states_move_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let pool = super::super::connect(&dir.path().join("t.db")).await.unwrap();
+        let p = ExecutionPayload::Trajectory {
+            trajectory_id: "inline".into(),
+            joint_names: vec!["a".into(), "b".into()],
+            points: (0..5)
+                .map(|i| TrajectoryPoint {
+                    t: i as f64 * 0.1,
+                    positions: vec![i as f64, -(i as f64)],
+                    velocities: vec![1.0, -1.0],
+                    accelerations: vec![0.0, 0.5],
+                })
+                .collect(),
+        };
+        let row = insert(&pool, "wam_ihy", "open_loop", &p, None)
+            .await
+            .unwrap();
+        assert_eq!(payload(&pool, &row.id).await.unwrap().unwrap(), p);
+        assert_eq!(queued(&pool).await.unwrap().len(), 1);
+        assert!(mark_running(&pool, &row.id, "w").await.unwrap());
+        assert!(!mark_running(&pool, &row.id, "w").await.unwrap());
+        assert_eq!(recover_interrupted(&pool).await.unwrap(), 1);
+        let after = get(&pool, &row.id).await.unwrap().unwrap();
+        assert_eq!(after.state, INTERRUPTED);
+        assert!(!finish(&pool, &row.id, FAILED, None, None, None).await.unwrap());
+    }
+}

@@ -1,0 +1,856 @@
+//! Bridge workers and executions over loopback with the real worker code: in-process workers
+//! (`bridge::worker::run_worker`), raw WebSocket clients for protocol abuse, and the real
+//! binary for the restart test.
+
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::Duration;
+
+use futures::{SinkExt, StreamExt};
+use reachgrasp::api::AppState;
+use reachgrasp::app::App;
+use reachgrasp::bridge::protocol::{ErrorCode, PROTOCOL_VERSION, ServiceMessage};
+use reachgrasp::bridge::sim::{Perturbation, SimLimits, min_jerk};
+use reachgrasp::bridge::worker::{WorkerError, WorkerEvent, WorkerOptions, run_worker};
+use reachgrasp::bridge::{ExecutionPayload, Mode};
+use reachgrasp::config::Config;
+use reachgrasp::kinematics::System;
+use serde_json::{Value, json};
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+
+use crate::helpers::assert_problem;
+
+const TOKEN: &str = "test-bridge-token";
+const ROBOT: &str = "wam_ihy";
+
+fn robots_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("robots")
+}
+
+fn system() -> System {
+    System::from_file(&robots_dir().join("systems/wam_ihy.toml")).expect("wam_ihy loads")
+}
+
+struct BridgeApp {
+    base: String,
+    ws: String,
+    state: AppState,
+    client: reqwest::Client,
+    _dir: tempfile::TempDir,
+}
+
+async fn spawn(tweak: impl FnOnce(&mut Config)) -> BridgeApp {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = Config {
+        bind: "127.0.0.1:0".parse().unwrap(),
+        db: dir.path().join("db/test.db"),
+        robots: robots_dir(),
+        job_concurrency: Some(1),
+        shutdown_grace_secs: 2,
+        bridge_token: Some(TOKEN.into()),
+        bridge_heartbeat_ms: 200,
+        ..Config::default()
+    };
+    tweak(&mut config);
+    let app = App::build(config).await.expect("app builds");
+    let addr = app.local_addr();
+    let state = app.state().clone();
+    tokio::spawn(app.run_until(std::future::pending()));
+    BridgeApp {
+        base: format!("http://{addr}"),
+        ws: format!("ws://{addr}/v1/bridges/connect"),
+        state,
+        client: reqwest::Client::builder()
+            .timeout(Duration::from_secs(30))
+            .build()
+            .unwrap(),
+        _dir: dir,
+    }
+}
+
+impl BridgeApp {
+    async fn get(&self, path: &str) -> Value {
+        let res = self
+            .client
+            .get(format!("{}{path}", self.base))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(res.status(), 200, "GET {path}");
+        res.json().await.unwrap()
+    }
+
+    async fn post(&self, path: &str, body: &Value) -> reqwest::Response {
+        self.client
+            .post(format!("{}{path}", self.base))
+            .json(body)
+            .send()
+            .await
+            .unwrap()
+    }
+
+    /// Posts an execution and returns its id (asserting 202).
+    async fn execute(&self, body: &Value) -> String {
+        let res = self.post("/v1/executions", body).await;
+        assert_eq!(res.status(), 202, "{}", res.text().await.unwrap());
+        let loc = res.headers()["location"].to_str().unwrap().to_owned();
+        let v: Value = res.json().await.unwrap();
+        let id = v["id"].as_str().unwrap().to_owned();
+        assert_eq!(loc, format!("/v1/executions/{id}"));
+        id
+    }
+
+    /// Polls the execution until `done` (at most `secs` seconds).
+    async fn wait(&self, id: &str, secs: u64, done: impl Fn(&Value) -> bool) -> Value {
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(secs);
+        loop {
+            let e = self.get(&format!("/v1/executions/{id}")).await;
+            if done(&e) {
+                return e;
+            }
+            assert!(
+                tokio::time::Instant::now() < deadline,
+                "execution {id} not in the expected state within {secs} s: {e}"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    fn worker(&self, name: &str) -> WorkerOptions {
+        let mut o = WorkerOptions::for_system(&self.ws, TOKEN, name, ROBOT, &system(), 4.0);
+        o.backoff_initial = Duration::from_millis(50);
+        o.backoff_max = Duration::from_millis(500);
+        o
+    }
+}
+
+struct Worker {
+    task: JoinHandle<Result<(), WorkerError>>,
+    events: mpsc::UnboundedReceiver<WorkerEvent>,
+}
+
+impl Worker {
+    fn start(opts: WorkerOptions) -> Worker {
+        let (tx, events) = mpsc::unbounded_channel();
+        let task = tokio::spawn(run_worker(opts, Some(tx), std::future::pending()));
+        Worker { task, events }
+    }
+
+    /// The next event matching `pred` (at most `secs` seconds).
+    async fn until(&mut self, secs: u64, pred: impl Fn(&WorkerEvent) -> bool) -> WorkerEvent {
+        let wait = async {
+            while let Some(e) = self.events.recv().await {
+                if pred(&e) {
+                    return e;
+                }
+            }
+            panic!("the worker stopped");
+        };
+        tokio::time::timeout(Duration::from_secs(secs), wait)
+            .await
+            .expect("worker event in time")
+    }
+}
+
+fn home() -> Vec<f64> {
+    let s = system();
+    let m = &s.model;
+    SimLimits::new(m.lower_limits(), m.upper_limits(), m.velocity_limits(), 4.0).home()
+}
+
+/// A reach away from home: the arm joints move by up to 0.6 rad, the hand closes a little.
+fn target() -> Vec<f64> {
+    let mut q = home();
+    let deltas = [0.5, 0.4, -0.3, 0.6, 0.2, -0.4, 0.3];
+    for (j, d) in deltas.iter().enumerate() {
+        q[j] += d;
+    }
+    for qj in q.iter_mut().skip(7) {
+        *qj = (*qj + 0.3).min(1.0);
+    }
+    q
+}
+
+fn names() -> Vec<String> {
+    system().model.joint_names().to_vec()
+}
+
+fn inline(a: &[f64], b: &[f64], duration: f64) -> Value {
+    json!({
+        "robot": ROBOT,
+        "mode": "open_loop",
+        "trajectory": {"joint_names": names(), "points": min_jerk(a, b, duration, 100.0)},
+    })
+}
+
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+fn floats(v: &Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
+#[tokio::test]
+async fn open_loop_execution_succeeds_with_bounded_tracking_error_and_streams_events() {
+    let app = spawn(|_| {}).await;
+    let mut w = Worker::start(app.worker("sim-a"));
+    w.until(10, |e| *e == WorkerEvent::Connected).await;
+    let bridges = app.get("/v1/bridges").await;
+    assert_eq!(bridges["protocol_version"], PROTOCOL_VERSION);
+    assert_eq!(bridges["items"][0]["name"], "sim-a");
+    assert_eq!(bridges["items"][0]["status"], "idle");
+    assert_eq!(bridges["items"][0]["robot"], ROBOT);
+
+    let (a, b) = (home(), target());
+    let id = app.execute(&inline(&a, &b, 1.5)).await;
+    // a second execution waits: one execution per worker at a time
+    let second = app.execute(&inline(&b, &a, 0.5)).await;
+    let events = app
+        .client
+        .get(format!("{}/v1/executions/{id}/events", app.base))
+        .send()
+        .await
+        .unwrap();
+    assert!(
+        events.headers()["content-type"]
+            .to_str()
+            .unwrap()
+            .starts_with("text/event-stream")
+    );
+    let running = app.wait(&id, 10, |e| e["state"] == "running").await;
+    assert_eq!(running["assigned_worker"], "sim-a");
+    let busy = app.get("/v1/bridges").await;
+    assert_eq!(busy["items"][0]["status"], "busy");
+    assert_eq!(busy["items"][0]["connection"]["execution_id"], id.as_str());
+    assert_eq!(
+        app.get(&format!("/v1/executions/{second}")).await["state"],
+        "queued"
+    );
+
+    let mut body = String::new();
+    let mut stream = events.bytes_stream();
+    let read = async {
+        while let Some(chunk) = stream.next().await {
+            body.push_str(std::str::from_utf8(&chunk.unwrap()).unwrap());
+            if body.contains("event: final") {
+                break;
+            }
+        }
+    };
+    tokio::time::timeout(Duration::from_secs(15), read)
+        .await
+        .expect("the event stream ends with a final event");
+    assert!(body.contains("event: progress"), "{body}");
+    assert!(body.contains("\"last_feedback\":{"), "feedback in the events");
+
+    let done = app.wait(&id, 10, |e| e["state"] != "running").await;
+    assert_eq!(done["state"], "succeeded", "{done}");
+    let tr = &done["tracking"];
+    assert!(tr["samples"].as_u64().unwrap() > 20, "{tr}");
+    let max = tr["max_error"].as_f64().unwrap();
+    assert!(max < 0.05, "max tracking error {max} rad");
+    assert!(tr["rms_error"].as_f64().unwrap() <= max);
+    let last = floats(&done["last_feedback"]["positions"]);
+    assert!(max_abs_diff(&last, &b) <= 0.011, "arrived: {last:?}");
+    assert!(done["finished_at"].is_string());
+
+    // then the queued one runs, back home
+    let back = app.wait(&second, 15, |e| e["state"] == "succeeded").await;
+    assert_eq!(back["assigned_worker"], "sim-a");
+    let list = app.get("/v1/executions?state=succeeded").await;
+    assert_eq!(list["items"].as_array().unwrap().len(), 2);
+    w.task.abort();
+}
+
+/// Synthetic demonstrations in the wam_ihy joint space, trained with the pure motion module.
+fn trained_params() -> (reachgrasp::motion::ControlParams, Vec<f64>, Vec<f64>) {
+    use reachgrasp::motion::synthetic::{SyntheticStudy, curved_study};
+    use reachgrasp::motion::{Components, JointLimits, TrainOptions, train};
+    let s = system();
+    let m = &s.model;
+    let n = m.nq();
+    let mut data = curved_study(&SyntheticStudy {
+        seed: 3,
+        arm_joints: 7,
+        hand_joints: n - 7,
+        trials_per_position: 6,
+        frames: 60,
+        ..SyntheticStudy::default()
+    });
+    // Centre each joint's data in its range so the demonstrations respect the URDF limits.
+    let frames: usize = data.demos.iter().map(|d| d.frames()).sum();
+    let mut mean = vec![0.0; n];
+    for d in &data.demos {
+        for f in 0..d.frames() {
+            for (j, x) in d.frame(f, n).iter().enumerate() {
+                mean[j] += x / frames as f64;
+            }
+        }
+    }
+    let (lo, hi) = (m.lower_limits(), m.upper_limits());
+    for d in &mut data.demos {
+        for (k, x) in d.positions.iter_mut().enumerate() {
+            let j = k % n;
+            *x += 0.5 * (lo[j] + hi[j]) - mean[j];
+            assert!(
+                *x > lo[j] && *x < hi[j],
+                "joint {j} value {x} outside its limits"
+            );
+        }
+    }
+    let limits = JointLimits {
+        lower: lo.to_vec(),
+        upper: hi.to_vec(),
+        velocity: m.velocity_limits().to_vec(),
+        acceleration: vec![4.0; n],
+    };
+    let opts = TrainOptions {
+        groups: data.groups.clone(),
+        components: Components::VarianceThreshold(0.97),
+        ..TrainOptions::default()
+    };
+    let (model, _) = train(&data.demos, &limits, &opts).expect("trains");
+    let params = model.control_params(m.joint_names().to_vec(), 2.0, 2.0);
+    let demo = &data.demos[7];
+    let start = demo.frame(0, n).to_vec();
+    let goal = demo.frame(demo.frames() - 1, n).to_vec();
+    (params, start, goal)
+}
+
+#[tokio::test]
+async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
+    let app = spawn(|_| {}).await;
+    let (params, start, goal) = tokio::task::spawn_blocking(trained_params)
+        .await
+        .unwrap();
+    let mut opts = app.worker("sim-cl");
+    opts.initial = Some(start.clone());
+    opts.perturb = Some(Perturbation {
+        magnitude: 0.1,
+        mean_interval: 0.3,
+        max_kicks: 4,
+        seed: 11,
+    });
+    let mut w = Worker::start(opts);
+    w.until(10, |e| *e == WorkerEvent::Connected).await;
+    // the contract the plans endpoint uses
+    let id = reachgrasp::bridge::enqueue(
+        &app.state,
+        ROBOT,
+        Mode::ClosedLoop,
+        ExecutionPayload::Model {
+            model_id: "synthetic".into(),
+            params,
+            goal: goal.clone(),
+        },
+        None,
+    )
+    .await
+    .expect("queued");
+    let done = app.wait(&id, 40, |e| e["state"] != "queued" && e["state"] != "running").await;
+    assert_eq!(done["state"], "succeeded", "{done}");
+    assert_eq!(done["mode"], "closed_loop");
+    assert_eq!(done["kind"], "model");
+    let last = floats(&done["last_feedback"]["positions"]);
+    assert!(max_abs_diff(&last, &goal) <= 0.011, "converged: {last:?} vs {goal:?}");
+    assert!(max_abs_diff(&start, &goal) > 0.1, "the reach is not trivial");
+    // the kicks show as tracking error above the final one during the motion
+    let tr = &done["tracking"];
+    assert!(tr["max_error"].as_f64().unwrap() > tr["last_error"].as_f64().unwrap());
+    w.task.abort();
+}
+
+#[tokio::test]
+async fn a_worker_killed_mid_execution_leaves_it_interrupted_with_its_last_feedback() {
+    let app = spawn(|_| {}).await;
+    let mut w = Worker::start(app.worker("sim-k"));
+    w.until(10, |e| *e == WorkerEvent::Connected).await;
+    let id = app.execute(&inline(&home(), &target(), 4.0)).await;
+    app.wait(&id, 10, |e| {
+        e["state"] == "running" && e["last_feedback"]["t"].as_f64().is_some_and(|t| t > 0.5)
+    })
+    .await;
+    w.task.abort(); // the worker process dies: its socket closes
+    let done = app.wait(&id, 10, |e| e["state"] != "running").await;
+    assert_eq!(done["state"], "interrupted", "{done}");
+    assert!(done["reason"].as_str().unwrap().contains("sim-k"), "{done}");
+    let fb = &done["last_feedback"];
+    assert!(fb["t"].as_f64().unwrap() > 0.5, "{fb}");
+    assert!(fb["progress"].as_f64().unwrap() < 1.0);
+    let bridges = app.get("/v1/bridges").await;
+    assert_eq!(bridges["items"][0]["status"], "disconnected");
+    assert_eq!(bridges["items"][0]["connected"], false);
+}
+
+#[tokio::test]
+async fn cancellation_stops_the_worker_and_a_queued_execution_cancels_at_once() {
+    let app = spawn(|_| {}).await;
+    let mut w = Worker::start(app.worker("sim-c"));
+    w.until(10, |e| *e == WorkerEvent::Connected).await;
+    let id = app.execute(&inline(&home(), &target(), 5.0)).await;
+    let queued = app.execute(&inline(&target(), &home(), 1.0)).await;
+    app.wait(&id, 10, |e| e["state"] == "running").await;
+    let res = app
+        .post(&format!("/v1/executions/{queued}/cancel"), &json!({}))
+        .await;
+    assert_eq!(res.status(), 202);
+    assert_eq!(res.json::<Value>().await.unwrap()["state"], "cancelled");
+    let res = app.post(&format!("/v1/executions/{id}/cancel"), &json!({})).await;
+    assert_eq!(res.status(), 202);
+    w.until(10, |e| matches!(e, WorkerEvent::Cancelled { id: c } if *c == id))
+        .await;
+    let done = app.wait(&id, 10, |e| e["state"] != "running").await;
+    assert_eq!(done["state"], "cancelled", "{done}");
+    assert_eq!(done["cancel_requested"], true);
+    assert!(done["last_feedback"]["progress"].as_f64().unwrap() < 0.9);
+    // the robot is idle again and brakes to a stop
+    tokio::time::sleep(Duration::from_millis(1200)).await;
+    let b1 = app.get("/v1/bridges").await;
+    assert_eq!(b1["items"][0]["status"], "idle");
+    let p1 = floats(&b1["items"][0]["connection"]["positions"]);
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let b2 = app.get("/v1/bridges").await;
+    let p2 = floats(&b2["items"][0]["connection"]["positions"]);
+    assert!(max_abs_diff(&p1, &p2) < 1e-6, "the robot stopped moving");
+    let again = app.post(&format!("/v1/executions/{id}/cancel"), &json!({})).await;
+    assert_problem(again, 409, "conflict").await;
+    w.task.abort();
+}
+
+async fn raw_connect(
+    url: &str,
+    token: Option<&str>,
+) -> Result<
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>,
+    tokio_tungstenite::tungstenite::Error,
+> {
+    let mut req = url.into_client_request().unwrap();
+    if let Some(t) = token {
+        req.headers_mut()
+            .insert("authorization", format!("Bearer {t}").parse().unwrap());
+    }
+    tokio_tungstenite::connect_async(req).await.map(|(ws, _)| ws)
+}
+
+type Raw =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// The next service message (skipping nothing), or None when the connection closed.
+async fn next_msg(ws: &mut Raw) -> Option<ServiceMessage> {
+    let f = tokio::time::timeout(Duration::from_secs(10), ws.next())
+        .await
+        .expect("a reply in time");
+    match f {
+        Some(Ok(Message::Text(t))) => Some(serde_json::from_str(t.as_str()).expect("valid reply")),
+        Some(Ok(Message::Close(_))) | None | Some(Err(_)) => None,
+        Some(Ok(other)) => panic!("unexpected frame {other:?}"),
+    }
+}
+
+async fn send(ws: &mut Raw, v: Value) {
+    ws.send(Message::Text(v.to_string().into())).await.unwrap();
+}
+
+fn hello(name: &str, joint_names: Vec<String>, version: u32) -> Value {
+    json!({"type": "hello", "protocol_version": version, "worker": name, "robot": ROBOT,
+           "joint_names": joint_names, "capabilities": ["open_loop", "closed_loop"]})
+}
+
+fn error_code(m: Option<ServiceMessage>) -> (ErrorCode, bool) {
+    match m {
+        Some(ServiceMessage::Error(e)) => (e.code, e.fatal),
+        other => panic!("expected an error, got {other:?}"),
+    }
+}
+
+#[tokio::test]
+async fn a_wrong_or_missing_token_is_refused_before_the_upgrade() {
+    let app = spawn(|_| {}).await;
+    for token in [None, Some("wrong"), Some("")] {
+        match raw_connect(&app.ws, token).await {
+            Err(tokio_tungstenite::tungstenite::Error::Http(res)) => {
+                assert_eq!(res.status(), 401)
+            }
+            other => panic!("token {token:?}: expected 401, got {:?}", other.map(|_| ())),
+        }
+    }
+    // a plain request with the right token but no upgrade
+    let res = app
+        .client
+        .get(format!("{}/v1/bridges/connect", app.base))
+        .header("authorization", format!("Bearer {TOKEN}"))
+        .send()
+        .await
+        .unwrap();
+    assert_problem(res, 400, "bad-request").await;
+    let res = app
+        .client
+        .get(format!("{}/v1/bridges/connect", app.base))
+        .send()
+        .await
+        .unwrap();
+    assert_problem(res, 401, "unauthorized").await;
+    // the reference worker gives up instead of retrying forever
+    let mut opts = app.worker("sim-t");
+    opts.token = "wrong".into();
+    let r = run_worker(opts, None, std::future::pending()).await;
+    assert!(matches!(r, Err(WorkerError::Unauthorized(401))), "{r:?}");
+}
+
+#[tokio::test]
+async fn hello_is_checked_joint_names_version_robot_and_name() {
+    let app = spawn(|_| {}).await;
+    let mut reversed = names();
+    reversed.reverse();
+    let mut short = names();
+    short.pop();
+    for (h, code) in [
+        (hello("w1", reversed, PROTOCOL_VERSION), ErrorCode::HelloRefused),
+        (hello("w1", short, PROTOCOL_VERSION), ErrorCode::HelloRefused),
+        (hello("w1", names(), PROTOCOL_VERSION + 1), ErrorCode::UnsupportedVersion),
+        (hello("bad name!", names(), PROTOCOL_VERSION), ErrorCode::HelloRefused),
+        (
+            json!({"type": "hello", "protocol_version": PROTOCOL_VERSION, "worker": "w1",
+                   "robot": "no_such_robot", "joint_names": names(), "capabilities": ["open_loop"]}),
+            ErrorCode::HelloRefused,
+        ),
+        (json!({"type": "heartbeat", "seq": 1}), ErrorCode::UnexpectedMessage),
+        (json!({"type": "dance"}), ErrorCode::UnknownType),
+    ] {
+        let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
+        send(&mut ws, h.clone()).await;
+        let reply = next_msg(&mut ws).await;
+        if let Some(ServiceMessage::Error(e)) = &reply
+            && e.code == ErrorCode::HelloRefused
+            && h["joint_names"].as_array().is_some_and(|a| a.len() == names().len())
+            && h["robot"] == ROBOT
+            && h["worker"] == "w1"
+        {
+            assert!(e.message.contains("joint_names[0]"), "{}", e.message);
+        }
+        assert_eq!(error_code(reply), (code, true), "{h}");
+        assert!(next_msg(&mut ws).await.is_none(), "closed after a refused hello");
+    }
+    // the reference worker with the wrong joint order stops with the refusal
+    let mut opts = app.worker("sim-j");
+    opts.joint_names.swap(0, 1);
+    let r = run_worker(opts, None, std::future::pending()).await;
+    assert!(matches!(&r, Err(WorkerError::Refused(m)) if m.contains("joint")), "{r:?}");
+    // a duplicate name is refused while the first is connected
+    let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
+    send(&mut ws, hello("twin", names(), PROTOCOL_VERSION)).await;
+    assert!(matches!(next_msg(&mut ws).await, Some(ServiceMessage::Welcome(_))));
+    let mut ws2 = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
+    send(&mut ws2, hello("twin", names(), PROTOCOL_VERSION)).await;
+    assert_eq!(error_code(next_msg(&mut ws2).await), (ErrorCode::NameInUse, true));
+}
+
+#[tokio::test]
+async fn a_misbehaving_worker_gets_error_replies_and_does_not_disturb_others() {
+    let app = spawn(|_| {}).await;
+    let mut good = Worker::start(app.worker("sim-good"));
+    good.until(10, |e| *e == WorkerEvent::Connected).await;
+    let id = app.execute(&inline(&home(), &target(), 1.5)).await;
+
+    let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
+    send(&mut ws, hello("rogue", names(), PROTOCOL_VERSION)).await;
+    assert!(matches!(next_msg(&mut ws).await, Some(ServiceMessage::Welcome(_))));
+    let n = names().len();
+    let cases: Vec<(Message, ErrorCode)> = vec![
+        (Message::Text("{not json".into()), ErrorCode::Malformed),
+        (Message::Text(json!({"type": "teleport"}).to_string().into()), ErrorCode::UnknownType),
+        (
+            Message::Text(json!({"type": "heartbeat", "seq": "one"}).to_string().into()),
+            ErrorCode::Malformed,
+        ),
+        (Message::Binary(vec![1u8, 2, 3].into()), ErrorCode::Malformed),
+        (
+            Message::Text(hello("rogue", names(), PROTOCOL_VERSION).to_string().into()),
+            ErrorCode::UnexpectedMessage,
+        ),
+        // feedback and a result for an execution it does not hold (the good worker's!)
+        (
+            Message::Text(
+                json!({"type": "feedback", "execution_id": id, "t": 0.1,
+                       "positions": vec![0.0; n], "velocities": vec![0.0; n],
+                       "progress": 0.5, "tracking_error": 0.0})
+                .to_string()
+                .into(),
+            ),
+            ErrorCode::NotHolding,
+        ),
+        (
+            Message::Text(
+                json!({"type": "result", "execution_id": id, "outcome": "failed"})
+                    .to_string()
+                    .into(),
+            ),
+            ErrorCode::NotHolding,
+        ),
+        (
+            Message::Text(
+                json!({"type": "heartbeat", "seq": 1, "pad": "x".repeat(100_000)})
+                    .to_string()
+                    .into(),
+            ),
+            ErrorCode::Oversized,
+        ),
+    ];
+    for (frame, code) in cases {
+        ws.send(frame).await.unwrap();
+        assert_eq!(error_code(next_msg(&mut ws).await), (code, false));
+    }
+    // the good worker's execution is unaffected (the rogue keeps its heartbeats going)
+    let mut done = Value::Null;
+    for seq in 2..200 {
+        send(&mut ws, json!({"type": "heartbeat", "seq": seq, "positions": home()})).await;
+        done = app.get(&format!("/v1/executions/{id}")).await;
+        if done["state"] != "running" && done["state"] != "queued" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(done["state"], "succeeded", "{done}");
+    assert_eq!(done["assigned_worker"], "sim-good");
+    let bridges = app.get("/v1/bridges").await;
+    let rogue = bridges["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|b| b["name"] == "rogue")
+        .unwrap();
+    assert_eq!(rogue["connected"], true);
+    assert!(rogue["connection"]["heartbeats"].as_u64().unwrap() >= 1, "{rogue}");
+    // a frame above the transport limit ends the connection
+    ws.send(Message::Text("y".repeat(2 << 20).into()))
+        .await
+        .unwrap();
+    let mut closed = false;
+    for _ in 0..3 {
+        match next_msg(&mut ws).await {
+            None => {
+                closed = true;
+                break;
+            }
+            Some(ServiceMessage::Error(e)) => assert!(e.fatal, "{e:?}"),
+            Some(other) => panic!("unexpected {other:?}"),
+        }
+    }
+    assert!(closed);
+    // the service is fine
+    let health = app
+        .client
+        .get(format!("{}/healthz", app.base))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(health.status(), 200);
+    good.task.abort();
+}
+
+#[tokio::test]
+async fn executions_are_validated_and_wait_queued_until_the_no_worker_timeout() {
+    let app = spawn(|c| c.bridge_queue_timeout_secs = 1).await;
+    let (a, b) = (home(), target());
+    // validation
+    let mut wrong = inline(&a, &b, 1.0);
+    wrong["trajectory"]["joint_names"][0] = json!("nope");
+    let p = assert_problem(app.post("/v1/executions", &wrong).await, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.trajectory.joint_names");
+    let mut outside = inline(&a, &b, 1.0);
+    outside["trajectory"]["points"][3]["positions"][3] = json!(9.0);
+    let p = assert_problem(app.post("/v1/executions", &outside).await, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.trajectory.points[3].positions[3]");
+    let mut back_in_time = inline(&a, &b, 1.0);
+    back_in_time["trajectory"]["points"][2]["t"] = json!(0.0);
+    let p = assert_problem(app.post("/v1/executions", &back_in_time).await, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.trajectory.points[2].t");
+    let mut unknown = inline(&a, &b, 1.0);
+    unknown["robot"] = json!("no_such_robot");
+    let p = assert_problem(app.post("/v1/executions", &unknown).await, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.robot");
+    let mut mode = inline(&a, &b, 1.0);
+    mode["mode"] = json!("closed_loop");
+    let p = assert_problem(app.post("/v1/executions", &mode).await, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.mode");
+    let none = json!({"robot": ROBOT, "mode": "open_loop"});
+    assert_problem(app.post("/v1/executions", &none).await, 422, "validation").await;
+    let res = app
+        .client
+        .get(format!("{}/v1/executions/{}", app.base, uuid::Uuid::new_v4()))
+        .send()
+        .await
+        .unwrap();
+    assert_problem(res, 404, "not-found").await;
+
+    // no compatible worker: queued and visible, then failed: no worker
+    let id = app.execute(&inline(&a, &b, 1.0)).await;
+    let queued = app.get(&format!("/v1/executions/{id}")).await;
+    assert_eq!(queued["state"], "queued");
+    let listed = app.get("/v1/executions?state=queued").await;
+    assert_eq!(listed["items"][0]["id"], id.as_str());
+    let failed = app.wait(&id, 10, |e| e["state"] != "queued").await;
+    assert_eq!(failed["state"], "failed");
+    assert!(failed["reason"].as_str().unwrap().starts_with("no worker"), "{failed}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// The real binary: a service restart keeps queued executions; the worker reconnects and runs them.
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+async fn start_service(db: &Path, port: u16) -> tokio::process::Child {
+    let mut child = tokio::process::Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
+        .env("REACHGRASP_BIND", format!("127.0.0.1:{port}"))
+        .env("REACHGRASP_DB", db)
+        .env("REACHGRASP_ROBOTS", robots_dir())
+        .env("REACHGRASP_BRIDGE_TOKEN", TOKEN)
+        .env("REACHGRASP_LOG_JSON", "1")
+        .env("REACHGRASP_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("the binary starts");
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let find = async {
+        while let Some(line) = lines.next_line().await.unwrap() {
+            if let Ok(v) = serde_json::from_str::<Value>(&line)
+                && v["message"] == "listening"
+            {
+                return;
+            }
+        }
+        panic!("the service exited before listening");
+    };
+    tokio::time::timeout(Duration::from_secs(30), find)
+        .await
+        .expect("the service listens within 30 s");
+    tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
+    child
+}
+
+#[tokio::test]
+async fn a_service_restart_keeps_queued_executions_and_the_worker_reconnects_to_run_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("data/reachgrasp.db");
+    let port = free_port();
+    let base = format!("http://127.0.0.1:{port}");
+    let client = reqwest::Client::builder()
+        .timeout(Duration::from_secs(10))
+        .build()
+        .unwrap();
+    let get = |path: String| {
+        let client = client.clone();
+        async move {
+            match client.get(path).send().await {
+                Ok(r) => r.json::<Value>().await.ok(),
+                Err(_) => None,
+            }
+        }
+    };
+
+    let mut first = start_service(&db, port).await;
+    let mut worker = tokio::process::Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
+        .args(["bridge", "--sim", "--robot", ROBOT, "--name", "sim-bin"])
+        .args(["--url", &format!("ws://127.0.0.1:{port}/v1/bridges/connect")])
+        .args(["--token", TOKEN, "--start-tolerance", "10"])
+        .env("REACHGRASP_ROBOTS", robots_dir())
+        .env("REACHGRASP_DB", dir.path().join("worker-unused.db"))
+        .env_remove("REACHGRASP_BRIDGE_TOKEN")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("the worker starts");
+    let connected = |v: &Option<Value>| {
+        v.as_ref().is_some_and(|v| {
+            v["items"]
+                .as_array()
+                .is_some_and(|a| a.iter().any(|b| b["name"] == "sim-bin" && b["connected"] == true))
+        })
+    };
+    let mut ok = false;
+    for _ in 0..300 {
+        if connected(&get(format!("{base}/v1/bridges")).await) {
+            ok = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(ok, "the worker binary connects");
+
+    let post = |body: Value| {
+        let client = client.clone();
+        let base = base.clone();
+        async move {
+            let r = client
+                .post(format!("{base}/v1/executions"))
+                .json(&body)
+                .send()
+                .await
+                .unwrap();
+            assert_eq!(r.status(), 202);
+            r.json::<Value>().await.unwrap()["id"]
+                .as_str()
+                .unwrap()
+                .to_owned()
+        }
+    };
+    let (a, b) = (home(), target());
+    let long = post(inline(&a, &b, 6.0)).await;
+    let queued = post(inline(&b, &a, 1.0)).await;
+    let mut running = false;
+    for _ in 0..300 {
+        let e = get(format!("{base}/v1/executions/{long}")).await.unwrap();
+        if e["state"] == "running" && e["last_feedback"]["t"].as_f64().is_some_and(|t| t > 0.6) {
+            running = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(running, "the long execution runs");
+    let q = get(format!("{base}/v1/executions/{queued}")).await.unwrap();
+    assert_eq!(q["state"], "queued");
+    first.kill().await.expect("SIGKILL the service");
+    first.wait().await.unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+
+    let mut second = start_service(&db, port).await;
+    let interrupted = get(format!("{base}/v1/executions/{long}")).await.unwrap();
+    assert_eq!(interrupted["state"], "interrupted", "{interrupted}");
+    assert!(
+        interrupted["last_feedback"]["t"].as_f64().unwrap() > 0.5,
+        "the last flushed feedback is kept: {interrupted}"
+    );
+    let mut last = Value::Null;
+    for _ in 0..600 {
+        last = get(format!("{base}/v1/executions/{queued}")).await.unwrap();
+        if last["state"] == "succeeded" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    assert_eq!(last["state"], "succeeded", "the reconnected worker ran it: {last}");
+    assert_eq!(last["assigned_worker"], "sim-bin");
+    worker.kill().await.unwrap();
+    second.kill().await.unwrap();
+}
