@@ -52,8 +52,13 @@ function clearErrors(form) {
 function showProblem(form, problem) {
   const unplaced = [];
   (problem.errors || []).forEach((err) => {
-    const input = form.querySelector(`[data-path="${CSS.escape(err.path)}"]`)
-      || form.querySelector(`[data-path="${CSS.escape(err.path.replace(/\[\d+\]$/, ""))}"]`);
+    // The exact field, else the field of the array it indexes into, else the first field
+    // below the reported object (e.g. `$.demonstrations` -> `$.demonstrations.job_id`).
+    const fields = Array.from(form.querySelectorAll("[data-path]"));
+    const input = fields.find((f) => f.dataset.path === err.path)
+      || fields.find((f) => f.dataset.path === err.path.replace(/\[\d+\]$/, ""))
+      || fields.find((f) => f.dataset.path.startsWith(`${err.path}.`)
+        || f.dataset.path.startsWith(`${err.path}[`));
     if (input) {
       const field = input.closest(".field");
       field.classList.add("invalid");

@@ -22,12 +22,17 @@ pub fn esc(s: &str) -> String {
 }
 
 /// The sections of the navigation bar: (path, label).
-pub const NAV: [(&str, &str); 6] = [
+pub const NAV: [(&str, &str); 11] = [
     ("/", "Overview"),
     ("/ui/robots", "Robots"),
     ("/ui/objects", "Objects"),
     ("/ui/demonstrations", "Demonstrations"),
+    ("/ui/mappings", "Mappings"),
+    ("/ui/models", "Models"),
     ("/ui/grasps", "Grasps"),
+    ("/ui/trajectories", "Trajectories"),
+    ("/ui/bridges", "Bridges"),
+    ("/ui/executions", "Executions"),
     ("/ui/jobs", "Jobs"),
 ];
 

@@ -9,6 +9,7 @@
 
 mod html;
 mod pages;
+mod resources;
 
 use axum::Router;
 use axum::http::header;
@@ -38,6 +39,15 @@ pub fn router() -> Router<AppState> {
         .route("/ui/demonstrations/{id}", get(pages::demonstration))
         .route("/ui/grasps", get(pages::grasps))
         .route("/ui/grasps/{id}", get(pages::grasp))
+        .route("/ui/mappings", get(resources::mappings))
+        .route("/ui/mappings/{id}", get(resources::mapping))
+        .route("/ui/models", get(resources::models))
+        .route("/ui/models/{id}", get(resources::model))
+        .route("/ui/trajectories", get(resources::trajectories))
+        .route("/ui/trajectories/{id}", get(resources::trajectory))
+        .route("/ui/bridges", get(resources::bridges))
+        .route("/ui/executions", get(resources::executions))
+        .route("/ui/executions/{id}", get(resources::execution))
         .route("/ui/jobs", get(pages::jobs))
         .route("/ui/jobs/{id}", get(pages::job))
 }

@@ -175,11 +175,20 @@ pub async fn home(State(state): State<AppState>) -> Page {
             offset: 0,
         })
         .await?;
+    let (_, mappings) =
+        crate::store::mappings::list_mappings(&state.db, 1, 0, None, None).await?;
+    let (_, models) = crate::store::models::list_models(&state.db, None, 1, 0).await?;
+    let (_, trajectories) =
+        crate::store::trajectories::list_trajectories(&state.db, None, 1, 0).await?;
     let cards = [
         ("/ui/robots", "robots", robots.len() as i64),
         ("/ui/objects", "objects", objects.len() as i64),
         ("/ui/demonstrations", "demonstrations", demos),
+        ("/ui/mappings", "mappings", mappings),
+        ("/ui/models", "models", models),
         ("/ui/grasps", "grasps", grasps.len() as i64),
+        ("/ui/trajectories", "trajectories", trajectories),
+        ("/ui/bridges", "connected workers", state.bridges.workers().len() as i64),
     ]
     .iter()
     .map(|(href, label, n)| {
@@ -388,7 +397,7 @@ pub async fn demonstrations(State(state): State<AppState>, Query(q): Query<DemoL
             offset.saturating_sub(limit)
         ));
     }
-    if (offset + limit) as i64 <= total - 1 {
+    if ((offset + limit) as i64) < total {
         pager.push_str(&format!(
             " · <a href=\"?offset={}{filter}\">next</a>",
             offset + limit

@@ -184,6 +184,11 @@ async fn dashboard_pages_and_assets_are_served_from_the_binary() {
         ("/ui/objects", "text/html"),
         ("/ui/demonstrations", "text/html"),
         ("/ui/jobs", "text/html"),
+        ("/ui/mappings", "text/html"),
+        ("/ui/models", "text/html"),
+        ("/ui/trajectories", "text/html"),
+        ("/ui/bridges", "text/html"),
+        ("/ui/executions", "text/html"),
     ] {
         let res = app.get(path).await;
         assert_eq!(res.status(), 200, "{path}");
@@ -206,6 +211,10 @@ async fn unknown_ids_give_a_readable_not_found_page() {
         ("/ui/demonstrations/nope", "demonstration"),
         ("/ui/grasps/nope", "grasp"),
         ("/ui/jobs/nope", "job"),
+        ("/ui/mappings/nope", "mapping"),
+        ("/ui/models/nope", "model"),
+        ("/ui/trajectories/nope", "trajectory"),
+        ("/ui/executions/nope", "execution"),
     ] {
         let res = app.get(path).await;
         assert_eq!(res.status(), 404, "{path}");
@@ -222,4 +231,25 @@ async fn unknown_ids_give_a_readable_not_found_page() {
         );
         assert!(html.contains("<code>nope</code>"), "{path}");
     }
+}
+
+#[tokio::test]
+async fn figures_of_unknown_resources_are_404_problems() {
+    let app = app().await;
+    for path in [
+        "/v1/mappings/nope/plot.svg",
+        "/v1/models/nope/plot.svg",
+        "/v1/trajectories/nope/plot.svg",
+        "/v1/executions/nope/plot.svg",
+        "/v1/grasps/nope/plot.svg",
+    ] {
+        assert_problem(app.get(path).await, 404, "not-found").await;
+    }
+    // The view is checked before anything is loaded.
+    assert_problem(
+        app.get("/v1/mappings/nope/plot.svg?azimuth=-200").await,
+        400,
+        "invalid-parameter",
+    )
+    .await;
 }
