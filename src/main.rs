@@ -1,6 +1,6 @@
 //! The `reachgrasp` binary: `serve` (the default) runs the HTTP service; `openapi` prints the
-//! OpenAPI document; `synth` prints a synthetic demonstration study; `bridge --sim` runs the
-//! reference (simulated) bridge worker.
+//! OpenAPI document; `synth` prints a synthetic demonstration study; `map` maps demonstrations
+//! onto a robot offline; `bridge --sim` runs the reference (simulated) bridge worker.
 
 use clap::{Parser, Subcommand};
 use reachgrasp::app::{App, init_tracing, shutdown_signal};
@@ -75,6 +75,38 @@ enum Command {
         #[arg(long)]
         seed: Option<u64>,
     },
+    /// Map human demonstrations onto a robot offline (the computation of `POST /v1/mappings`):
+    /// progress bar on stderr, JSON on stdout (summary, and per demonstration the joint
+    /// trajectory and per-frame metrics).
+    #[command(
+        after_help = "Example:\n  reachgrasp synth --subjects 1 --positions 1 --trials 2 > demos.json\n  \
+        reachgrasp map --robot wam_ihy --demo demos.json --rate 30 --weights 1,1e-4,0.01 > mapped.json"
+    )]
+    Map(MapArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct MapArgs {
+    /// A robot id (bundled or registered) or a system descriptor file.
+    #[arg(long)]
+    robot: String,
+    /// JSON file: one demonstration upload document (the `POST /v1/demonstrations` body) or an
+    /// array of them (what `reachgrasp synth` prints).
+    #[arg(long)]
+    demo: std::path::PathBuf,
+    /// Weights `position,orientation,elbow` of eq. 5 (default 1,1e-4,1e-2).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    weights: Option<Vec<f64>>,
+    /// Output rate, Hz, in (0, 500] (default: each demonstration's own rate).
+    #[arg(long)]
+    rate: Option<f64>,
+    /// Uniform scale of the human data: `auto` (robot reach / human reach, the default), or a
+    /// positive number.
+    #[arg(long)]
+    scale: Option<String>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -164,6 +196,7 @@ fn main() -> anyhow::Result<()> {
         Command::Ik { robot, targets } => ik(&cli.config, &robot, &targets),
         Command::Synth(args) => synth(args),
         Command::Bridge(args) => bridge(&cli.config, args),
+        Command::Map(args) => map(&cli.config, args),
         Command::Grasp {
             request,
             robot,
@@ -312,6 +345,104 @@ fn bridge(config: &Config, args: BridgeArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     runtime.block_on(run_worker(opts, None, shutdown_signal()))?;
+    Ok(())
+}
+
+fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use reachgrasp::api::demonstrations::DemonstrationUpload;
+    use reachgrasp::api::mappings::{
+        RegistrationIn, ScaleIn, WeightsIn, map_offline, parse_params,
+    };
+    use reachgrasp::human::{DemonstrationInput, ingest};
+    use reachgrasp::store::mappings::DemoLabels;
+    use std::io::Write;
+
+    // The field errors already say everything the summary line would (it repeats the first).
+    let fail = |e: reachgrasp::api::ApiError| {
+        let fields: Vec<String> = e
+            .errors()
+            .iter()
+            .map(|f| format!("{}: {}", f.path, f.message))
+            .collect();
+        if fields.is_empty() {
+            anyhow::anyhow!("{}", e.detail())
+        } else {
+            anyhow::anyhow!("{}", fields.join("; "))
+        }
+    };
+    let weights = match args.weights.as_deref() {
+        None => WeightsIn::default(),
+        Some(&[p, o, e]) => WeightsIn {
+            position: Some(p),
+            orientation: Some(o),
+            elbow: Some(e),
+        },
+        Some(_) => anyhow::bail!("--weights takes three numbers: position,orientation,elbow"),
+    };
+    let scale = args.scale.map(|s| match s.parse::<f64>() {
+        Ok(x) => ScaleIn::Factor(x),
+        Err(_) => ScaleIn::Named(s),
+    });
+    let registration = RegistrationIn {
+        scale,
+        ..RegistrationIn::default()
+    };
+    let params = parse_params(&weights, &registration, args.rate).map_err(fail)?;
+    let system = reachgrasp::api::robots::resolve_robot_for_cli(config, &args.robot)?;
+    let text = std::fs::read_to_string(&args.demo)
+        .with_context(|| format!("cannot read {}", args.demo.display()))?;
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not JSON", args.demo.display()))?;
+    let docs = match value {
+        serde_json::Value::Array(items) => items,
+        one => vec![one],
+    };
+    anyhow::ensure!(
+        !docs.is_empty(),
+        "{} holds no demonstration",
+        args.demo.display()
+    );
+    let mut demos = Vec::with_capacity(docs.len());
+    for (i, doc) in docs.into_iter().enumerate() {
+        let upload: DemonstrationUpload = serde_json::from_value(doc)
+            .with_context(|| format!("demonstration {i} is not an upload document"))?;
+        let input: DemonstrationInput = upload.into();
+        let demo = ingest(&input).with_context(|| format!("demonstration {i}"))?;
+        let labels = DemoLabels {
+            demonstration_id: demo
+                .labels
+                .external_id
+                .clone()
+                .unwrap_or_else(|| i.to_string()),
+            subject_id: demo.subject.id.clone(),
+            object_name: demo.object.name.clone(),
+            task: demo.labels.task.clone(),
+            position_index: demo.labels.position_index,
+            trial: demo.labels.trial,
+        };
+        demos.push((labels, demo.frames));
+    }
+    let bar = indicatif::ProgressBar::new(demos.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} mapping [{bar:40}] {pos}/{len} demonstrations ({elapsed}, eta {eta})",
+        )?
+        .progress_chars("=> "),
+    );
+    bar.tick();
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let result = map_offline(&args.robot, &system, demos, &params, threads, &|done, _| {
+        bar.set_position(done as u64)
+    });
+    bar.finish_and_clear();
+    let result = result.map_err(fail)?;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    serde_json::to_writer(&mut out, &result)?;
+    writeln!(out)?;
+    out.flush()?;
     Ok(())
 }
 

@@ -64,6 +64,7 @@ pub mod figures;
 pub mod grasps;
 pub mod health;
 pub mod jobs;
+pub mod mappings;
 pub mod middleware;
 pub mod models;
 pub mod robots;
@@ -157,6 +158,7 @@ impl ShutdownTrigger {
         (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
         (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
         (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
+        (name = "mappings", description = "Human demonstrations mapped onto a robot arm-hand system (paper eq. 1-7): joint trajectories and per-frame metrics"),
         (name = "figures", description = "Figures as SVG (paper Fig. 2-6 and more); 3-D views take azimuth/elevation"),
     ),
     components(schemas(Problem, FieldError))
@@ -174,6 +176,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(models::router())
         .merge(executions::router())
         .merge(bridges::router())
+        .merge(mappings::router())
         .merge(figures::router())
 }
 

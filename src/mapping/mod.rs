@@ -8,15 +8,15 @@
 //!   coordinates, and each driver's bounds are tightened by the limits of the joints it drives.
 //! - Spread ordering (eq. 28): an ordering within one coordinate (the iHY's mirrored spread) is a
 //!   bound; between two coordinates it is part of the feasible set, projected onto exactly
-//!   (see `nlp.rs`) — a constraint, not a reparametrisation, so bounds stay simple boxes.
-//! - Solver: PANOC (optimization_engine) per frame, warm-started; see [`solve`].
+//!   (see [`crate::optim::OrderedBox`]) — a constraint, not a reparametrisation, so bounds stay simple boxes.
+//! - Solver: PANOC (optimization_engine) per frame through the `optim` adapter's allocation-free
+//!   entry ([`crate::optim::BoxSolver`]), warm-started; see [`solve`].
 //!
 //! Typical use: `MappingModel::from_system(&system)`, `anchor()`, then one [`Mapper`] per worker
 //! (`Mapper::map(frames, &RegistrationSpec::default(), &anchor)`), or [`map_batch`] for many
 //! demonstrations across threads.
 
 pub mod goals;
-mod nlp;
 pub mod objective;
 pub mod registration;
 pub mod solve;
@@ -30,7 +30,9 @@ pub use objective::{
 };
 pub use registration::{ArmPoints, BodyAxes, Registration, RegistrationSpec, RobotAnchor, Scale};
 pub use solve::{FrameMetrics, Mapper, SolverOptions};
-pub use trajectory::{BatchItem, Cancelled, MappedTrajectory, map_batch, registration_for};
+pub use trajectory::{
+    BatchItem, Cancelled, MappedTrajectory, map_batch, registration_for, resample_frames,
+};
 
 /// Everything that can go wrong in the mapping layer; the API turns it into 4xx problem+json.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -10,11 +10,11 @@ use nalgebra::{Matrix6xX, Point3, UnitQuaternion, Vector3};
 
 use super::MappingError;
 use super::goals::{FingerGoal, MAX_FINGERS};
-use super::nlp::{MAX_PAIRS, PairOrder};
 use super::registration::{BodyAxes, RobotAnchor};
 use crate::kinematics::{
     Data, FrameId, Model, SpreadPair, System, forward_kinematics, frame_jacobian,
 };
+use crate::optim::{MAX_PAIRS, PairOrder};
 
 /// Weights of eq. 5.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -11,8 +11,8 @@ use rand_chacha::ChaCha8Rng;
 
 use super::MappingError;
 use super::goals::MAX_FINGERS;
-use super::nlp::{BoxSolver, PairOrder, SolveReport};
 use super::objective::{Evaluator, FrameGoals, MappingModel, Objective, Term, Weights};
+use crate::optim::{BoxReport, BoxSolver, PairOrder};
 
 /// Solver settings of a mapping run.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -155,7 +155,7 @@ impl Mapper {
     }
 
     /// Solves one frame inside `[lo, hi]` from `q` (updated in place).
-    fn solve_in_box(&mut self, goals: &FrameGoals, max_iter: usize, tolerance: f64) -> SolveReport {
+    fn solve_in_box(&mut self, goals: &FrameGoals, max_iter: usize, tolerance: f64) -> BoxReport {
         let Self {
             eval,
             solver,

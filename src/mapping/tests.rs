@@ -353,3 +353,34 @@ fn probe_tolerances() {
         );
     }
 }
+
+/// At the demonstration's own rate the frames come back (to rounding); at half the rate every
+/// second frame does; between frames the points are the linear interpolants.
+#[test]
+fn resampling_at_the_own_rate_reproduces_the_frames_and_interpolates_between_them() {
+    let frames = &demos(1, 5)[0];
+    let rate = 1.0 / (frames[1].t - frames[0].t);
+    let same = resample_frames(frames, rate);
+    assert_eq!(same.len(), frames.len());
+    let close = |a: &HumanFrame, b: &HumanFrame| {
+        (a.t - b.t).abs() < 1e-9
+            && (a.elbow - b.elbow).norm() < 1e-9
+            && (a.fingertips[3].translation.vector - b.fingertips[3].translation.vector).norm()
+                < 1e-9
+            && a.wrist.rotation.angle_to(&b.wrist.rotation) < 1e-9
+    };
+    assert!(same.iter().zip(frames).all(|(a, b)| close(a, b)));
+    let half = resample_frames(frames, rate / 2.0);
+    assert_eq!(half.len(), frames.len().div_ceil(2));
+    assert!(
+        half.iter()
+            .zip(frames.iter().step_by(2))
+            .all(|(a, b)| close(a, b))
+    );
+    let double = resample_frames(frames, rate * 2.0);
+    assert_eq!(double.len(), 2 * frames.len() - 1);
+    let mid = &double[1];
+    let want = (frames[0].shoulder.coords + frames[1].shoulder.coords) / 2.0;
+    assert!((mid.shoulder.coords - want).norm() < 1e-12);
+    assert!(resample_frames(&[], 10.0).is_empty());
+}

@@ -160,6 +160,48 @@ pub fn registration_for(
     Registration::resolve(spec, &points, robot)
 }
 
+/// Human frames at `rate_hz` on the demonstration's own clock (first frame kept, last time not
+/// exceeded): positions interpolated linearly and orientations by slerp, with the same
+/// interpolants the ingest uses ([`crate::human::resample`]), so mapping at the demonstration's
+/// own rate reproduces its frames. The output rate of a mapping is the rate of its trajectory.
+pub fn resample_frames(frames: &[HumanFrame], rate_hz: f64) -> Vec<HumanFrame> {
+    use crate::human::resample::{Cursor, lerp, slerp};
+    use nalgebra::{Isometry3, Point3, Translation3};
+    let (Some(first), Some(last)) = (frames.first(), frames.last()) else {
+        return Vec::new();
+    };
+    if frames.len() < 2 || !(rate_hz.is_finite() && rate_hz > 0.0) {
+        return frames.to_vec();
+    }
+    let ts: Vec<f64> = frames.iter().map(|f| f.t).collect();
+    let span = last.t - first.t;
+    // The small slack keeps the last sample when the span is a whole number of periods.
+    let n = (span * rate_hz + 1e-9).floor() as usize + 1;
+    let pose = |a: &Isometry3<f64>, b: &Isometry3<f64>, s: f64| {
+        Isometry3::from_parts(
+            Translation3::from(lerp(&a.translation.vector, &b.translation.vector, s)),
+            slerp(&a.rotation, &b.rotation, s),
+        )
+    };
+    let point =
+        |a: &Point3<f64>, b: &Point3<f64>, s: f64| Point3::from(lerp(&a.coords, &b.coords, s));
+    let mut cursor = Cursor::default();
+    (0..n)
+        .map(|k| {
+            let t = first.t + k as f64 / rate_hz;
+            let (i, s) = cursor.locate(&ts, t);
+            let (a, b) = (&frames[i], &frames[(i + 1).min(frames.len() - 1)]);
+            HumanFrame {
+                t,
+                shoulder: point(&a.shoulder, &b.shoulder, s),
+                elbow: point(&a.elbow, &b.elbow, s),
+                wrist: pose(&a.wrist, &b.wrist, s),
+                fingertips: std::array::from_fn(|j| pose(&a.fingertips[j], &b.fingertips[j], s)),
+            }
+        })
+        .collect()
+}
+
 /// One demonstration of a batch.
 #[derive(Clone, Copy, Debug)]
 pub struct BatchItem<'a> {

@@ -17,10 +17,14 @@ use std::cell::RefCell;
 use std::time::{Duration, Instant};
 
 use optimization_engine::alm::{AlmCache, AlmOptimizer, AlmProblem};
-use optimization_engine::constraints::Rectangle;
+use optimization_engine::constraints::{Constraint, Rectangle};
 use optimization_engine::core::ExitStatus;
+use optimization_engine::core::SolverStatus;
 use optimization_engine::panoc::{PANOCCache, PANOCOptimizer};
 use optimization_engine::{FunctionCallResult, SolverError};
+
+mod ordered;
+pub use ordered::{BoxReport, BoxSolver, CostAndGradient, MAX_PAIRS, OrderedBox, PairOrder};
 
 /// Errors of the optimisation layer: only malformed problems. A solve that does not converge is
 /// reported through [`SolveStatus`].
@@ -369,7 +373,11 @@ impl Solver {
     }
 
     fn solve_box(&mut self, problem: &Problem<'_>, u: &mut [f64]) -> SolveReport {
-        let bounds = Rectangle::new(Some(&problem.lower), Some(&problem.upper));
+        let bounds = OrderedBox {
+            lower: &problem.lower,
+            upper: &problem.upper,
+            pairs: &[],
+        };
         let cost = |x: &[f64], c: &mut f64| -> FunctionCallResult {
             *c = (problem.cost)(x);
             finite(*c)
@@ -378,16 +386,19 @@ impl Solver {
             (problem.gradient)(x, g);
             finite_all(g)
         };
-        let nlp = optimization_engine::Problem::new(&bounds, grad, cost);
         let cache = self.panoc.as_mut().expect("box solver has a PANOC cache");
-        let mut opt = PANOCOptimizer::new(nlp, cache)
-            .with_tolerance(self.settings.tolerance)
-            .with_max_iter(self.settings.max_inner_iterations.max(1));
-        if let Some(d) = self.settings.max_duration {
-            opt = opt.with_max_duration(d);
-        }
         let backup = u.to_vec();
-        match opt.solve(u) {
+        let result = panoc(
+            cache,
+            &bounds,
+            grad,
+            cost,
+            u,
+            self.settings.max_inner_iterations.max(1),
+            self.settings.tolerance,
+            self.settings.max_duration,
+        );
+        match result {
             Ok(st) => SolveReport {
                 status: map_exit(st.exit_status()),
                 iterations: st.iterations(),
@@ -529,6 +540,34 @@ impl Solver {
             }
         }
     }
+}
+
+/// One PANOC run over the feasible set `bounds` from `u`: the single place both entries (the
+/// general [`Solver`] and the hot-loop [`BoxSolver`]) call the backend.
+#[allow(clippy::too_many_arguments)]
+fn panoc<C, G, F>(
+    cache: &mut PANOCCache,
+    bounds: &C,
+    grad: G,
+    cost: F,
+    u: &mut [f64],
+    max_iter: usize,
+    tolerance: f64,
+    max_duration: Option<Duration>,
+) -> Result<SolverStatus, SolverError>
+where
+    C: Constraint,
+    G: Fn(&[f64], &mut [f64]) -> FunctionCallResult,
+    F: Fn(&[f64], &mut f64) -> FunctionCallResult,
+{
+    let nlp = optimization_engine::Problem::new(bounds, grad, cost);
+    let mut opt = PANOCOptimizer::new(nlp, cache)
+        .with_tolerance(tolerance)
+        .with_max_iter(max_iter);
+    if let Some(d) = max_duration {
+        opt = opt.with_max_duration(d);
+    }
+    opt.solve(u)
 }
 
 fn failure_report(cost: &CostFn<'_>, u: &[f64], viol: f64) -> SolveReport {

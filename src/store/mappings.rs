@@ -381,6 +381,21 @@ pub async fn list_mappings(
     Ok((rows, total))
 }
 
+async fn count_demos(
+    pool: &SqlitePool,
+    mapping_id: &str,
+    demonstration: Option<&str>,
+) -> Result<i64, sqlx::Error> {
+    sqlx::query_scalar(
+        "SELECT COUNT(*) FROM mapping_demonstrations \
+         WHERE mapping_id = ?1 AND (?2 IS NULL OR demonstration_id = ?2)",
+    )
+    .bind(mapping_id)
+    .bind(demonstration)
+    .fetch_one(pool)
+    .await
+}
+
 /// The stored demonstrations of a mapping (request order) without their arrays, optionally only
 /// those of one demonstration id, paged; and the number matching without the page.
 pub async fn list_demos(
@@ -402,14 +417,7 @@ pub async fn list_demos(
     .bind(offset)
     .fetch_all(pool)
     .await?;
-    let total: i64 = sqlx::query_scalar(
-        "SELECT COUNT(*) FROM mapping_demonstrations \
-         WHERE mapping_id = ?1 AND (?2 IS NULL OR demonstration_id = ?2)",
-    )
-    .bind(mapping_id)
-    .bind(demonstration)
-    .fetch_one(pool)
-    .await?;
+    let total = count_demos(pool, mapping_id, demonstration).await?;
     Ok((rows, total))
 }
 
@@ -434,14 +442,7 @@ pub async fn load_page(
     .bind(offset)
     .fetch_all(pool)
     .await?;
-    let total: i64 = sqlx::query_scalar(
-        "SELECT COUNT(*) FROM mapping_demonstrations \
-         WHERE mapping_id = ?1 AND (?2 IS NULL OR demonstration_id = ?2)",
-    )
-    .bind(mapping_id)
-    .bind(demonstration)
-    .fetch_one(pool)
-    .await?;
+    let total = count_demos(pool, mapping_id, demonstration).await?;
     let out = rows
         .into_iter()
         .map(|r| {
@@ -459,6 +460,40 @@ pub async fn load_trajectories(
 ) -> Result<Vec<StoredMappedDemo>, sqlx::Error> {
     let (rows, _) = load_page(pool, mapping_id, None, i64::MAX, 0).await?;
     Ok(rows.into_iter().map(|(_, d)| d).collect())
+}
+
+/// A filter over the stored demonstrations (every given field must match).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct DemoSelection {
+    pub subject: Option<String>,
+    pub object: Option<String>,
+    pub task: Option<String>,
+    pub position_index: Option<i64>,
+    pub synthetic: Option<bool>,
+    pub job_id: Option<String>,
+}
+
+/// Ids of the demonstrations matching `f`, oldest first (a stable request order), at most `limit`.
+pub async fn select_demonstrations(
+    pool: &SqlitePool,
+    f: &DemoSelection,
+    limit: i64,
+) -> Result<Vec<String>, sqlx::Error> {
+    sqlx::query_scalar(
+        "SELECT id FROM demonstrations WHERE (?1 IS NULL OR subject_id = ?1) \
+         AND (?2 IS NULL OR object_name = ?2) AND (?3 IS NULL OR task = ?3) \
+         AND (?4 IS NULL OR position_index = ?4) AND (?5 IS NULL OR synthetic = ?5) \
+         AND (?6 IS NULL OR job_id = ?6) ORDER BY created_at, id LIMIT ?7",
+    )
+    .bind(f.subject.as_deref())
+    .bind(f.object.as_deref())
+    .bind(f.task.as_deref())
+    .bind(f.position_index)
+    .bind(f.synthetic)
+    .bind(f.job_id.as_deref())
+    .bind(limit)
+    .fetch_all(pool)
+    .await
 }
 
 #[cfg(test)]

@@ -8,6 +8,7 @@ mod grasps;
 mod health;
 mod helpers;
 mod jobs;
+mod mappings;
 mod openapi;
 mod process;
 mod robots;

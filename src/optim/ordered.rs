@@ -1,23 +1,25 @@
-//! Box-constrained NLP solve for one frame: PANOC (optimization_engine) with L-BFGS directions.
+//! Allocation-free PANOC entry for hot loops: a reusable solver over a box intersected with
+//! pair orderings, borrowed bounds, one `FnMut` for cost and gradient.
 //!
-//! Why PANOC: the mapping problem is a smooth (up to the eq. 3 cone at zero orientation error)
-//! nonconvex objective under simple bounds (eq. 7); PANOC needs only cost and gradient, projects
-//! onto the box exactly (every iterate respects the limits), warm-starts well, and keeps all its
-//! buffers in a reusable cache — the hot loop allocates nothing.
+//! Why next to [`super::Solver`] rather than through it: [`super::Problem`] owns its bounds and
+//! boxes its closures (an allocation per problem) and supports general constraints only through
+//! the augmented Lagrangian method, which holds them approximately and only at convergence. The
+//! motion mapping (paper eq. 6-7) solves thousands of frames per second (the ≥ 5,000 frames/s
+//! bench) and needs (a) no allocation per frame and (b) the spread ordering (eq. 28) as an exact
+//! projection, so it holds on every iterate like the joint limits. Both entries run the same
+//! backend through [`panoc`] and the same feasible set type ([`OrderedBox`]; with no pairs it is
+//! the plain box the general adapter uses).
 //!
-//! Why here and not through `crate::optim`: the shared adapter builds a `Problem` per solve
-//! (boxed closures, owned bound vectors) and supports a box plus ALM-penalised general
-//! constraints; the mapping solves thousands of frames per second and needs (a) no allocation
-//! per frame and (b) the spread ordering (eq. 28) as an exact projection so it holds on every
-//! iterate. Both fit in the ~100 lines below on the same backend (optimization_engine PANOC);
-//! moving [`OrderedBox`] and this allocation-free entry point into `optim` is a mechanical step.
+//! Why PANOC (optimization_engine): the mapping problem is a smooth (up to the eq. 3 cone at zero
+//! orientation error) nonconvex objective under simple bounds (eq. 7); PANOC needs only cost and
+//! gradient, projects onto the feasible set exactly (every iterate respects the limits),
+//! warm-starts well, and keeps all its buffers in a reusable cache.
 
 use std::cell::RefCell;
 
-use optimization_engine::Problem;
 use optimization_engine::constraints::Constraint;
 use optimization_engine::core::ExitStatus;
-use optimization_engine::panoc::{PANOCCache, PANOCOptimizer};
+use optimization_engine::panoc::PANOCCache;
 
 /// L-BFGS memory: enough for the ~10-20 coupled joint coordinates of an arm-hand system.
 const LBFGS_MEMORY: usize = 10;
@@ -100,7 +102,7 @@ pub const MAX_PAIRS: usize = 8;
 
 /// Outcome of one solve.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SolveReport {
+pub struct BoxReport {
     pub iterations: usize,
     pub converged: bool,
 }
@@ -108,7 +110,7 @@ pub struct SolveReport {
 /// `f(x, Some(g))` writes `∇f(x)` into `g`; both forms return `f(x)`.
 pub type CostAndGradient<'a> = dyn FnMut(&[f64], Option<&mut [f64]>) -> f64 + 'a;
 
-/// Reusable PANOC scratch for problems of one size.
+/// Reusable PANOC scratch for problems of one size (see the module documentation).
 pub struct BoxSolver {
     cache: PANOCCache,
     backup: Vec<f64>,
@@ -134,7 +136,7 @@ impl BoxSolver {
         q: &mut [f64],
         max_iter: usize,
         tolerance: f64,
-    ) -> SolveReport {
+    ) -> BoxReport {
         self.backup.copy_from_slice(q);
         let f = RefCell::new(f);
         let bounds = OrderedBox {
@@ -150,20 +152,25 @@ impl BoxSolver {
             (f.borrow_mut())(x, Some(g));
             Ok(())
         };
-        let problem = Problem::new(&bounds, grad, cost);
-        let status = PANOCOptimizer::new(problem, &mut self.cache)
-            .with_max_iter(max_iter)
-            .with_tolerance(tolerance)
-            .solve(q);
+        let status = super::panoc(
+            &mut self.cache,
+            &bounds,
+            grad,
+            cost,
+            q,
+            max_iter,
+            tolerance,
+            None,
+        );
         match status {
-            Ok(s) => SolveReport {
+            Ok(s) => BoxReport {
                 iterations: s.iterations(),
                 converged: s.exit_status() == ExitStatus::Converged,
             },
             // A non-finite cost or gradient: keep the start point and report the failure.
             Err(_) => {
                 q.copy_from_slice(&self.backup);
-                SolveReport {
+                BoxReport {
                     iterations: 0,
                     converged: false,
                 }
