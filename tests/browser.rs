@@ -1,6 +1,7 @@
 //! End-to-end dashboard test in a real headless Chromium driven over WebDriver (chromedriver +
 //! fantoccini): open the dashboard, submit an invalid and then a valid synthetic study from the
-//! form, follow the live progress bar to the end, open the result and its figure, screenshot.
+//! form, follow the live progress bar to the end, open a demonstration and its figure, map the
+//! study onto a robot from the form, follow that job, open the mapping's Fig. 2, screenshot.
 //!
 //! Needs Debian's `chromium` and `chromium-driver` (`/usr/bin/chromium`, `/usr/bin/chromedriver`;
 //! override with `CHROMIUM` / `CHROMEDRIVER`). Without them the test FAILS when `CI=true` and
@@ -116,6 +117,28 @@ async fn dashboard_runs_a_synthetic_study_in_headless_chromium() {
     outcome.unwrap();
 }
 
+/// Waits until the page's first figure has loaded (a broken image has naturalWidth 0).
+async fn wait_for_figure(c: &Client) -> Result<(), String> {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let w = c
+            .execute(
+                "const i = document.querySelector('figure.plot img'); \
+                 return i && i.complete ? i.naturalWidth : 0;",
+                vec![],
+            )
+            .await
+            .map_err(|e| e.to_string())?;
+        if w.as_u64().unwrap_or(0) > 0 {
+            return Ok(());
+        }
+        if Instant::now() > deadline {
+            return Err("the figure did not load within 30 s".into());
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
 /// The browser session's steps; the caller screenshots whatever the outcome.
 async fn drive(c: &Client, base: &str) -> Result<(), String> {
     let started = Instant::now();
@@ -191,31 +214,9 @@ async fn drive(c: &Client, base: &str) -> Result<(), String> {
         .map_err(|e| format!("no demonstration listed: {e}"))?;
     let rows = c.find_all(Locator::Css("tbody tr")).await.unwrap();
     assert_eq!(rows.len(), 2, "two trials were generated");
+    let study_page = c.current_url().await.map_err(|e| e.to_string())?;
     first.click().await.unwrap();
-    c.wait()
-        .at_most(Duration::from_secs(20))
-        .for_element(Locator::Css("figure.plot img"))
-        .await
-        .map_err(|e| e.to_string())?;
-    // The figure must actually load (a broken image has naturalWidth 0).
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
-        let w = c
-            .execute(
-                "const i = document.querySelector('figure.plot img'); \
-                 return i.complete ? i.naturalWidth : 0;",
-                vec![],
-            )
-            .await
-            .unwrap();
-        if w.as_u64().unwrap_or(0) > 0 {
-            break;
-        }
-        if Instant::now() > deadline {
-            return Err("the demonstration figure did not load".into());
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
+    wait_for_figure(c).await?;
     let page = text_of(c, "main").await;
     for needle in [
         "Wrist speed and grip aperture",
@@ -228,16 +229,92 @@ async fn drive(c: &Client, base: &str) -> Result<(), String> {
             "{needle} missing from the page:\n{page}"
         );
     }
-    // An unknown id is a readable page, not a JSON error.
-    c.goto(&format!("{base}/ui/demonstrations/nope"))
+
+    // Map the study onto the WAM + IHY hand from the study's page (its job id is prefilled),
+    // follow the mapping job, then open the mapping and its Fig. 2.
+    c.goto(study_page.as_str())
+        .await
+        .map_err(|e| e.to_string())?;
+    let job_field = c
+        .find(Locator::Css(
+            "#map-form input[name='demonstrations.job_id']",
+        ))
+        .await
+        .map_err(|e| format!("no map form: {e}"))?;
+    assert!(
+        !job_field
+            .prop("value")
+            .await
+            .unwrap()
+            .unwrap_or_default()
+            .is_empty()
+    );
+    c.find(Locator::Css("#map-form button[type=submit]"))
+        .await
+        .unwrap()
+        .click()
         .await
         .unwrap();
+    c.wait()
+        .at_most(Duration::from_secs(240))
+        .for_element(Locator::Css("#map-form .job-status[data-status=succeeded]"))
+        .await
+        .map_err(|e| format!("the mapping's progress bar did not finish: {e}"))?;
+    c.find(Locator::Css("#map-form .job-result a"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    c.wait()
+        .at_most(Duration::from_secs(20))
+        .for_element(Locator::Css("figure.plot[data-src*='/v1/mappings/']"))
+        .await
+        .map_err(|e| format!("no mapping figure: {e}"))?;
+    wait_for_figure(c).await?;
+    let page = text_of(c, "main").await;
+    for needle in [
+        "Fig. 2",
+        "Mapped demonstrations (2)",
+        "wam_ihy",
+        "Train a motion model",
+    ] {
+        assert!(
+            page.contains(needle),
+            "{needle} missing from the page:\n{page}"
+        );
+    }
+    // The figure itself holds one path per human fingertip (checked in the figure tests); here
+    // the browser rendered it (naturalWidth > 0) and its view sliders answer.
+    c.execute(
+        "const s = document.querySelector('input[name=azimuth]'); s.value = -60; \
+         s.dispatchEvent(new Event('input'));",
+        vec![],
+    )
+    .await
+    .unwrap();
+    tokio::time::sleep(Duration::from_millis(600)).await;
+    wait_for_figure(c).await?;
+    let src = c
+        .find(Locator::Css("figure.plot img"))
+        .await
+        .unwrap()
+        .attr("src")
+        .await
+        .unwrap()
+        .unwrap_or_default();
+    assert!(src.contains("azimuth=-60"), "{src}");
+
+    // An unknown id is a readable page, not a JSON error.
+    let here = c.current_url().await.map_err(|e| e.to_string())?;
+    c.goto(&format!("{base}/ui/mappings/nope")).await.unwrap();
     assert!(
         text_of(c, "main")
             .await
-            .contains("There is no demonstration with id")
+            .contains("There is no mapping with id")
     );
-    // Back to the demonstration (for the screenshot).
-    c.back().await.unwrap();
+    // Back to the mapping (for the screenshot).
+    c.goto(here.as_str()).await.unwrap();
+    wait_for_figure(c).await?;
     Ok(())
 }

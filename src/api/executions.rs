@@ -396,36 +396,36 @@ async fn execution_events(
     // Subscribe before the first read so no change in between is missed.
     let rx = state.bridges.subscribe(&key);
     load(&state, &id).await?;
-    let stream = futures::stream::unfold(
-        (Some(rx), 0u64, true),
-        move |(rx, seq, first)| {
-            let state = state.clone();
-            let key = key.clone();
-            async move {
-                let mut rx = rx?;
-                if !first {
-                    tokio::select! {
-                        // A closed channel means the execution finished; a timeout re-reads
-                        // the store in case a change was coalesced away.
-                        _ = rx.changed() => {}
-                        () = tokio::time::sleep(Duration::from_secs(1)) => {}
-                        () = state.shutdown.wait() => return None,
-                    }
-                    // Coalesce bursts of feedback into one event per 20 ms.
-                    tokio::time::sleep(Duration::from_millis(20)).await;
-                    rx.borrow_and_update();
+    let stream = futures::stream::unfold((Some(rx), 0u64, true), move |(rx, seq, first)| {
+        let state = state.clone();
+        let key = key.clone();
+        async move {
+            let mut rx = rx?;
+            if !first {
+                tokio::select! {
+                    // A closed channel means the execution finished; a timeout re-reads
+                    // the store in case a change was coalesced away.
+                    _ = rx.changed() => {}
+                    () = tokio::time::sleep(Duration::from_secs(1)) => {}
+                    () = state.shutdown.wait() => return None,
                 }
-                let row = repo::get(&state.db, &key).await.ok().flatten()?;
-                let dto = view(&state, row).await;
-                let last = repo::is_final(&dto.state);
-                let event = Event::default()
-                    .event(if last { "final" } else { "progress" })
-                    .id(seq.to_string())
-                    .json_data(&dto)
-                    .expect("an execution serialises");
-                Some((Ok(event), (if last { None } else { Some(rx) }, seq + 1, false)))
+                // Coalesce bursts of feedback into one event per 20 ms.
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                rx.borrow_and_update();
             }
-        },
-    );
+            let row = repo::get(&state.db, &key).await.ok().flatten()?;
+            let dto = view(&state, row).await;
+            let last = repo::is_final(&dto.state);
+            let event = Event::default()
+                .event(if last { "final" } else { "progress" })
+                .id(seq.to_string())
+                .json_data(&dto)
+                .expect("an execution serialises");
+            Some((
+                Ok(event),
+                (if last { None } else { Some(rx) }, seq + 1, false),
+            ))
+        }
+    });
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
 }

@@ -311,8 +311,7 @@ async fn mapping_plot(
         )));
     }
     let index = q.demo.unwrap_or(0);
-    let (page, total) =
-        mapping_repo::load_page(&state.db, &id, None, 1, index as i64).await?;
+    let (page, total) = mapping_repo::load_page(&state.db, &id, None, 1, index as i64).await?;
     let Some((_, demo)) = page.into_iter().next() else {
         return Err(ApiError::invalid_parameter(
             "demo",
@@ -352,12 +351,14 @@ async fn model_plot(
     let row = model_repo::get_model(&state.db, &id)
         .await?
         .ok_or_else(|| ApiError::not_found("model", &id))?;
-    let model = model_repo::load_model(&state.db, &id).await?.ok_or_else(|| {
-        ApiError::conflict(format!(
-            "model {id} is {}; its figure exists once it is trained",
-            row.status
-        ))
-    })?;
+    let model = model_repo::load_model(&state.db, &id)
+        .await?
+        .ok_or_else(|| {
+            ApiError::conflict(format!(
+                "model {id} is {}; its figure exists once it is trained",
+                row.status
+            ))
+        })?;
     let request: serde_json::Value =
         serde_json::from_str(&row.request).map_err(ApiError::internal)?;
     let mut demos = Vec::new();
@@ -409,7 +410,13 @@ async fn model_plot(
                 });
             }
         }
-        let ev: Vec<f64> = arm.pca.all_explained_variance.iter().take(10).copied().collect();
+        let ev: Vec<f64> = arm
+            .pca
+            .all_explained_variance
+            .iter()
+            .take(10)
+            .copied()
+            .collect();
         let title = format!("{title}: arm manifold, {d} components kept");
         Ok(figures::model_figure(&title, &ev, &paths)?)
     })
@@ -436,7 +443,14 @@ async fn trajectory_plot(
         t.robot,
         t.duration
     );
-    render(move || Ok(figures::trajectory_figure(&title, &t.joint_names, &t.points)?)).await
+    render(move || {
+        Ok(figures::trajectory_figure(
+            &title,
+            &t.joint_names,
+            &t.points,
+        )?)
+    })
+    .await
 }
 
 /// Planned (dashed) vs measured joint positions over time.

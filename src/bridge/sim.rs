@@ -255,7 +255,10 @@ impl Run {
                         && p.velocities.len() == n
                         && p.accelerations.len() == n
                         && p.t.is_finite()
-                        && p.positions.iter().chain(&p.velocities).all(|x| x.is_finite())
+                        && p.positions
+                            .iter()
+                            .chain(&p.velocities)
+                            .all(|x| x.is_finite())
                         && (i == 0 || p.t > points[i - 1].t);
                     if !ok {
                         return Err(format!("trajectory point {i} is invalid"));

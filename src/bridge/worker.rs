@@ -89,14 +89,7 @@ impl WorkerOptions {
             m.velocity_limits(),
             acceleration_limit,
         );
-        WorkerOptions::new(
-            url,
-            token,
-            name,
-            robot,
-            m.joint_names().to_vec(),
-            limits,
-        )
+        WorkerOptions::new(url, token, name, robot, m.joint_names().to_vec(), limits)
     }
 }
 
@@ -105,12 +98,25 @@ impl WorkerOptions {
 pub enum WorkerEvent {
     Connected,
     /// An `execute` arrived (the instant it was decoded).
-    Execute { id: String, at: Instant },
-    Finished { id: String, outcome: Outcome },
-    Cancelled { id: String },
+    Execute {
+        id: String,
+        at: Instant,
+    },
+    Finished {
+        id: String,
+        outcome: Outcome,
+    },
+    Cancelled {
+        id: String,
+    },
     /// The service sent an error.
-    Error { code: ErrorCode, message: String },
-    Disconnected { reason: String },
+    Error {
+        code: ErrorCode,
+        message: String,
+    },
+    Disconnected {
+        reason: String,
+    },
 }
 
 /// Why the worker stopped for good.
@@ -149,12 +155,11 @@ pub async fn run_worker(
             url: opts.url.clone(),
             reason: e.to_string(),
         })?;
-    let bearer = HeaderValue::from_str(&format!("Bearer {}", opts.token)).map_err(|e| {
-        WorkerError::Url {
+    let bearer =
+        HeaderValue::from_str(&format!("Bearer {}", opts.token)).map_err(|e| WorkerError::Url {
             url: opts.url.clone(),
             reason: format!("token is not a valid header value: {e}"),
-        }
-    })?;
+        })?;
     request.headers_mut().insert(header::AUTHORIZATION, bearer);
     let initial = opts.initial.clone().unwrap_or_else(|| opts.limits.home());
     let mut robot = SimRobot::new(opts.limits.clone(), initial);

@@ -85,6 +85,40 @@ fn synthetic_form() -> String {
     )
 }
 
+async fn map_form(state: &AppState, job_id: &str) -> Result<String, ApiError> {
+    let robots = robot_repo::list(&state.db).await?;
+    let robot_opts: String = robots.iter().map(|r| format!("{}|", r.id)).collect();
+    Ok(form(
+        "map-form",
+        "Map demonstrations onto a robot",
+        "/v1/mappings",
+        &[
+            field(
+                "robot",
+                "robot",
+                "$.robot",
+                &format!("select:{robot_opts}"),
+                "wam_ihy",
+            ),
+            field(
+                "demonstrations of study job",
+                "demonstrations.job_id",
+                "$.demonstrations.job_id",
+                "text",
+                job_id,
+            ),
+            field(
+                "output rate (Hz)",
+                "output_rate_hz",
+                "$.output_rate_hz",
+                "float",
+                "30",
+            ),
+        ],
+        "Map",
+    ))
+}
+
 async fn grasp_form(state: &AppState, object: Option<&str>) -> Result<String, ApiError> {
     let robots = robot_repo::list(&state.db).await?;
     let robot_opts: String = robots.iter().map(|r| format!("{}|", r.id)).collect();
@@ -175,8 +209,7 @@ pub async fn home(State(state): State<AppState>) -> Page {
             offset: 0,
         })
         .await?;
-    let (_, mappings) =
-        crate::store::mappings::list_mappings(&state.db, 1, 0, None, None).await?;
+    let (_, mappings) = crate::store::mappings::list_mappings(&state.db, 1, 0, None, None).await?;
     let (_, models) = crate::store::models::list_models(&state.db, None, 1, 0).await?;
     let (_, trajectories) =
         crate::store::trajectories::list_trajectories(&state.db, None, 1, 0).await?;
@@ -188,7 +221,11 @@ pub async fn home(State(state): State<AppState>) -> Page {
         ("/ui/models", "models", models),
         ("/ui/grasps", "grasps", grasps.len() as i64),
         ("/ui/trajectories", "trajectories", trajectories),
-        ("/ui/bridges", "connected workers", state.bridges.workers().len() as i64),
+        (
+            "/ui/bridges",
+            "connected workers",
+            state.bridges.workers().len() as i64,
+        ),
     ]
     .iter()
     .map(|(href, label, n)| {
@@ -197,9 +234,10 @@ pub async fn home(State(state): State<AppState>) -> Page {
     .collect::<String>();
     let body = format!(
         "<section class=\"cards\">{cards}</section>\
-         <section class=\"forms\">{}{}</section>\
+         <section class=\"forms\">{}{}{}</section>\
          <section><h2>Recent jobs</h2>{}</section>",
         synthetic_form(),
+        map_form(&state, "").await?,
         grasp_form(&state, None).await?,
         jobs_table(&jobs),
     );
@@ -411,8 +449,9 @@ pub async fn demonstrations(State(state): State<AppState>, Query(q): Query<DemoL
         ),
         None => String::new(),
     };
+    let job = q.job_id.map(|j| j.to_string()).unwrap_or_default();
     let body = format!(
-        "{heading}{}{pager}{}",
+        "{heading}{}{pager}<section class=\"forms\">{}{}</section>",
         table(
             &[
                 "id",
@@ -427,6 +466,7 @@ pub async fn demonstrations(State(state): State<AppState>, Query(q): Query<DemoL
             ],
             &trs
         ),
+        map_form(&state, &job).await?,
         synthetic_form(),
     );
     Ok(html::ok("Demonstrations", "/ui/demonstrations", &body))

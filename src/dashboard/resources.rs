@@ -27,7 +27,11 @@ fn pretty(json: &str) -> String {
 /// A live progress bar for an execution (the script follows its Server-Sent Events).
 fn execution_progress(id: &str, state: &str, fraction: f64) -> String {
     progress(id, state, fraction)
-        .replacen("class=\"job-status\"", "class=\"job-status exec-status\"", 1)
+        .replacen(
+            "class=\"job-status\"",
+            "class=\"job-status exec-status\"",
+            1,
+        )
         .replacen("data-job=", "data-execution=", 1)
 }
 
@@ -38,13 +42,7 @@ fn train_form(robot: &str, mapping: &str) -> String {
         "/v1/models",
         &[
             field("robot", "robot", "$.robot", "text", robot),
-            field(
-                "mappings (ids)",
-                "mappings",
-                "$.mappings",
-                "list",
-                mapping,
-            ),
+            field("mappings (ids)", "mappings", "$.mappings", "list", mapping),
             field(
                 "variance threshold",
                 "variance_threshold",
@@ -225,7 +223,13 @@ pub async fn mapping(
         ]),
         table(
             &[
-                "#", "demonstration", "subject", "object", "position", "trial", "frames"
+                "#",
+                "demonstration",
+                "subject",
+                "object",
+                "position",
+                "trial",
+                "frames"
             ],
             &trs
         ),
@@ -270,8 +274,10 @@ pub async fn model(State(state): State<AppState>, Path(id): Path<String>) -> Pag
     let Some(m) = model_repo::get_model(&state.db, &id).await? else {
         return Ok(html::not_found("model", &id, "/ui/models", "models"));
     };
-    let report: Option<serde_json::Value> =
-        m.report.as_deref().and_then(|r| serde_json::from_str(r).ok());
+    let report: Option<serde_json::Value> = m
+        .report
+        .as_deref()
+        .and_then(|r| serde_json::from_str(r).ok());
     let mut items = vec![
         ("robot", link(&format!("/ui/robots/{}", m.robot), &m.robot)),
         ("status", esc(&m.status)),
@@ -287,7 +293,12 @@ pub async fn model(State(state): State<AppState>, Path(id): Path<String>) -> Pag
             manifolds.push(vec![
                 esc(g["group"].as_str().unwrap_or("")),
                 g["components"].to_string(),
-                num(g["cumulative_explained_variance"].as_f64().unwrap_or(f64::NAN), 3),
+                num(
+                    g["cumulative_explained_variance"]
+                        .as_f64()
+                        .unwrap_or(f64::NAN),
+                    3,
+                ),
                 num(g["train_alignment"].as_f64().unwrap_or(f64::NAN), 3),
                 if g["certificate"]["holds"].as_bool() == Some(true) {
                     "holds".into()
@@ -371,7 +382,10 @@ pub async fn trajectories(State(state): State<AppState>, Query(q): Query<PageQue
         .collect();
     let body = format!(
         "<p class=\"pager\">{total} trajectories</p>{}",
-        table(&["trajectory", "robot", "model", "duration (s)", "created"], &trs)
+        table(
+            &["trajectory", "robot", "model", "duration (s)", "created"],
+            &trs
+        )
     );
     Ok(html::ok("Trajectories", "/ui/trajectories", &body))
 }
@@ -440,7 +454,10 @@ pub async fn bridges(State(state): State<AppState>) -> Page {
             ]
         })
         .collect();
-    for r in known.iter().filter(|r| live.iter().all(|w| w.name != r.name)) {
+    for r in known
+        .iter()
+        .filter(|r| live.iter().all(|w| w.name != r.name))
+    {
         trs.push(vec![
             esc(&r.name),
             esc(&r.robot),
@@ -452,7 +469,13 @@ pub async fn bridges(State(state): State<AppState>) -> Page {
     let body = format!(
         "{}<p>Start a simulated worker with <code>reachgrasp bridge --sim</code>.</p>",
         table(
-            &["worker", "robot", "status", "execution", "connected / last seen"],
+            &[
+                "worker",
+                "robot",
+                "status",
+                "execution",
+                "connected / last seen"
+            ],
             &trs
         )
     );
@@ -479,7 +502,14 @@ pub async fn executions(State(state): State<AppState>, Query(q): Query<PageQuery
         })
         .collect();
     let body = table(
-        &["execution", "robot", "mode", "progress", "worker", "created"],
+        &[
+            "execution",
+            "robot",
+            "mode",
+            "progress",
+            "worker",
+            "created",
+        ],
         &trs,
     );
     Ok(html::ok("Executions", "/ui/executions", &body))
@@ -550,7 +580,11 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
             false,
             ""
         )
-        .replacen("<figure class=\"plot\"", "<figure class=\"plot\" data-execution", 1),
+        .replacen(
+            "<figure class=\"plot\"",
+            "<figure class=\"plot\" data-execution",
+            1
+        ),
     );
     Ok(html::ok(
         &format!("Execution {}", short(&id)),

@@ -192,7 +192,7 @@ fn add_links(
     names: (&str, &str),
     colors: (RGBColor, RGBColor),
 ) {
-    for f in 0..model.n_frames() {
+    for (f, &hand) in is_hand.iter().enumerate().take(model.n_frames()) {
         let id = FrameId(f);
         let Some(parent) = model.frame_parent(id) else {
             continue;
@@ -203,7 +203,7 @@ fn add_links(
         if (a - b).norm() < 1e-6 {
             continue;
         }
-        let (name, color, width) = if is_hand[f] {
+        let (name, color, width) = if hand {
             (names.1, colors.1, 2)
         } else {
             (names.0, colors.0, 4)
