@@ -255,10 +255,7 @@ impl Run {
                         && p.velocities.len() == n
                         && p.accelerations.len() == n
                         && p.t.is_finite()
-                        && p.positions
-                            .iter()
-                            .chain(&p.velocities)
-                            .all(|x| x.is_finite())
+                        && p.positions.iter().chain(&p.velocities).all(|x| x.is_finite())
                         && (i == 0 || p.t > points[i - 1].t);
                     if !ok {
                         return Err(format!("trajectory point {i} is invalid"));
@@ -309,6 +306,11 @@ impl Run {
             progress: 0.0,
             perturb: perturb.map(|p| (p, ChaCha8Rng::seed_from_u64(p.seed), 0)),
         })
+    }
+
+    /// Perturbation kicks applied so far.
+    pub fn kicks(&self) -> u32 {
+        self.perturb.as_ref().map_or(0, |p| p.2)
     }
 
     pub fn mode(&self) -> Mode {

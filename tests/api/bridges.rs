@@ -278,7 +278,16 @@ async fn open_loop_execution_succeeds_with_bounded_tracking_error_and_streams_ev
 }
 
 /// Synthetic demonstrations in the wam_ihy joint space, trained with the pure motion module.
-fn trained_params() -> (reachgrasp::motion::ControlParams, Vec<f64>, Vec<f64>) {
+struct Trained {
+    model: reachgrasp::motion::MotionModel,
+    params: reachgrasp::motion::ControlParams,
+    start: Vec<f64>,
+    goal: Vec<f64>,
+    /// Another demonstrated final point (in the goal region).
+    other_goal: Vec<f64>,
+}
+
+fn trained() -> Trained {
     use reachgrasp::motion::synthetic::{SyntheticStudy, curved_study};
     use reachgrasp::motion::{Components, JointLimits, TrainOptions, train};
     let s = system();
@@ -327,15 +336,26 @@ fn trained_params() -> (reachgrasp::motion::ControlParams, Vec<f64>, Vec<f64>) {
     let (model, _) = train(&data.demos, &limits, &opts).expect("trains");
     let params = model.control_params(m.joint_names().to_vec(), 2.0, 2.0);
     let demo = &data.demos[7];
-    let start = demo.frame(0, n).to_vec();
-    let goal = demo.frame(demo.frames() - 1, n).to_vec();
-    (params, start, goal)
+    let other = &data.demos[9];
+    Trained {
+        start: demo.frame(0, n).to_vec(),
+        goal: demo.frame(demo.frames() - 1, n).to_vec(),
+        other_goal: other.frame(other.frames() - 1, n).to_vec(),
+        model,
+        params,
+    }
 }
 
 #[tokio::test]
 async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
     let app = spawn(|_| {}).await;
+<<<<<<< HEAD
     let (params, start, goal) = tokio::task::spawn_blocking(trained_params).await.unwrap();
+=======
+    let Trained {
+        params, start, goal, ..
+    } = tokio::task::spawn_blocking(trained).await.unwrap();
+>>>>>>> bridge
     let mut opts = app.worker("sim-cl");
     opts.initial = Some(start.clone());
     opts.perturb = Some(Perturbation {
@@ -369,6 +389,7 @@ async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
     assert_eq!(done["mode"], "closed_loop");
     assert_eq!(done["kind"], "model");
     let last = floats(&done["last_feedback"]["positions"]);
+<<<<<<< HEAD
     assert!(
         max_abs_diff(&last, &goal) <= 0.011,
         "converged: {last:?} vs {goal:?}"
@@ -380,6 +401,17 @@ async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
     // the kicks show as tracking error above the final one during the motion
     let tr = &done["tracking"];
     assert!(tr["max_error"].as_f64().unwrap() > tr["last_error"].as_f64().unwrap());
+=======
+    assert!(max_abs_diff(&last, &goal) <= 0.011, "converged: {last:?} vs {goal:?}");
+    assert!(max_abs_diff(&start, &goal) > 0.1, "the reach is not trivial");
+    let kicked = w
+        .until(5, |e| matches!(e, WorkerEvent::Finished { id: f, .. } if *f == id))
+        .await;
+    assert!(
+        matches!(kicked, WorkerEvent::Finished { kicks, outcome: reachgrasp::bridge::protocol::Outcome::Succeeded, .. } if kicks >= 1),
+        "the motion was perturbed: {kicked:?}"
+    );
+>>>>>>> bridge
     w.task.abort();
 }
 
@@ -412,7 +444,10 @@ async fn cancellation_stops_the_worker_and_a_queued_execution_cancels_at_once() 
     w.until(10, |e| *e == WorkerEvent::Connected).await;
     let id = app.execute(&inline(&home(), &target(), 5.0)).await;
     let queued = app.execute(&inline(&target(), &home(), 1.0)).await;
-    app.wait(&id, 10, |e| e["state"] == "running").await;
+    app.wait(&id, 10, |e| {
+        e["state"] == "running" && e["last_feedback"]["t"].as_f64().is_some_and(|t| t > 0.3)
+    })
+    .await;
     let res = app
         .post(&format!("/v1/executions/{queued}/cancel"), &json!({}))
         .await;
@@ -444,6 +479,125 @@ async fn cancellation_stops_the_worker_and_a_queued_execution_cancels_at_once() 
         .post(&format!("/v1/executions/{id}/cancel"), &json!({}))
         .await;
     assert_problem(again, 409, "conflict").await;
+    w.task.abort();
+}
+
+/// Stores a trained model the way the models resource does (through a job), returns its id.
+async fn store_model(app: &BridgeApp, model: reachgrasp::motion::MotionModel) -> String {
+    use reachgrasp::jobs::{JobOutput, ResultRef};
+    use reachgrasp::store::models::{NewModel, store_trained};
+    let id = uuid::Uuid::new_v4().to_string();
+    let model_id = id.clone();
+    let job = app
+        .state
+        .jobs
+        .submit("models.test", move |_ctx| {
+            Ok(JobOutput::persist_with(move |job_id, tx| {
+                Box::pin(async move {
+                    let m = NewModel {
+                        id: model_id.clone(),
+                        job_id: job_id.to_string(),
+                        robot: ROBOT.into(),
+                        request: "{}".into(),
+                        joint_names: names(),
+                        control_rate: 2.0,
+                        k_perp: 2.0,
+                        make_default: false,
+                    };
+                    store_trained(tx, &m, &model, "{}").await?;
+                    Ok(ResultRef::new("models", &model_id))
+                })
+            }))
+        })
+        .await
+        .unwrap();
+    for _ in 0..400 {
+        let j = app.get(&format!("/v1/jobs/{}", job.id)).await;
+        if j["status"] == "succeeded" {
+            return id;
+        }
+        assert!(j["status"] != "failed", "{j}");
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    panic!("the model was not stored");
+}
+
+#[tokio::test]
+async fn stored_trajectories_and_models_execute_by_id() {
+    use reachgrasp::store::trajectories::{NewTrajectory, insert_trajectory};
+    let app = spawn(|_| {}).await;
+    let t = tokio::task::spawn_blocking(trained).await.unwrap();
+    let model_id = store_model(&app, t.model.clone()).await;
+    let points = min_jerk(&t.start, &t.goal, 2.0, 100.0);
+    let stored = insert_trajectory(
+        &app.state.db,
+        &NewTrajectory {
+            model_id: Some(&model_id),
+            robot: ROBOT,
+            joint_names: &names(),
+            points: &points,
+            start: &t.start,
+            goal: &t.goal,
+            duration: 2.0,
+            request: "{}",
+            summary: "{}",
+        },
+    )
+    .await
+    .unwrap();
+    let mut opts = app.worker("sim-s");
+    opts.initial = Some(t.start.clone());
+    let mut w = Worker::start(opts);
+    w.until(10, |e| *e == WorkerEvent::Connected).await;
+
+    let finished = |e: &Value| e["state"] != "queued" && e["state"] != "running";
+    // the stored trajectory, open loop
+    let open = app
+        .execute(&json!({"robot": ROBOT, "mode": "open_loop", "trajectory_id": stored.id}))
+        .await;
+    let done = app.wait(&open, 20, finished).await;
+    assert_eq!(done["state"], "succeeded", "{done}");
+    assert_eq!(done["source_id"], stored.id.as_str());
+    assert!(done["tracking"]["max_error"].as_f64().unwrap() < 0.05);
+    // its model's law towards its goal (already there: converges at once)
+    let closed = app
+        .execute(&json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": stored.id}))
+        .await;
+    let done = app.wait(&closed, 20, finished).await;
+    assert_eq!(done["state"], "succeeded", "{done}");
+    assert_eq!(done["kind"], "model");
+    assert_eq!(done["source_id"], model_id.as_str());
+    // the model with another goal, given by name in reverse order
+    let mut goal_names = names();
+    let mut goal_values = t.other_goal.clone();
+    goal_names.reverse();
+    goal_values.reverse();
+    let by_model = app
+        .execute(&json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id,
+                         "goal": {"joint_names": goal_names, "positions": goal_values}}))
+        .await;
+    let done = app.wait(&by_model, 40, finished).await;
+    assert_eq!(done["state"], "succeeded", "{done}");
+    let last = floats(&done["last_feedback"]["positions"]);
+    assert!(max_abs_diff(&last, &t.other_goal) <= 0.011);
+
+    // bad references
+    let cases = [
+        (json!({"robot": ROBOT, "mode": "open_loop", "trajectory_id": "nope"}), "$.trajectory_id"),
+        (json!({"robot": "wam_t42", "mode": "open_loop", "trajectory_id": stored.id}), "$.trajectory_id"),
+        (json!({"robot": ROBOT, "mode": "open_loop", "model_id": model_id,
+                "goal": {"joint_names": names(), "positions": t.goal}}), "$.mode"),
+        (json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id}), "$.goal"),
+        (json!({"robot": ROBOT, "mode": "closed_loop", "model_id": "nope",
+                "goal": {"joint_names": names(), "positions": t.goal}}), "$.model_id"),
+        (json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id,
+                "goal": {"joint_names": names()[1..].to_vec(), "positions": t.goal[1..].to_vec()}}),
+         "$.goal.joint_names"),
+    ];
+    for (body, path) in cases {
+        let p = assert_problem(app.post("/v1/executions", &body).await, 422, "validation").await;
+        assert_eq!(p["errors"][0]["path"], path, "{body}: {p}");
+    }
     w.task.abort();
 }
 

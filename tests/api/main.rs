@@ -9,6 +9,7 @@ mod health;
 mod helpers;
 mod jobs;
 mod mappings;
+mod models;
 mod openapi;
 mod process;
 mod robots;

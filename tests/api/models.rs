@@ -1,0 +1,740 @@
+//! `/v1/models` and `/v1/trajectories`: training from stored mappings, the report, parameters,
+//! the closed-loop law, trajectories to a configuration or a stored grasp, and every rejection of
+//! bad input (nothing stored on failure).
+//!
+//! The training data is a small mapped study stored through `store::mappings` (the mapping
+//! service's own storage functions): real synthetic demonstrations (via the API) labelled with
+//! joint trajectories of known low-dimensional structure inside the robot's limits, ending around
+//! a real grasp of the ball so that the grasp lies in the model's goal region.
+
+use std::collections::HashMap;
+
+use reachgrasp::mapping::{FrameMetrics, MAX_FINGERS, MappedTrajectory, Registration};
+use reachgrasp::motion::synthetic::{SyntheticStudy, curved_study};
+use reachgrasp::store::mappings::{DemoLabels, NewMapping, encode_demo, store_results};
+use serde_json::{Value, json};
+
+use crate::helpers::{TestApp, assert_problem, spawn_app_with};
+
+const ROBOT: &str = "wam_t42";
+
+async fn app() -> TestApp {
+    spawn_app_with(|c| {
+        c.robots = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
+    })
+    .await
+}
+
+struct Study {
+    mapping: String,
+    grasp: String,
+    grasp_q: HashMap<String, f64>,
+    joint_names: Vec<String>,
+    /// Per demonstration, first and last frame (model order).
+    ends: Vec<(Vec<f64>, Vec<f64>)>,
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+}
+
+async fn pool(app: &TestApp) -> sqlx::SqlitePool {
+    reachgrasp::store::connect(&app._dir.path().join("db/test.db"))
+        .await
+        .unwrap()
+}
+
+/// Stores a succeeded mapping of `robot` over `demos` (id, position, trial) with `trajs`.
+async fn store_mapping(
+    app: &TestApp,
+    robot: &str,
+    demos: &[(String, u32, u32)],
+    trajs: &[MappedTrajectory],
+) -> String {
+    let pool = pool(app).await;
+    let job = uuid::Uuid::new_v4().to_string();
+    let now = reachgrasp::store::now();
+    sqlx::query(
+        "INSERT INTO jobs (id, kind, status, created_at) VALUES (?, 'mapping', 'succeeded', ?)",
+    )
+    .bind(&job)
+    .bind(&now)
+    .execute(&pool)
+    .await
+    .unwrap();
+    let m = NewMapping {
+        id: uuid::Uuid::new_v4().to_string(),
+        job_id: job,
+        robot: robot.to_owned(),
+        request: "{}".into(),
+        created_at: now,
+    };
+    let encoded: Vec<_> = demos
+        .iter()
+        .zip(trajs)
+        .map(|((id, p, t), tr)| {
+            encode_demo(
+                DemoLabels {
+                    demonstration_id: id.clone(),
+                    subject_id: "s1".into(),
+                    object_name: "ball".into(),
+                    task: "grasp".into(),
+                    position_index: *p,
+                    trial: *t,
+                },
+                tr,
+                "{}".into(),
+            )
+            .unwrap()
+        })
+        .collect();
+    let mut tx = pool.begin().await.unwrap();
+    store_results(&mut tx, &m, "{}", &encoded).await.unwrap();
+    tx.commit().await.unwrap();
+    m.id
+}
+
+async fn setup(app: &TestApp) -> Study {
+    // real (synthetic) demonstrations: 1 subject, 5 object positions, 4 trials each
+    let res = app
+        .post_json(
+            "/v1/demonstrations/synthetic",
+            &json!({"seed": 3, "subjects": 1, "positions": 5, "trials": 4}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+    let job: Value = res.json().await.unwrap();
+    let job_id = job["id"].as_str().unwrap();
+    let done = app
+        .wait_job(job_id, |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let list: Value = app
+        .get(&format!("/v1/demonstrations?job_id={job_id}&limit=100"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    let mut demos: Vec<(String, u32, u32)> = list["items"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| {
+            (
+                d["id"].as_str().unwrap().to_owned(),
+                d["position_index"].as_u64().unwrap() as u32,
+                d["trial"].as_u64().unwrap() as u32,
+            )
+        })
+        .collect();
+    demos.sort_by_key(|d| (d.1, d.2));
+    assert_eq!(demos.len(), 20);
+
+    // a real grasp of the ball: the demonstrations will end around it
+    let objects: Vec<Value> = app.get("/v1/objects").await.json().await.unwrap();
+    let ball = objects.iter().find(|o| o["name"] == "ball").unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let res = app
+        .post_json(
+            "/v1/grasps",
+            &json!({"robot": ROBOT, "object_id": ball,
+                    "task_directions": [{"direction": [0, 1, 0], "kind": "velocity", "goal": "maximize"}],
+                    "starts": 4, "seed": 7}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let g: Value = res.json().await.unwrap();
+    assert_eq!(g["result"]["feasible"], true, "{}", g["result"]["reason"]);
+    let grasp_q: HashMap<String, f64> = g["result"]["q_arm"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .chain(g["result"]["q_hand"].as_array().unwrap())
+        .map(|j| {
+            (
+                j["name"].as_str().unwrap().to_owned(),
+                j["value"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+
+    let robot: Value = app
+        .get(&format!("/v1/robots/{ROBOT}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    let names: Vec<String> = serde_json::from_value(robot["joint_names"].clone()).unwrap();
+    let arm: Vec<String> = serde_json::from_value(robot["arm_joints"].clone()).unwrap();
+    let hand: Vec<String> = serde_json::from_value(robot["hand_joints"].clone()).unwrap();
+    let limit = |name: &str, key: &str| {
+        robot["joints"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|j| j["name"] == name)
+            .unwrap()[key]
+            .as_f64()
+            .unwrap()
+    };
+    let lower: Vec<f64> = names.iter().map(|n| limit(n, "lower")).collect();
+    let upper: Vec<f64> = names.iter().map(|n| limit(n, "upper")).collect();
+
+    // joint trajectories with a 3-D arm / 2-D hand latent structure, synthetic column k driving
+    // robot joint `order[k]`, mapped per joint so the mean final frame is the grasp and every
+    // value stays inside the limits
+    let data = curved_study(&SyntheticStudy {
+        seed: 11,
+        arm_joints: arm.len(),
+        hand_joints: hand.len(),
+        positions: 5,
+        trials_per_position: 4,
+        frames: 50,
+        ..SyntheticStudy::default()
+    });
+    let order: Vec<usize> = arm
+        .iter()
+        .chain(&hand)
+        .map(|n| names.iter().position(|m| m == n).unwrap())
+        .collect();
+    let n = names.len();
+    let (mut lo, mut hi, mut fin) = (
+        vec![f64::INFINITY; n],
+        vec![f64::NEG_INFINITY; n],
+        vec![0.0; n],
+    );
+    for d in &data.demos {
+        for row in d.positions.chunks_exact(n) {
+            for k in 0..n {
+                lo[k] = lo[k].min(row[k]);
+                hi[k] = hi[k].max(row[k]);
+            }
+        }
+        let last = d.frame(d.frames() - 1, n);
+        for k in 0..n {
+            fin[k] += last[k] / data.demos.len() as f64;
+        }
+    }
+    let scale: Vec<f64> = (0..n)
+        .map(|k| {
+            let j = order[k];
+            let g = grasp_q[&names[j]];
+            let up = if hi[k] > fin[k] {
+                (upper[j] - g) / (hi[k] - fin[k])
+            } else {
+                f64::INFINITY
+            };
+            let down = if fin[k] > lo[k] {
+                (g - lower[j]) / (fin[k] - lo[k])
+            } else {
+                f64::INFINITY
+            };
+            0.9 * up.min(down).min(1.0)
+        })
+        .collect();
+    // the synthetic study's position labels match the demonstrations' (both sorted)
+    let mut trajs = Vec::new();
+    let mut ends = Vec::new();
+    for d in &data.demos {
+        let mut positions = vec![0.0; d.positions.len()];
+        for (row, out) in d
+            .positions
+            .chunks_exact(n)
+            .zip(positions.chunks_exact_mut(n))
+        {
+            for k in 0..n {
+                let j = order[k];
+                out[j] = grasp_q[&names[j]] + scale[k] * (row[k] - fin[k]);
+            }
+        }
+        ends.push((
+            positions[..n].to_vec(),
+            positions[positions.len() - n..].to_vec(),
+        ));
+        let metrics = d
+            .times
+            .iter()
+            .map(|&t| FrameMetrics {
+                t,
+                fingers: 2,
+                position_error: [0.0; MAX_FINGERS],
+                orientation_error: [0.0; MAX_FINGERS],
+                elbow_distance: 0.0,
+                elbow_distance_mean: 0.0,
+                objective: 0.0,
+                iterations: 1,
+                converged: true,
+            })
+            .collect();
+        trajs.push(MappedTrajectory {
+            joint_names: names.clone(),
+            times: d.times.clone(),
+            positions,
+            metrics,
+            registration: Registration::identity(),
+        });
+    }
+    let mapping = store_mapping(app, ROBOT, &demos, &trajs).await;
+    Study {
+        mapping,
+        grasp: g["id"].as_str().unwrap().to_owned(),
+        grasp_q,
+        joint_names: names,
+        ends,
+        lower,
+        upper,
+    }
+}
+
+async fn train_model(app: &TestApp, study: &Study) -> Value {
+    let res = app
+        .post_json(
+            "/v1/models",
+            &json!({"robot": ROBOT, "mappings": [study.mapping], "variance_threshold": 0.97,
+                    "spline_intervals": 6, "regularisation": 3.0, "k": "auto"}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+    let model_href = res.headers()["content-location"]
+        .to_str()
+        .unwrap()
+        .to_owned();
+    let job: Value = res.json().await.unwrap();
+    let done = app
+        .wait_job(job["id"].as_str().unwrap(), |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    assert_eq!(done["result"]["href"], model_href);
+    app.get(&model_href).await.json().await.unwrap()
+}
+
+fn named(names: &[String], q: &[f64]) -> Value {
+    json!({"joint_names": names, "positions": q})
+}
+
+async fn trajectory_count(app: &TestApp) -> i64 {
+    let v: Value = app.get("/v1/trajectories").await.json().await.unwrap();
+    v["total"].as_i64().unwrap()
+}
+
+#[tokio::test]
+async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() {
+    let app = app().await;
+    let study = setup(&app).await;
+    let model = train_model(&app, &study).await;
+    let id = model["id"].as_str().unwrap().to_owned();
+    assert_eq!(model["status"], "succeeded");
+    assert_eq!(model["robot"], ROBOT);
+    assert_eq!(model["joint_names"], json!(study.joint_names));
+    let report = &model["report"];
+    assert_eq!(report["training_demonstrations"], 20);
+    let manifolds = report["manifolds"].as_array().unwrap();
+    assert_eq!(manifolds.len(), 2);
+    assert_eq!(manifolds[0]["group"], "arm");
+    assert_eq!(manifolds[1]["group"], "hand");
+    for m in manifolds {
+        assert!(m["cumulative_explained_variance"].as_f64().unwrap() >= 0.97);
+        let c = &m["certificate"];
+        assert_eq!(c["holds"], true);
+        assert!(c["bound"].as_f64().unwrap() < 2.0 * c["k"].as_f64().unwrap());
+        assert!(m["goal_region"]["radius"].as_f64().unwrap() > 0.0);
+        assert!(m["train_alignment"].as_f64().unwrap() > 0.5);
+    }
+    let folds = report["held_out"]["folds"].as_array().unwrap();
+    assert_eq!(folds.len(), 5);
+    let overall = &report["held_out"]["overall"];
+    assert!(
+        overall["nf"].as_f64().unwrap() < overall["joint_line"].as_f64().unwrap(),
+        "{overall}"
+    );
+
+    // listed, and the robot's default (the only succeeded model)
+    let list: Value = app
+        .get(&format!("/v1/models?robot={ROBOT}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(list["total"], 1);
+    assert_eq!(list["items"][0]["id"], id.as_str());
+
+    // control parameters, and the law agrees with them
+    let params: Value = app
+        .get(&format!("/v1/models/{id}/params"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(params["joint_names"], json!(study.joint_names));
+    assert_eq!(params["groups"].as_array().unwrap().len(), 2);
+    let params: reachgrasp::motion::ControlParams = serde_json::from_value(params).unwrap();
+    let (start, goal) = study.ends[3].clone();
+    let res = app
+        .post_json(
+            &format!("/v1/models/{id}/control"),
+            &json!({"q": named(&study.joint_names, &start), "goal": named(&study.joint_names, &goal)}),
+        )
+        .await;
+    assert_eq!(res.status(), 200);
+    let u: Value = res.json().await.unwrap();
+    let u: Vec<f64> = serde_json::from_value(u["u"].clone()).unwrap();
+    let mut local = vec![0.0; u.len()];
+    params.control(&start, &goal, &mut local);
+    for (a, b) in u.iter().zip(&local) {
+        assert!((a - b).abs() <= 1e-9 * (1.0 + b.abs()), "{a} vs {b}");
+    }
+    // the command points towards the goal
+    let towards: f64 = u
+        .iter()
+        .zip(goal.iter().zip(&start))
+        .map(|(u, (g, s))| u * (g - s))
+        .sum();
+    assert!(towards > 0.0);
+    // joint names in another order give the same command
+    let rev_names: Vec<String> = study.joint_names.iter().rev().cloned().collect();
+    let rev = |q: &[f64]| q.iter().rev().copied().collect::<Vec<_>>();
+    let u2: Value = app
+        .post_json(
+            &format!("/v1/models/{id}/control"),
+            &json!({"q": named(&rev_names, &rev(&start)), "goal": named(&rev_names, &rev(&goal))}),
+        )
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(
+        serde_json::from_value::<Vec<f64>>(u2["u"].clone()).unwrap(),
+        u
+    );
+
+    // a trajectory to a configuration: exact ends, converged, within limits, Cartesian paths
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": id, "start": named(&study.joint_names, &start),
+                    "goal": named(&study.joint_names, &goal), "duration": "auto", "rate": 50}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let t: Value = res.json().await.unwrap();
+    let points = t["points"].as_array().unwrap();
+    assert!(points.len() >= 3);
+    assert_eq!(points[0]["positions"], json!(start));
+    assert_eq!(points[points.len() - 1]["positions"], json!(goal));
+    assert_eq!(t["report"]["converged"], true);
+    assert!(t["report"]["final_error"].as_f64().unwrap() < 1e-3);
+    assert_eq!(t["report"]["stretched"], false);
+    assert_eq!(t["report"]["certificates"].as_array().unwrap().len(), 2);
+    for p in points {
+        for (j, v) in p["positions"].as_array().unwrap().iter().enumerate() {
+            let v = v.as_f64().unwrap();
+            assert!(v >= study.lower[j] && v <= study.upper[j]);
+        }
+    }
+    let tips = t["report"]["fingertip_paths"].as_array().unwrap();
+    assert_eq!(tips.len(), 2);
+    for tip in tips {
+        assert_eq!(tip["positions"].as_array().unwrap().len(), points.len());
+    }
+    assert_eq!(
+        t["report"]["elbow_paths"][0]["positions"]
+            .as_array()
+            .unwrap()
+            .len(),
+        points.len()
+    );
+    // the fingertip path starts where FK of the start puts it
+    let fk: Value = app
+        .post_json(
+            &format!("/v1/robots/{ROBOT}/fk"),
+            &json!({"joint_names": study.joint_names, "positions": start,
+                    "frames": [tips[0]["frame"]]}),
+        )
+        .await
+        .json()
+        .await
+        .unwrap();
+    for k in 0..3 {
+        let a = fk["frames"][0]["position"][k].as_f64().unwrap();
+        let b = tips[0]["positions"][0][k].as_f64().unwrap();
+        assert!((a - b).abs() < 1e-12);
+    }
+    let tid = t["id"].as_str().unwrap();
+    let back: Value = app
+        .get(&format!("/v1/trajectories/{tid}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(back, t);
+
+    // a too-short duration is answered with the shortest feasible one, and says so
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": id, "start": named(&study.joint_names, &start),
+                    "goal": named(&study.joint_names, &goal), "duration": 0.01}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let short: Value = res.json().await.unwrap();
+    assert_eq!(short["report"]["stretched"], true);
+    assert_eq!(short["report"]["requested_duration"], 0.01);
+    assert!(short["report"]["duration"].as_f64().unwrap() > 0.01);
+    assert!(
+        short["report"]["note"]
+            .as_str()
+            .unwrap()
+            .contains("shortest feasible")
+    );
+    assert!(short["report"]["max_velocity_ratio"].as_f64().unwrap() <= 1.0);
+    assert!(short["report"]["max_acceleration_ratio"].as_f64().unwrap() <= 1.0);
+
+    // a stored grasp as the goal: the trajectory ends exactly at its joint values
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": id, "start": named(&study.joint_names, &study.ends[7].0),
+                    "goal": {"grasp": study.grasp}}),
+        )
+        .await;
+    let status = res.status();
+    let g: Value = res.json().await.unwrap();
+    assert_eq!(status, 201, "{g}");
+    assert_eq!(g["report"]["grasp"], study.grasp.as_str());
+    let last = g["points"].as_array().unwrap().last().unwrap()["positions"].clone();
+    for (j, name) in study.joint_names.iter().enumerate() {
+        assert_eq!(last[j].as_f64().unwrap(), study.grasp_q[name]);
+    }
+
+    let list: Value = app
+        .get(&format!("/v1/trajectories?model={id}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(list["total"], 3);
+    assert_problem(app.get("/v1/trajectories/nope").await, 404, "not-found").await;
+    assert_problem(app.get("/v1/models/nope").await, 404, "not-found").await;
+    assert_problem(app.get("/v1/models/nope/params").await, 404, "not-found").await;
+}
+
+#[tokio::test]
+async fn bad_training_requests_are_refused_and_nothing_is_stored() {
+    let app = app().await;
+    let study = setup(&app).await;
+    // a mapping of another robot, and one with too few demonstrations
+    let pool = pool(&app).await;
+    let other = {
+        let rows = reachgrasp::store::mappings::load_trajectories(&pool, &study.mapping)
+            .await
+            .unwrap();
+        let demos: Vec<_> = rows
+            .iter()
+            .map(|d| (d.demonstration_id.clone(), d.position_index, d.trial))
+            .collect();
+        let trajs: Vec<_> = rows.iter().map(|d| d.trajectory.clone()).collect();
+        (
+            store_mapping(&app, "pa10_t42", &demos, &trajs).await,
+            store_mapping(&app, ROBOT, &demos[..2], &trajs[..2]).await,
+        )
+    };
+    let base = json!({"robot": ROBOT, "mappings": [study.mapping]});
+    let with = |patch: Value| {
+        let mut b = base.clone();
+        for (k, v) in patch.as_object().unwrap() {
+            b[k] = v.clone();
+        }
+        b
+    };
+    let cases = [
+        (with(json!({"robot": "no_such_robot"})), "$.robot"),
+        (
+            with(json!({"mappings": ["no-such-mapping"]})),
+            "$.mappings[0]",
+        ),
+        (with(json!({"mappings": []})), "$.mappings"),
+        (with(json!({"mappings": [other.0]})), "$.mappings[0]"),
+        (
+            with(json!({"mappings": [study.mapping, study.mapping]})),
+            "$.mappings[1]",
+        ),
+        // T42 has two hand joints: three components per group cannot exist
+        (with(json!({"components": 3})), "$.components"),
+        (
+            with(json!({"components": 2, "variance_threshold": 0.9})),
+            "$.components",
+        ),
+        (
+            with(json!({"variance_threshold": 1.5})),
+            "$.variance_threshold",
+        ),
+        (
+            with(json!({"mappings": [other.1], "components": 2})),
+            "$.mappings",
+        ),
+        (with(json!({"spline_intervals": 0})), "$.spline_intervals"),
+        (with(json!({"regularisation": -1.0})), "$.regularisation"),
+        (with(json!({"k": "fast"})), "$.k"),
+        (with(json!({"k": 0.5})), "$.k"),
+        (
+            with(json!({"acceleration_limit": 0.0})),
+            "$.acceleration_limit",
+        ),
+    ];
+    for (body, path) in cases {
+        let p = assert_problem(app.post_json("/v1/models", &body).await, 422, "validation").await;
+        assert_eq!(p["errors"][0]["path"], path, "{body}: {p}");
+    }
+    // an unknown field is named too
+    let p = assert_problem(
+        app.post_json("/v1/models", &with(json!({"colour": "red"})))
+            .await,
+        422,
+        "validation",
+    )
+    .await;
+    assert!(p["detail"].as_str().unwrap().contains("colour"), "{p}");
+    let list: Value = app.get("/v1/models").await.json().await.unwrap();
+    assert_eq!(list["total"], 0);
+}
+
+#[tokio::test]
+async fn bad_trajectory_and_control_requests_are_refused_and_nothing_is_stored() {
+    let app = app().await;
+    let study = setup(&app).await;
+    let model = train_model(&app, &study).await;
+    let id = model["id"].as_str().unwrap().to_owned();
+    let names = &study.joint_names;
+    let (start, goal) = study.ends[2].clone();
+    let base = json!({"model": id, "start": named(names, &start), "goal": named(names, &goal)});
+    let with = |path: &[&str], v: Value| {
+        let mut b = base.clone();
+        let mut cur = &mut b;
+        for p in &path[..path.len() - 1] {
+            cur = &mut cur[*p];
+        }
+        cur[path[path.len() - 1]] = v;
+        b
+    };
+    let mut wrong_names = names.clone();
+    wrong_names[1] = "elbow_of_a_human".into();
+    let mut missing = names.clone();
+    missing.pop();
+    let mut high = start.clone();
+    high[2] = study.upper[2] + 0.2;
+    // a goal far from every demonstrated final configuration (but inside the limits)
+    let far: Vec<f64> = (0..names.len())
+        .map(|j| {
+            let mid = 0.5 * (study.lower[j] + study.upper[j]);
+            if (goal[j] - mid).abs() > 0.2 {
+                mid
+            } else {
+                study.lower[j] + 0.05
+            }
+        })
+        .collect();
+    let cases = [
+        (with(&["model"], json!("no-such-model")), "$.model"),
+        (
+            with(&["start", "joint_names"], json!(wrong_names)),
+            "$.start.joint_names[1]",
+        ),
+        (
+            with(&["start"], named(&missing, &start[..start.len() - 1])),
+            "$.start.joint_names",
+        ),
+        (
+            with(&["start", "positions"], json!(start[..3])),
+            "$.start.positions",
+        ),
+        (
+            with(&["start", "positions"], json!(high)),
+            "$.start.positions[2]",
+        ),
+        (with(&["goal"], named(names, &far)), "$.goal"),
+        (
+            with(&["goal"], json!({"grasp": "no-such-grasp"})),
+            "$.goal.grasp",
+        ),
+        (
+            with(
+                &["goal"],
+                json!({"grasp": study.grasp, "joint_names": names, "positions": goal}),
+            ),
+            "$.goal",
+        ),
+        (with(&["goal"], json!({})), "$.goal"),
+        (with(&["duration"], json!(-1.0)), "$.duration"),
+        (with(&["duration"], json!("fast")), "$.duration"),
+        (with(&["rate"], json!(0.0)), "$.rate"),
+    ];
+    for (body, path) in cases {
+        let p = assert_problem(
+            app.post_json("/v1/trajectories", &body).await,
+            422,
+            "validation",
+        )
+        .await;
+        assert_eq!(p["errors"][0]["path"], path, "{body}: {p}");
+    }
+    let p = assert_problem(
+        app.post_json("/v1/trajectories", &with(&["goal"], named(names, &far)))
+            .await,
+        422,
+        "validation",
+    )
+    .await;
+    assert!(p["detail"].as_str().unwrap().contains("goal region"), "{p}");
+    // NaN is not JSON: a malformed body, never reaching the numerics
+    let text = base
+        .to_string()
+        .replacen(&format!("{}", start[0]), "NaN", 1);
+    let res = app
+        .client
+        .post(app.url("/v1/trajectories"))
+        .header("content-type", "application/json")
+        .body(text)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 400);
+    assert_eq!(trajectory_count(&app).await, 0);
+
+    // control: unknown model, bad names, a goal outside the goal region
+    let body = json!({"q": named(names, &start), "goal": named(names, &goal)});
+    assert_problem(
+        app.post_json("/v1/models/no-such-model/control", &body)
+            .await,
+        404,
+        "not-found",
+    )
+    .await;
+    let url = format!("/v1/models/{id}/control");
+    let p = assert_problem(
+        app.post_json(
+            &url,
+            &json!({"q": named(&wrong_names, &start), "goal": named(names, &goal)}),
+        )
+        .await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(p["errors"][0]["path"], "$.q.joint_names[1]");
+    let p = assert_problem(
+        app.post_json(
+            &url,
+            &json!({"q": named(names, &start), "goal": named(names, &far)}),
+        )
+        .await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(p["errors"][0]["path"], "$.goal");
+}
