@@ -72,12 +72,7 @@ pub struct Config {
 
     /// Token bridge workers present (`Authorization: Bearer <token>`) on
     /// `/v1/bridges/connect`. When unset, a random token is generated at start and logged once.
-    #[arg(
-        long,
-        env = "REACHGRASP_BRIDGE_TOKEN",
-        global = true,
-        hide_env_values = true
-    )]
+    #[arg(long, env = "REACHGRASP_BRIDGE_TOKEN", global = true, hide_env_values = true)]
     pub bridge_token: Option<String>,
 
     /// Seconds a queued execution waits while no compatible worker is connected before it

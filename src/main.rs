@@ -119,11 +119,8 @@ struct BridgeArgs {
     #[arg(long)]
     robot: String,
     /// The service's bridge WebSocket.
-    #[arg(
-        long,
-        env = "REACHGRASP_BRIDGE_URL",
-        default_value = "ws://127.0.0.1:8080/v1/bridges/connect"
-    )]
+    #[arg(long, env = "REACHGRASP_BRIDGE_URL",
+          default_value = "ws://127.0.0.1:8080/v1/bridges/connect")]
     url: String,
     /// The service's bridge token.
     #[arg(long, env = "REACHGRASP_BRIDGE_TOKEN", hide_env_values = true)]
