@@ -117,6 +117,22 @@ async fn dashboard_runs_a_synthetic_study_in_headless_chromium() {
     outcome.unwrap();
 }
 
+/// Opens the link `css` (by its href: a click may land on a neighbouring card while the page
+/// is still settling).
+async fn follow(c: &Client, base: &str, css: &str) -> Result<(), String> {
+    let href = c
+        .find(Locator::Css(css))
+        .await
+        .map_err(|e| format!("{css}: {e}"))?
+        .attr("href")
+        .await
+        .map_err(|e| e.to_string())?
+        .ok_or_else(|| format!("{css} has no href"))?;
+    c.goto(&format!("{base}{href}"))
+        .await
+        .map_err(|e| e.to_string())
+}
+
 /// Waits until the page's first figure has loaded (a broken image has naturalWidth 0).
 async fn wait_for_figure(c: &Client) -> Result<(), String> {
     let deadline = Instant::now() + Duration::from_secs(30);
@@ -218,12 +234,7 @@ async fn drive(c: &Client, base: &str) -> Result<(), String> {
     );
 
     // The result: the study's demonstrations, then one demonstration with its figure.
-    c.find(Locator::Css("#synthetic-form .job-result a"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    follow(c, base, "#synthetic-form .job-result a").await?;
     let first = c
         .wait()
         .at_most(Duration::from_secs(20))
@@ -278,12 +289,7 @@ async fn drive(c: &Client, base: &str) -> Result<(), String> {
         .for_element(Locator::Css("#map-form .job-status[data-status=succeeded]"))
         .await
         .map_err(|e| format!("the mapping's progress bar did not finish: {e}"))?;
-    c.find(Locator::Css("#map-form .job-result a"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
+    follow(c, base, "#map-form .job-result a").await?;
     c.wait()
         .at_most(Duration::from_secs(20))
         .for_element(Locator::Css("figure.plot[data-src*='/v1/mappings/']"))
