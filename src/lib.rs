@@ -12,6 +12,7 @@ pub mod app;
 pub mod bridge;
 pub mod config;
 pub mod dashboard;
+pub mod figures;
 pub mod grasp;
 pub mod human;
 pub mod jobs;

@@ -32,7 +32,8 @@ pub async fn problem_safety_net(res: Response) -> Response {
         .headers()
         .get(header::CONTENT_TYPE)
         .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.starts_with(PROBLEM_JSON));
+        // The dashboard's HTML error pages (e.g. an unknown id) are already readable.
+        .is_some_and(|v| v.starts_with(PROBLEM_JSON) || v.starts_with("text/html"));
     if is_problem {
         return res;
     }

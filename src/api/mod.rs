@@ -60,6 +60,7 @@ pub mod demonstrations;
 pub mod error;
 pub mod executions;
 pub mod extract;
+pub mod figures;
 pub mod grasps;
 pub mod health;
 pub mod jobs;
@@ -161,6 +162,7 @@ impl ShutdownTrigger {
         (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
         (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
         (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
+        (name = "figures", description = "Figures as SVG (paper Fig. 2-6 and more); 3-D views take azimuth/elevation"),
         (name = "plans", description = "One request from object and task to a humanlike motion ending in a task-specific grasp, and its execution"),
     ),
     components(schemas(Problem, FieldError))
@@ -180,6 +182,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(executions::router())
         .merge(bridges::router())
         .merge(plans::router())
+        .merge(figures::router())
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
@@ -193,6 +196,7 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
 pub fn router(state: AppState) -> Router {
     let (mut router, api) = openapi_router().split_for_parts();
     router = router.merge(SwaggerUi::new("/docs").url("/openapi.json", api));
+    router = router.merge(crate::dashboard::router());
     if state.config.test_jobs {
         tracing::warn!("TEST-ONLY job routes are enabled (REACHGRASP_TEST_JOBS)");
         router = router.merge(testing::router());

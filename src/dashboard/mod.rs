@@ -1,1 +1,83 @@
-//! Dashboard: static page assets embedded in the binary.
+//! Dashboard: server-rendered HTML pages at `GET /` and `/ui/...`, with the stylesheet and script
+//! embedded in the binary (`include_str!`; no CDN, no build step).
+//!
+//! Pages read the store directly and link to the figures of [`crate::api::figures`]. The script
+//! (`assets/dashboard/app.js`) does three things: submits the action forms as JSON to the API and
+//! shows each problem+json field error next to the input whose `data-path` matches the error's
+//! JSONPath; follows job progress over Server-Sent Events (`/v1/jobs/{id}/events`) with a
+//! progress bar; and re-requests a figure when its view sliders move.
+
+mod html;
+mod pages;
+mod resources;
+
+use axum::Router;
+use axum::http::header;
+use axum::response::IntoResponse;
+use axum::routing::get;
+
+use crate::api::AppState;
+
+pub use html::esc;
+
+const STYLE: &str = include_str!("../../assets/dashboard/style.css");
+const SCRIPT: &str = include_str!("../../assets/dashboard/app.js");
+const FAVICON: &[u8] = include_bytes!("../../assets/dashboard/favicon.svg");
+
+/// The dashboard routes (not part of the OpenAPI document).
+pub fn router() -> Router<AppState> {
+    Router::new()
+        .route("/", get(pages::home))
+        .route("/assets/style.css", get(style))
+        .route("/assets/app.js", get(script))
+        .route("/favicon.ico", get(favicon))
+        .route("/ui/robots", get(pages::robots))
+        .route("/ui/robots/{id}", get(pages::robot))
+        .route("/ui/objects", get(pages::objects))
+        .route("/ui/objects/{id}", get(pages::object))
+        .route("/ui/demonstrations", get(pages::demonstrations))
+        .route("/ui/demonstrations/{id}", get(pages::demonstration))
+        .route("/ui/grasps", get(pages::grasps))
+        .route("/ui/grasps/{id}", get(pages::grasp))
+        .route("/ui/mappings", get(resources::mappings))
+        .route("/ui/mappings/{id}", get(resources::mapping))
+        .route("/ui/models", get(resources::models))
+        .route("/ui/models/{id}", get(resources::model))
+        .route("/ui/trajectories", get(resources::trajectories))
+        .route("/ui/trajectories/{id}", get(resources::trajectory))
+        .route("/ui/bridges", get(resources::bridges))
+        .route("/ui/executions", get(resources::executions))
+        .route("/ui/executions/{id}", get(resources::execution))
+        .route("/ui/jobs", get(pages::jobs))
+        .route("/ui/jobs/{id}", get(pages::job))
+}
+
+async fn style() -> impl IntoResponse {
+    (
+        [
+            (header::CONTENT_TYPE, "text/css; charset=utf-8"),
+            (header::CACHE_CONTROL, "max-age=300"),
+        ],
+        STYLE,
+    )
+}
+
+async fn script() -> impl IntoResponse {
+    (
+        [
+            (header::CONTENT_TYPE, "text/javascript; charset=utf-8"),
+            (header::CACHE_CONTROL, "max-age=300"),
+        ],
+        SCRIPT,
+    )
+}
+
+async fn favicon() -> impl IntoResponse {
+    (
+        [
+            (header::CONTENT_TYPE, "image/svg+xml"),
+            (header::CACHE_CONTROL, "max-age=86400"),
+        ],
+        FAVICON,
+    )
+}

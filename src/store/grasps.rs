@@ -206,3 +206,14 @@ pub async fn robot_in_use(pool: &SqlitePool, robot: &str) -> Result<bool, sqlx::
     .await?;
     Ok(n > 0)
 }
+
+/// The newest grasps first (the dashboard's list).
+pub async fn list_grasps(pool: &SqlitePool, limit: u32) -> Result<Vec<GraspRow>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT id, robot, object_id, object, request, result, feasible, batch_id, created_at \
+         FROM grasps ORDER BY created_at DESC LIMIT ?",
+    )
+    .bind(i64::from(limit))
+    .fetch_all(pool)
+    .await
+}

@@ -3,6 +3,7 @@
 mod bridges;
 mod demonstrations;
 mod errors;
+mod figures;
 mod grasps;
 mod health;
 mod helpers;

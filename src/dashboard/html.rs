@@ -1,0 +1,211 @@
+//! Small HTML helpers: escaping, the page layout, tables, figures with view controls, forms.
+
+use std::fmt::Write;
+
+use axum::http::StatusCode;
+use axum::response::{Html, IntoResponse, Response};
+
+/// Escapes text for HTML element content and double-quoted attribute values.
+pub fn esc(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// The sections of the navigation bar: (path, label).
+pub const NAV: [(&str, &str); 11] = [
+    ("/", "Overview"),
+    ("/ui/robots", "Robots"),
+    ("/ui/objects", "Objects"),
+    ("/ui/demonstrations", "Demonstrations"),
+    ("/ui/mappings", "Mappings"),
+    ("/ui/models", "Models"),
+    ("/ui/grasps", "Grasps"),
+    ("/ui/trajectories", "Trajectories"),
+    ("/ui/bridges", "Bridges"),
+    ("/ui/executions", "Executions"),
+    ("/ui/jobs", "Jobs"),
+];
+
+/// A complete page.
+pub fn page(title: &str, active: &str, body: &str) -> String {
+    let mut nav = String::new();
+    for (href, label) in NAV {
+        let class = if href == active {
+            " class=\"active\""
+        } else {
+            ""
+        };
+        let _ = write!(nav, "<a href=\"{href}\"{class}>{label}</a>");
+    }
+    format!(
+        "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
+         <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\
+         <title>{t} · reachgrasp</title>\
+         <link rel=\"stylesheet\" href=\"/assets/style.css\">\
+         <script src=\"/assets/app.js\" defer></script></head>\
+         <body><header><a class=\"brand\" href=\"/\">reachgrasp</a><nav>{nav}</nav>\
+         <a class=\"docs\" href=\"/docs\">API docs</a></header>\
+         <main><h1>{t}</h1>\n{body}\n</main></body></html>",
+        t = esc(title),
+    )
+}
+
+/// A 200 HTML page.
+pub fn ok(title: &str, active: &str, body: &str) -> Response {
+    Html(page(title, active, body)).into_response()
+}
+
+/// A readable not-found page (status 404, HTML).
+pub fn not_found(what: &str, id: &str, list_href: &str, list_label: &str) -> Response {
+    let body = format!(
+        "<section class=\"notfound\"><p>There is no {w} with id <code>{i}</code>. It may have \
+         been deleted, or the link is mistyped.</p><p><a href=\"{list_href}\">All {list_label}</a>\
+         </p></section>",
+        w = esc(what),
+        i = esc(id),
+    );
+    (
+        StatusCode::NOT_FOUND,
+        Html(page(&format!("{what} not found"), list_href, &body)),
+    )
+        .into_response()
+}
+
+/// An HTML table; cells are already HTML.
+pub fn table(headers: &[&str], rows: &[Vec<String>]) -> String {
+    if rows.is_empty() {
+        return "<p class=\"empty\">Nothing here yet.</p>".into();
+    }
+    let mut s = String::from("<table><thead><tr>");
+    for h in headers {
+        let _ = write!(s, "<th>{}</th>", esc(h));
+    }
+    s.push_str("</tr></thead><tbody>");
+    for r in rows {
+        s.push_str("<tr>");
+        for c in r {
+            let _ = write!(s, "<td>{c}</td>");
+        }
+        s.push_str("</tr>");
+    }
+    s.push_str("</tbody></table>");
+    s
+}
+
+/// Key/value list; values are already HTML.
+pub fn facts(items: &[(&str, String)]) -> String {
+    let mut s = String::from("<dl class=\"facts\">");
+    for (k, v) in items {
+        let _ = write!(s, "<dt>{}</dt><dd>{v}</dd>", esc(k));
+    }
+    s.push_str("</dl>");
+    s
+}
+
+pub fn link(href: &str, text: &str) -> String {
+    format!("<a href=\"{}\">{}</a>", esc(href), esc(text))
+}
+
+/// A figure from an SVG endpoint; `view` adds azimuth/elevation sliders (3-D figures), `extra`
+/// is more controls (HTML with `name`d inputs that become query parameters).
+pub fn figure(src: &str, caption: &str, view: bool, extra: &str) -> String {
+    let controls = if view {
+        "<label>azimuth <input type=\"range\" name=\"azimuth\" min=\"-180\" max=\"180\" \
+         value=\"35\"></label><label>elevation <input type=\"range\" name=\"elevation\" \
+         min=\"-90\" max=\"90\" value=\"20\"></label>"
+    } else {
+        ""
+    };
+    format!(
+        "<figure class=\"plot\" data-src=\"{s}\"><img src=\"{s}\" alt=\"{c}\" width=\"800\" \
+         height=\"600\"><figcaption>{c}<span class=\"controls\">{controls}{extra}</span>\
+         <a href=\"{s}\" download>SVG</a></figcaption><p class=\"field-error plot-error\"></p>\
+         </figure>",
+        s = esc(src),
+        c = esc(caption),
+    )
+}
+
+/// A live progress bar for a job (the script follows its Server-Sent Events).
+pub fn progress(job_id: &str, status: &str, fraction: f64) -> String {
+    let pct = (fraction.clamp(0.0, 1.0) * 100.0).round();
+    format!(
+        "<div class=\"job-status\" data-job=\"{j}\" data-status=\"{st}\">\
+         <progress max=\"100\" value=\"{pct}\"></progress> <span class=\"job-text\">{st} \
+         {pct}%</span> <span class=\"job-result\"></span></div>",
+        j = esc(job_id),
+        st = esc(status),
+    )
+}
+
+/// One form field. `path` is the JSONPath the API reports errors under; `name` the dotted
+/// body path the script builds the JSON from; `kind` one of `int`, `float`, `text`, `vec`
+/// (comma-separated numbers), `bool`, or `select:<opt1>|<opt2>` (plain values).
+pub fn field(label: &str, name: &str, path: &str, kind: &str, value: &str) -> String {
+    let input = if let Some(opts) = kind.strip_prefix("select:") {
+        let mut s = format!(
+            "<select name=\"{}\" data-type=\"text\" data-path=\"{}\">",
+            esc(name),
+            esc(path)
+        );
+        for o in opts.split('|').filter(|o| !o.is_empty()) {
+            let (v, l) = o.split_once('=').unwrap_or((o, o));
+            let sel = if v == value { " selected" } else { "" };
+            let _ = write!(s, "<option value=\"{}\"{sel}>{}</option>", esc(v), esc(l));
+        }
+        s.push_str("</select>");
+        s
+    } else if kind == "bool" {
+        let checked = if value == "true" { " checked" } else { "" };
+        format!(
+            "<input type=\"checkbox\" name=\"{}\" data-type=\"bool\" data-path=\"{}\"{checked}>",
+            esc(name),
+            esc(path)
+        )
+    } else {
+        format!(
+            "<input name=\"{}\" data-type=\"{}\" data-path=\"{}\" value=\"{}\">",
+            esc(name),
+            esc(kind),
+            esc(path),
+            esc(value)
+        )
+    };
+    format!(
+        "<div class=\"field\"><label>{}</label>{input}<span class=\"field-error\"></span></div>",
+        esc(label)
+    )
+}
+
+/// A form posting JSON to `endpoint`; `fields` from [`field`].
+pub fn form(id: &str, title: &str, endpoint: &str, fields: &[String], submit: &str) -> String {
+    format!(
+        "<form class=\"api-form\" id=\"{id}\" data-endpoint=\"{e}\"><h2>{t}</h2>{f}\
+         <p class=\"form-error field-error\"></p><button type=\"submit\">{s}</button>\
+         <div class=\"form-result\"></div></form>",
+        id = esc(id),
+        e = esc(endpoint),
+        t = esc(title),
+        f = fields.concat(),
+        s = esc(submit),
+    )
+}
+
+/// Formats a number for display.
+pub fn num(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "–".into()
+    }
+}

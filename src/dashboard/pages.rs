@@ -1,0 +1,752 @@
+//! The dashboard's pages: lists, detail pages with figures and numbers, action forms.
+
+use axum::extract::{Path, Query, State};
+use axum::response::Response;
+use serde::Deserialize;
+use uuid::Uuid;
+
+use super::html::{self, esc, facts, field, figure, form, link, num, progress, table};
+use crate::api::grasps::GraspSettingsDto;
+use crate::api::{ApiError, AppState};
+use crate::grasp::{GraspResult, ObjectSpec, ShapeSpec};
+use crate::jobs::JobRecord;
+use crate::store::demonstrations::{self as demo_repo, DemonstrationFilter};
+use crate::store::grasps as grasp_repo;
+use crate::store::jobs::JobFilter;
+use crate::store::robots as robot_repo;
+
+type Page = Result<Response, ApiError>;
+
+fn job_link(j: &JobRecord) -> String {
+    link(&format!("/ui/jobs/{}", j.id), &j.id.to_string()[..8])
+}
+
+/// Where a finished job's result is shown.
+pub fn result_href(j: &JobRecord) -> Option<String> {
+    let r = j.result.as_ref()?;
+    Some(match r.resource.as_str() {
+        // A study stores many demonstrations; show them all.
+        "demonstrations" => format!("/ui/demonstrations?job_id={}", j.id),
+        "grasps/batches" => r.href.clone(),
+        other => format!("/ui/{other}/{}", r.id),
+    })
+}
+
+fn jobs_table(jobs: &[JobRecord]) -> String {
+    let rows: Vec<Vec<String>> = jobs
+        .iter()
+        .map(|j| {
+            vec![
+                job_link(j),
+                esc(&j.kind),
+                progress(&j.id.to_string(), j.status.as_str(), j.progress.fraction),
+                result_href(j)
+                    .map(|h| link(&h, "result"))
+                    .unwrap_or_default(),
+                esc(&j.created_at),
+            ]
+        })
+        .collect();
+    table(&["job", "kind", "progress", "result", "created"], &rows)
+}
+
+fn shape_name(s: &ShapeSpec) -> String {
+    match s {
+        ShapeSpec::Sphere { radius } => format!("sphere r={}", num(*radius, 3)),
+        ShapeSpec::Cylinder { radius, height } => {
+            format!("cylinder r={} h={}", num(*radius, 3), num(*height, 3))
+        }
+        ShapeSpec::Box { size } => format!(
+            "box {}×{}×{}",
+            num(size[0], 3),
+            num(size[1], 3),
+            num(size[2], 3)
+        ),
+        ShapeSpec::Capsule { radius, length } => {
+            format!("capsule r={} l={}", num(*radius, 3), num(*length, 3))
+        }
+        ShapeSpec::Mesh { triangles, .. } => format!("mesh, {} triangles", triangles.len()),
+    }
+}
+
+fn synthetic_form() -> String {
+    form(
+        "synthetic-form",
+        "Generate a synthetic study",
+        "/v1/demonstrations/synthetic",
+        &[
+            field("subjects", "subjects", "$.subjects", "int", "1"),
+            field("object positions", "positions", "$.positions", "int", "1"),
+            field("trials per position", "trials", "$.trials", "int", "2"),
+            field("seed", "seed", "$.seed", "int", "1"),
+            field("sensor noise", "noise", "$.noise", "bool", "true"),
+        ],
+        "Generate",
+    )
+}
+
+async fn map_form(state: &AppState, job_id: &str) -> Result<String, ApiError> {
+    let robots = robot_repo::list(&state.db).await?;
+    let robot_opts: String = robots.iter().map(|r| format!("{}|", r.id)).collect();
+    Ok(form(
+        "map-form",
+        "Map demonstrations onto a robot",
+        "/v1/mappings",
+        &[
+            field(
+                "robot",
+                "robot",
+                "$.robot",
+                &format!("select:{robot_opts}"),
+                "wam_ihy",
+            ),
+            field(
+                "demonstrations of study job",
+                "demonstrations.job_id",
+                "$.demonstrations.job_id",
+                "text",
+                job_id,
+            ),
+            field(
+                "output rate (Hz)",
+                "output_rate_hz",
+                "$.output_rate_hz",
+                "float",
+                "30",
+            ),
+        ],
+        "Map",
+    ))
+}
+
+async fn grasp_form(state: &AppState, object: Option<&str>) -> Result<String, ApiError> {
+    let robots = robot_repo::list(&state.db).await?;
+    let robot_opts: String = robots.iter().map(|r| format!("{}|", r.id)).collect();
+    let objects = grasp_repo::list_objects(&state.db).await?;
+    let object_opts: String = objects
+        .iter()
+        .map(|o| format!("{}={}|", o.id, o.name))
+        .collect();
+    let selected = object
+        .map(str::to_owned)
+        .or_else(|| objects.first().map(|o| o.id.clone()))
+        .unwrap_or_default();
+    let default_robot = robots
+        .iter()
+        .find(|r| r.id == "wam_ihy")
+        .or(robots.first())
+        .map(|r| r.id.clone())
+        .unwrap_or_default();
+    Ok(form(
+        "grasp-form",
+        "Request a task-specific grasp",
+        "/v1/grasps",
+        &[
+            field(
+                "robot",
+                "robot",
+                "$.robot",
+                &format!("select:{robot_opts}"),
+                &default_robot,
+            ),
+            field(
+                "object",
+                "object_id",
+                "$.object_id",
+                &format!("select:{object_opts}"),
+                &selected,
+            ),
+            field(
+                "task direction (x, y, z)",
+                "task_directions.0.direction",
+                "$.task_directions[0].direction",
+                "vec",
+                "0, 0, 1",
+            ),
+            field(
+                "transmission",
+                "task_directions.0.kind",
+                "$.task_directions[0].kind",
+                "select:force|velocity",
+                "force",
+            ),
+            field(
+                "goal",
+                "task_directions.0.goal",
+                "$.task_directions[0].goal",
+                "select:maximize|minimize",
+                "maximize",
+            ),
+            field("starts (1-64)", "starts", "$.starts", "int", "2"),
+            field("seed", "seed", "$.seed", "int", "0"),
+        ],
+        "Plan the grasp",
+    ))
+}
+
+pub async fn home(State(state): State<AppState>) -> Page {
+    let robots = robot_repo::list(&state.db).await?;
+    let objects = grasp_repo::list_objects(&state.db).await?;
+    let (_, demos) = demo_repo::list(
+        &state.db,
+        &DemonstrationFilter {
+            subject: None,
+            object: None,
+            synthetic: None,
+            job_id: None,
+            limit: 1,
+            offset: 0,
+        },
+    )
+    .await?;
+    let grasps = grasp_repo::list_grasps(&state.db, 1000).await?;
+    let jobs = state
+        .jobs
+        .list(&JobFilter {
+            status: None,
+            kind: None,
+            limit: 10,
+            offset: 0,
+        })
+        .await?;
+    let (_, mappings) = crate::store::mappings::list_mappings(&state.db, 1, 0, None, None).await?;
+    let (_, models) = crate::store::models::list_models(&state.db, None, 1, 0).await?;
+    let (_, trajectories) =
+        crate::store::trajectories::list_trajectories(&state.db, None, 1, 0).await?;
+    let cards = [
+        ("/ui/robots", "robots", robots.len() as i64),
+        ("/ui/objects", "objects", objects.len() as i64),
+        ("/ui/demonstrations", "demonstrations", demos),
+        ("/ui/mappings", "mappings", mappings),
+        ("/ui/models", "models", models),
+        ("/ui/grasps", "grasps", grasps.len() as i64),
+        ("/ui/trajectories", "trajectories", trajectories),
+        (
+            "/ui/bridges",
+            "connected workers",
+            state.bridges.workers().len() as i64,
+        ),
+    ]
+    .iter()
+    .map(|(href, label, n)| {
+        format!("<a class=\"card\" href=\"{href}\"><span class=\"count\">{n}</span> {label}</a>")
+    })
+    .collect::<String>();
+    let body = format!(
+        "<section class=\"cards\">{cards}</section>\
+         <section class=\"forms\">{}{}{}</section>\
+         <section><h2>Recent jobs</h2>{}</section>",
+        synthetic_form(),
+        map_form(&state, "").await?,
+        grasp_form(&state, None).await?,
+        jobs_table(&jobs),
+    );
+    Ok(html::ok("Overview", "/", &body))
+}
+
+pub async fn robots(State(state): State<AppState>) -> Page {
+    let rows = robot_repo::list(&state.db).await?;
+    let mut cards = String::new();
+    for r in &rows {
+        let s = crate::api::robots::system(&state, &r.id).await?;
+        cards.push_str(&format!(
+            "<a class=\"thumb\" href=\"/ui/robots/{id}\"><img loading=\"lazy\" \
+             src=\"/v1/robots/{id}/plot.svg\" alt=\"{id} posture\" width=\"400\" height=\"300\">\
+             <span><b>{id}</b> · {} joints · {} fingers{}</span></a>",
+            s.model.nq(),
+            s.fingers.len(),
+            if r.bundled { " · bundled" } else { "" },
+            id = esc(&r.id),
+        ));
+    }
+    let body = if rows.is_empty() {
+        "<p class=\"empty\">No robots registered.</p>".to_owned()
+    } else {
+        format!("<section class=\"thumbs\">{cards}</section>")
+    };
+    Ok(html::ok("Robots", "/ui/robots", &body))
+}
+
+pub async fn robot(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    if robot_repo::get(&state.db, &id).await?.is_none() {
+        return Ok(html::not_found("robot", &id, "/ui/robots", "robots"));
+    }
+    let s = crate::api::robots::system(&state, &id).await?;
+    let m = &s.model;
+    let names = m.joint_names();
+    let rows: Vec<Vec<String>> = (0..m.nq())
+        .map(|k| {
+            let role = if s.hand_joints.contains(&k) {
+                "hand"
+            } else {
+                "arm"
+            };
+            vec![
+                esc(&names[k]),
+                role.into(),
+                num(m.lower_limits()[k], 3),
+                num(m.upper_limits()[k], 3),
+                num(m.velocity_limits()[k], 2),
+            ]
+        })
+        .collect();
+    let fingers: Vec<String> = s
+        .fingers
+        .iter()
+        .map(|f| {
+            format!(
+                "{} (tip {}, contact r={} m)",
+                esc(&f.name),
+                esc(m.frame_name(f.tip)),
+                num(f.contact_radius, 3)
+            )
+        })
+        .collect();
+    let neutral: Vec<String> = m.neutral().iter().map(|v| num(*v, 3)).collect();
+    let q_control = format!(
+        "<label>q <input name=\"q\" size=\"40\" placeholder=\"{}\" title=\"comma-separated \
+         joint values, model order\"></label>",
+        esc(&neutral.join(","))
+    );
+    let body = format!(
+        "{}{}<h2>Joints</h2>{}",
+        facts(&[
+            ("independent joints", m.nq().to_string()),
+            ("arm joints", s.arm_joints.len().to_string()),
+            ("hand joints", s.hand_joints.len().to_string()),
+            ("fingers", fingers.join("<br>")),
+            (
+                "thumb",
+                esc(&s.fingers[s.thumb.min(s.fingers.len().saturating_sub(1))].name)
+            ),
+            ("API", link(&format!("/v1/robots/{id}"), "JSON")),
+        ]),
+        figure(
+            &format!("/v1/robots/{id}/plot.svg"),
+            "Posture (forward kinematics)",
+            true,
+            &q_control
+        ),
+        table(&["joint", "part", "lower", "upper", "max velocity"], &rows),
+    );
+    Ok(html::ok(&format!("Robot {id}"), "/ui/robots", &body))
+}
+
+pub async fn objects(State(state): State<AppState>) -> Page {
+    let rows = grasp_repo::list_objects(&state.db).await?;
+    let rows: Vec<Vec<String>> = rows
+        .iter()
+        .map(|o| {
+            let spec: Option<ObjectSpec> = serde_json::from_str(&o.spec).ok();
+            vec![
+                link(&format!("/ui/objects/{}", o.id), &o.name),
+                spec.as_ref()
+                    .map(|s| esc(&shape_name(&s.shape)))
+                    .unwrap_or_default(),
+                spec.as_ref()
+                    .map(|s| s.position.map(|v| num(v, 3)).join(", "))
+                    .unwrap_or_default(),
+                if o.seeded { "seeded" } else { "uploaded" }.into(),
+            ]
+        })
+        .collect();
+    let body = table(&["object", "shape", "position (m)", "origin"], &rows);
+    Ok(html::ok("Objects", "/ui/objects", &body))
+}
+
+pub async fn object(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let Some(row) = grasp_repo::get_object(&state.db, &id).await? else {
+        return Ok(html::not_found("object", &id, "/ui/objects", "objects"));
+    };
+    let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(ApiError::internal)?;
+    let pretty = serde_json::to_string_pretty(&spec).map_err(ApiError::internal)?;
+    let body = format!(
+        "{}{}<h2>Specification</h2><pre>{}</pre>",
+        facts(&[
+            ("shape", esc(&shape_name(&spec.shape))),
+            ("position (m)", spec.position.map(|v| num(v, 3)).join(", ")),
+            (
+                "orientation [w,x,y,z]",
+                spec.orientation.map(|v| num(v, 3)).join(", ")
+            ),
+            ("API", link(&format!("/v1/objects/{id}"), "JSON")),
+        ]),
+        grasp_form(&state, Some(&row.id)).await?,
+        esc(&pretty)
+    );
+    Ok(html::ok(
+        &format!("Object {}", row.name),
+        "/ui/objects",
+        &body,
+    ))
+}
+
+#[derive(Debug, Deserialize)]
+pub struct DemoListQuery {
+    job_id: Option<Uuid>,
+    offset: Option<u32>,
+}
+
+pub async fn demonstrations(State(state): State<AppState>, Query(q): Query<DemoListQuery>) -> Page {
+    let limit = 50;
+    let offset = q.offset.unwrap_or(0);
+    let (rows, total) = demo_repo::list(
+        &state.db,
+        &DemonstrationFilter {
+            subject: None,
+            object: None,
+            synthetic: None,
+            job_id: q.job_id.map(|j| j.to_string()),
+            limit,
+            offset,
+        },
+    )
+    .await?;
+    let mut trs = Vec::with_capacity(rows.len());
+    for r in &rows {
+        let summary = r.summary()?;
+        trs.push(vec![
+            link(
+                &format!("/ui/demonstrations/{}", r.id),
+                &r.id[..8.min(r.id.len())],
+            ),
+            esc(&r.subject_id),
+            esc(&r.object_name),
+            esc(&r.task),
+            r.position_index.to_string(),
+            r.trial.to_string(),
+            r.frame_count.to_string(),
+            num(summary.duration_s, 2),
+            if r.synthetic { "synthetic" } else { "recorded" }.into(),
+        ]);
+    }
+    let filter = q.job_id.map(|j| format!("&job_id={j}")).unwrap_or_default();
+    let mut pager = format!(
+        "<p class=\"pager\">{} of {total}",
+        if total == 0 {
+            "0".to_owned()
+        } else {
+            format!("{}–{}", offset + 1, offset as i64 + rows.len() as i64)
+        }
+    );
+    if offset > 0 {
+        pager.push_str(&format!(
+            " · <a href=\"?offset={}{filter}\">previous</a>",
+            offset.saturating_sub(limit)
+        ));
+    }
+    if ((offset + limit) as i64) < total {
+        pager.push_str(&format!(
+            " · <a href=\"?offset={}{filter}\">next</a>",
+            offset + limit
+        ));
+    }
+    pager.push_str("</p>");
+    let heading = match q.job_id {
+        Some(j) => format!(
+            "<p>From job {}</p>",
+            link(&format!("/ui/jobs/{j}"), &j.to_string())
+        ),
+        None => String::new(),
+    };
+    let job = q.job_id.map(|j| j.to_string()).unwrap_or_default();
+    let body = format!(
+        "{heading}{}{pager}<section class=\"forms\">{}{}</section>",
+        table(
+            &[
+                "id",
+                "subject",
+                "object",
+                "task",
+                "position",
+                "trial",
+                "frames",
+                "duration (s)",
+                "source"
+            ],
+            &trs
+        ),
+        map_form(&state, &job).await?,
+        synthetic_form(),
+    );
+    Ok(html::ok("Demonstrations", "/ui/demonstrations", &body))
+}
+
+pub async fn demonstration(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let Some(r) = demo_repo::get(&state.db, &id).await? else {
+        return Ok(html::not_found(
+            "demonstration",
+            &id,
+            "/ui/demonstrations",
+            "demonstrations",
+        ));
+    };
+    let s = r.summary()?;
+    let subject = r.subject()?;
+    let body = format!(
+        "{}{}",
+        facts(&[
+            (
+                "subject",
+                format!(
+                    "{} (stature {} m, hand {} × {} m)",
+                    esc(&subject.id),
+                    num(subject.stature_m, 2),
+                    num(subject.hand_length_m, 3),
+                    num(subject.hand_breadth_m, 3)
+                )
+            ),
+            ("object", esc(&r.object_name)),
+            ("task", esc(&r.task)),
+            (
+                "position / trial",
+                format!("{} / {}", r.position_index, r.trial)
+            ),
+            (
+                "frames",
+                format!("{} at {} Hz", s.frames, num(s.rate_hz, 1))
+            ),
+            ("duration", format!("{} s", num(s.duration_s, 3))),
+            (
+                "raw samples",
+                format!(
+                    "tracker {} ({} Hz), glove {} ({} Hz)",
+                    s.tracker_samples,
+                    num(s.tracker_rate_hz, 1),
+                    s.glove_samples,
+                    num(s.glove_rate_hz, 1)
+                )
+            ),
+            (
+                "source",
+                if r.synthetic { "synthetic" } else { "recorded" }.into()
+            ),
+            (
+                "API",
+                link(
+                    &format!("/v1/demonstrations/{id}/frames?every=10"),
+                    "frames (JSON)"
+                )
+            ),
+        ]),
+        figure(
+            &format!("/v1/demonstrations/{id}/plot.svg"),
+            "Wrist speed and grip aperture",
+            false,
+            ""
+        ),
+    );
+    Ok(html::ok(
+        &format!("Demonstration {}", &id[..8.min(id.len())]),
+        "/ui/demonstrations",
+        &body,
+    ))
+}
+
+pub async fn grasps(State(state): State<AppState>) -> Page {
+    let rows = grasp_repo::list_grasps(&state.db, 200).await?;
+    let trs: Vec<Vec<String>> = rows
+        .iter()
+        .map(|g| {
+            let object: Option<ObjectSpec> = serde_json::from_str(&g.object).ok();
+            let result: Option<GraspResult> = serde_json::from_str(&g.result).ok();
+            vec![
+                link(&format!("/ui/grasps/{}", g.id), &g.id[..8.min(g.id.len())]),
+                esc(&g.robot),
+                object.map(|o| esc(&o.name)).unwrap_or_default(),
+                if g.feasible { "feasible" } else { "infeasible" }.into(),
+                result.map(|r| num(r.terms.cost, 4)).unwrap_or_default(),
+                esc(&g.created_at),
+            ]
+        })
+        .collect();
+    let body = format!(
+        "{}{}",
+        table(
+            &["grasp", "robot", "object", "result", "cost", "created"],
+            &trs
+        ),
+        grasp_form(&state, None).await?
+    );
+    Ok(html::ok("Grasps", "/ui/grasps", &body))
+}
+
+fn number_facts(v: &serde_json::Value) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    if let Some(map) = v.as_object() {
+        for (k, v) in map {
+            let text = match v {
+                serde_json::Value::Number(n) => n.as_f64().map(|x| num(x, 5)).unwrap_or_default(),
+                serde_json::Value::Array(a) => a
+                    .iter()
+                    .filter_map(|x| x.as_f64())
+                    .map(|x| num(x, 4))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                serde_json::Value::String(s) => esc(s),
+                other => esc(&other.to_string()),
+            };
+            out.push((k.clone(), text));
+        }
+    }
+    out
+}
+
+pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let Some(g) = grasp_repo::get_grasp(&state.db, &id).await? else {
+        return Ok(html::not_found("grasp", &id, "/ui/grasps", "grasps"));
+    };
+    let object: ObjectSpec = serde_json::from_str(&g.object).map_err(ApiError::internal)?;
+    let settings: GraspSettingsDto =
+        serde_json::from_str(&g.request).map_err(ApiError::internal)?;
+    let result: GraspResult = serde_json::from_str(&g.result).map_err(ApiError::internal)?;
+    let terms = serde_json::to_value(&result.terms).map_err(ApiError::internal)?;
+    let residuals = serde_json::to_value(&result.residuals).map_err(ApiError::internal)?;
+    let owned: Vec<(String, String)> = number_facts(&terms)
+        .into_iter()
+        .chain(number_facts(&residuals))
+        .collect();
+    let term_facts: Vec<(&str, String)> =
+        owned.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
+    let joints: Vec<Vec<String>> = result
+        .q_arm
+        .iter()
+        .map(|j| vec![esc(&j.name), "arm".into(), num(j.value, 4)])
+        .chain(
+            result
+                .q_hand
+                .iter()
+                .map(|j| vec![esc(&j.name), "hand".into(), num(j.value, 4)]),
+        )
+        .collect();
+    let contacts: Vec<Vec<String>> = result
+        .contacts
+        .iter()
+        .map(|c| {
+            vec![
+                esc(&c.finger),
+                c.point.map(|v| num(v, 4)).join(", "),
+                c.normal.map(|v| num(v, 3)).join(", "),
+                num(c.surface_distance * 1000.0, 2),
+            ]
+        })
+        .collect();
+    let dirs: Vec<String> = settings
+        .task_directions
+        .iter()
+        .map(|t| {
+            format!(
+                "[{}] {:?} {:?}",
+                t.direction.map(|v| num(v, 2)).join(", "),
+                t.kind,
+                t.goal
+            )
+            .to_lowercase()
+        })
+        .collect();
+    let ellipsoid = "<label>ellipsoid <select name=\"ellipsoid\"><option value=\"\">auto\
+                     </option><option>velocity</option><option>force</option></select></label>";
+    let body = format!(
+        "{}{}<h2>Cost terms and residuals</h2>{}<h2>Joint values</h2>{}<h2>Contacts</h2>{}",
+        facts(&[
+            ("robot", esc(&g.robot)),
+            (
+                "object",
+                match &g.object_id {
+                    Some(o) => link(&format!("/ui/objects/{o}"), &object.name),
+                    None => esc(&object.name),
+                }
+            ),
+            (
+                "feasible",
+                if result.feasible {
+                    "yes".to_owned()
+                } else {
+                    format!("no: {}", esc(result.reason.as_deref().unwrap_or("")))
+                }
+            ),
+            ("task directions", esc(&dirs.join("; "))),
+            (
+                "starts",
+                format!(
+                    "{} run, {} feasible",
+                    result.starts_used, result.starts_feasible
+                )
+            ),
+            ("time", format!("{} s", num(result.time_s, 3))),
+            ("API", link(&format!("/v1/grasps/{id}"), "JSON")),
+        ]),
+        figure(
+            &format!("/v1/grasps/{id}/plot.svg"),
+            "Arm and hand at the grasp, object, contacts, task direction and ellipsoid",
+            true,
+            ellipsoid
+        ),
+        facts(&term_facts),
+        table(&["joint", "part", "value (rad)"], &joints),
+        table(
+            &["finger", "point (m)", "normal", "surface distance (mm)"],
+            &contacts
+        ),
+    );
+    Ok(html::ok(
+        &format!("Grasp {}", &id[..8.min(id.len())]),
+        "/ui/grasps",
+        &body,
+    ))
+}
+
+pub async fn jobs(State(state): State<AppState>) -> Page {
+    let jobs = state
+        .jobs
+        .list(&JobFilter {
+            status: None,
+            kind: None,
+            limit: 100,
+            offset: 0,
+        })
+        .await?;
+    Ok(html::ok("Jobs", "/ui/jobs", &jobs_table(&jobs)))
+}
+
+pub async fn job(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let Ok(uuid) = id.parse::<Uuid>() else {
+        return Ok(html::not_found("job", &id, "/ui/jobs", "jobs"));
+    };
+    let j = match state.jobs.get(uuid).await {
+        Ok(j) => j,
+        Err(crate::jobs::RunnerError::NotFound(_)) => {
+            return Ok(html::not_found("job", &id, "/ui/jobs", "jobs"));
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let body = format!(
+        "{}{}",
+        facts(&[
+            ("kind", esc(&j.kind)),
+            (
+                "progress",
+                progress(&j.id.to_string(), j.status.as_str(), j.progress.fraction)
+            ),
+            ("message", esc(j.progress.message.as_deref().unwrap_or(""))),
+            (
+                "error",
+                j.error
+                    .as_ref()
+                    .map(|e| format!("{}: {}", esc(&e.reason), esc(&e.message)))
+                    .unwrap_or_default()
+            ),
+            (
+                "result",
+                result_href(&j)
+                    .map(|h| link(&h, "open"))
+                    .unwrap_or_default()
+            ),
+            ("created", esc(&j.created_at)),
+            ("finished", esc(j.finished_at.as_deref().unwrap_or(""))),
+            ("API", link(&format!("/v1/jobs/{id}"), "JSON")),
+        ]),
+        "",
+    );
+    Ok(html::ok(&format!("Job {}", &id[..8]), "/ui/jobs", &body))
+}

@@ -1,0 +1,594 @@
+//! Pages of the motion pipeline's resources: mappings, models, trajectories, bridges,
+//! executions, with the forms that start the next step (train, plan, execute).
+
+use axum::extract::{Path, Query, State};
+use serde::Deserialize;
+
+use super::html::{self, esc, facts, field, figure, form, link, num, progress, table};
+use crate::api::{ApiError, AppState};
+use crate::store::executions as execution_repo;
+use crate::store::grasps as grasp_repo;
+use crate::store::mappings as mapping_repo;
+use crate::store::models as model_repo;
+use crate::store::trajectories as trajectory_repo;
+
+type Page = Result<axum::response::Response, ApiError>;
+
+fn short(id: &str) -> &str {
+    &id[..8.min(id.len())]
+}
+
+fn pretty(json: &str) -> String {
+    serde_json::from_str::<serde_json::Value>(json)
+        .and_then(|v| serde_json::to_string_pretty(&v))
+        .unwrap_or_else(|_| json.to_owned())
+}
+
+/// A live progress bar for an execution (the script follows its Server-Sent Events).
+fn execution_progress(id: &str, state: &str, fraction: f64) -> String {
+    progress(id, state, fraction)
+        .replacen(
+            "class=\"job-status\"",
+            "class=\"job-status exec-status\"",
+            1,
+        )
+        .replacen("data-job=", "data-execution=", 1)
+}
+
+fn train_form(robot: &str, mapping: &str) -> String {
+    form(
+        "train-form",
+        "Train a motion model",
+        "/v1/models",
+        &[
+            field("robot", "robot", "$.robot", "text", robot),
+            field("mappings (ids)", "mappings", "$.mappings", "list", mapping),
+            field(
+                "variance threshold",
+                "variance_threshold",
+                "$.variance_threshold",
+                "float",
+                "",
+            ),
+            field("held-out folds", "held_out", "$.held_out", "bool", "false"),
+        ],
+        "Train",
+    )
+}
+
+async fn trajectory_form(state: &AppState, model: &str, robot: &str) -> Result<String, ApiError> {
+    let system = crate::api::robots::system(state, robot).await?;
+    let m = &system.model;
+    let neutral: Vec<String> = m.neutral().iter().map(|v| num(*v, 4)).collect();
+    let grasps = grasp_repo::list_grasps(&state.db, 200).await?;
+    let opts: String = grasps
+        .iter()
+        .filter(|g| g.robot == robot && g.feasible)
+        .map(|g| format!("{}={} ({})|", g.id, short(&g.id), g.created_at))
+        .collect();
+    Ok(form(
+        "trajectory-form",
+        "Plan a trajectory to a grasp",
+        "/v1/trajectories",
+        &[
+            field("model", "model", "$.model", "text", model),
+            field(
+                "start joints",
+                "start.joint_names",
+                "$.start.joint_names",
+                "list",
+                &m.joint_names().join(", "),
+            ),
+            field(
+                "start positions",
+                "start.positions",
+                "$.start.positions",
+                "vec",
+                &neutral.join(", "),
+            ),
+            field(
+                "goal grasp",
+                "goal.grasp",
+                "$.goal.grasp",
+                &format!("select:{opts}"),
+                "",
+            ),
+            field("rate (Hz)", "rate", "$.rate", "float", "100"),
+        ],
+        "Plan",
+    ))
+}
+
+fn execute_form(state: &AppState, robot: &str, trajectory: &str) -> String {
+    let workers: String = state
+        .bridges
+        .workers()
+        .iter()
+        .filter(|w| w.robot == robot)
+        .map(|w| format!("{}|", w.name))
+        .collect();
+    form(
+        "execute-form",
+        "Execute on a connected worker",
+        "/v1/executions",
+        &[
+            field("robot", "robot", "$.robot", "text", robot),
+            field("mode", "mode", "$.mode", "select:open_loop", "open_loop"),
+            field(
+                "trajectory",
+                "trajectory_id",
+                "$.trajectory_id",
+                "text",
+                trajectory,
+            ),
+            field(
+                "worker (empty: any)",
+                "worker",
+                "$.worker",
+                &format!("select:=any|{workers}"),
+                "",
+            ),
+        ],
+        "Execute",
+    )
+}
+
+#[derive(Debug, Deserialize)]
+pub struct PageQuery {
+    offset: Option<u32>,
+}
+
+pub async fn mappings(State(state): State<AppState>, Query(q): Query<PageQuery>) -> Page {
+    let offset = q.offset.unwrap_or(0);
+    let (rows, total) =
+        mapping_repo::list_mappings(&state.db, 100, i64::from(offset), None, None).await?;
+    let trs: Vec<Vec<String>> = rows
+        .iter()
+        .map(|m| {
+            vec![
+                link(&format!("/ui/mappings/{}", m.id), short(&m.id)),
+                esc(&m.robot),
+                esc(&m.status),
+                link(&format!("/ui/jobs/{}", m.job_id), "job"),
+                esc(&m.created_at),
+            ]
+        })
+        .collect();
+    let body = format!(
+        "<p class=\"pager\">{total} mappings</p>{}",
+        table(&["mapping", "robot", "status", "job", "created"], &trs)
+    );
+    Ok(html::ok("Mappings", "/ui/mappings", &body))
+}
+
+#[derive(Debug, Deserialize)]
+pub struct MappingQuery {
+    demo: Option<usize>,
+}
+
+pub async fn mapping(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+    Query(q): Query<MappingQuery>,
+) -> Page {
+    let Some(m) = mapping_repo::get_mapping(&state.db, &id).await? else {
+        return Ok(html::not_found("mapping", &id, "/ui/mappings", "mappings"));
+    };
+    let (demos, total) = mapping_repo::list_demos(&state.db, &id, None, 200, 0).await?;
+    let demo = q.demo.unwrap_or(0);
+    let trs: Vec<Vec<String>> = demos
+        .iter()
+        .map(|d| {
+            vec![
+                link(
+                    &format!("/ui/mappings/{id}?demo={}", d.position),
+                    &d.position.to_string(),
+                ),
+                link(
+                    &format!("/ui/demonstrations/{}", d.demonstration_id),
+                    short(&d.demonstration_id),
+                ),
+                esc(&d.subject_id),
+                esc(&d.object_name),
+                d.position_index.to_string(),
+                d.trial.to_string(),
+                d.frame_count.to_string(),
+            ]
+        })
+        .collect();
+    let fig = if m.status == "succeeded" && total > 0 {
+        figure(
+            &format!("/v1/mappings/{id}/plot.svg?demo={demo}"),
+            &format!("Fig. 2: human vs robot fingertip and elbow paths (demonstration {demo})"),
+            true,
+            "<label>postures <input name=\"postures\" type=\"number\" min=\"0\" max=\"10\" \
+             value=\"3\"></label>",
+        )
+    } else {
+        format!(
+            "<p>The mapping is {}; {}</p>",
+            esc(&m.status),
+            progress(&m.job_id, &m.status, 0.0)
+        )
+    };
+    let body = format!(
+        "{}{fig}<h2>Mapped demonstrations ({total})</h2>{}{}<h2>Request</h2><pre>{}</pre>\
+         <h2>Summary</h2><pre>{}</pre>",
+        facts(&[
+            ("robot", link(&format!("/ui/robots/{}", m.robot), &m.robot)),
+            ("status", esc(&m.status)),
+            ("job", link(&format!("/ui/jobs/{}", m.job_id), &m.job_id)),
+            ("created", esc(&m.created_at)),
+            ("API", link(&format!("/v1/mappings/{id}"), "JSON")),
+        ]),
+        table(
+            &[
+                "#",
+                "demonstration",
+                "subject",
+                "object",
+                "position",
+                "trial",
+                "frames"
+            ],
+            &trs
+        ),
+        if m.status == "succeeded" {
+            train_form(&m.robot, &id)
+        } else {
+            String::new()
+        },
+        esc(&pretty(&m.request)),
+        esc(&m.summary.as_deref().map(pretty).unwrap_or_default()),
+    );
+    Ok(html::ok(
+        &format!("Mapping {}", short(&id)),
+        "/ui/mappings",
+        &body,
+    ))
+}
+
+pub async fn models(State(state): State<AppState>, Query(q): Query<PageQuery>) -> Page {
+    let (rows, total) =
+        model_repo::list_models(&state.db, None, 100, q.offset.unwrap_or(0)).await?;
+    let trs: Vec<Vec<String>> = rows
+        .iter()
+        .map(|m| {
+            vec![
+                link(&format!("/ui/models/{}", m.id), short(&m.id)),
+                esc(&m.robot),
+                esc(&m.status),
+                link(&format!("/ui/jobs/{}", m.job_id), "job"),
+                esc(&m.created_at),
+            ]
+        })
+        .collect();
+    let body = format!(
+        "<p class=\"pager\">{total} models</p>{}",
+        table(&["model", "robot", "status", "job", "created"], &trs)
+    );
+    Ok(html::ok("Models", "/ui/models", &body))
+}
+
+pub async fn model(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let Some(m) = model_repo::get_model(&state.db, &id).await? else {
+        return Ok(html::not_found("model", &id, "/ui/models", "models"));
+    };
+    let report: Option<serde_json::Value> = m
+        .report
+        .as_deref()
+        .and_then(|r| serde_json::from_str(r).ok());
+    let mut items = vec![
+        ("robot", link(&format!("/ui/robots/{}", m.robot), &m.robot)),
+        ("status", esc(&m.status)),
+        ("job", link(&format!("/ui/jobs/{}", m.job_id), &m.job_id)),
+    ];
+    let mut manifolds = Vec::new();
+    if let Some(r) = &report {
+        items.push((
+            "training demonstrations",
+            r["training_demonstrations"].to_string(),
+        ));
+        for g in r["manifolds"].as_array().into_iter().flatten() {
+            manifolds.push(vec![
+                esc(g["group"].as_str().unwrap_or("")),
+                g["components"].to_string(),
+                num(
+                    g["cumulative_explained_variance"]
+                        .as_f64()
+                        .unwrap_or(f64::NAN),
+                    3,
+                ),
+                num(g["train_alignment"].as_f64().unwrap_or(f64::NAN), 3),
+                if g["certificate"]["holds"].as_bool() == Some(true) {
+                    "holds".into()
+                } else {
+                    "does not hold".into()
+                },
+            ]);
+        }
+        if let Some(o) = r["held_out"]["overall"].as_object() {
+            items.push((
+                "held-out deviation (NF / joint line)",
+                format!(
+                    "{} / {} (ratio {})",
+                    num(o["nf"].as_f64().unwrap_or(f64::NAN), 4),
+                    num(o["joint_line"].as_f64().unwrap_or(f64::NAN), 4),
+                    num(o["ratio_to_joint_line"].as_f64().unwrap_or(f64::NAN), 3)
+                ),
+            ));
+        }
+    }
+    items.push(("API", link(&format!("/v1/models/{id}"), "JSON")));
+    let trained = m.status == "succeeded";
+    let fig = if trained {
+        figure(
+            &format!("/v1/models/{id}/plot.svg"),
+            "Explained variance; demonstrated vs generated paths in PCA space",
+            false,
+            "",
+        )
+    } else {
+        format!(
+            "<p>Training is {}: {}</p>",
+            esc(&m.status),
+            progress(&m.job_id, &m.status, 0.0)
+        )
+    };
+    let plan = if trained {
+        trajectory_form(&state, &id, &m.robot).await?
+    } else {
+        String::new()
+    };
+    let body = format!(
+        "{}{fig}<h2>Manifolds</h2>{}{plan}<h2>Request</h2><pre>{}</pre>",
+        facts(&items),
+        table(
+            &[
+                "group",
+                "components",
+                "cumulative variance",
+                "flow alignment",
+                "convergence certificate"
+            ],
+            &manifolds
+        ),
+        esc(&pretty(&m.request)),
+    );
+    Ok(html::ok(
+        &format!("Model {}", short(&id)),
+        "/ui/models",
+        &body,
+    ))
+}
+
+pub async fn trajectories(State(state): State<AppState>, Query(q): Query<PageQuery>) -> Page {
+    let (rows, total) =
+        trajectory_repo::list_trajectories(&state.db, None, 100, q.offset.unwrap_or(0)).await?;
+    let trs: Vec<Vec<String>> = rows
+        .iter()
+        .map(|t| {
+            vec![
+                link(&format!("/ui/trajectories/{}", t.id), short(&t.id)),
+                esc(&t.robot),
+                t.model_id
+                    .as_deref()
+                    .map(|m| link(&format!("/ui/models/{m}"), short(m)))
+                    .unwrap_or_default(),
+                num(t.duration, 3),
+                esc(&t.created_at),
+            ]
+        })
+        .collect();
+    let body = format!(
+        "<p class=\"pager\">{total} trajectories</p>{}",
+        table(
+            &["trajectory", "robot", "model", "duration (s)", "created"],
+            &trs
+        )
+    );
+    Ok(html::ok("Trajectories", "/ui/trajectories", &body))
+}
+
+pub async fn trajectory(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let Some(t) = trajectory_repo::get_trajectory(&state.db, &id).await? else {
+        return Ok(html::not_found(
+            "trajectory",
+            &id,
+            "/ui/trajectories",
+            "trajectories",
+        ));
+    };
+    let body = format!(
+        "{}{}{}<h2>Summary</h2><pre>{}</pre>",
+        facts(&[
+            ("robot", link(&format!("/ui/robots/{}", t.robot), &t.robot)),
+            (
+                "model",
+                t.model_id
+                    .as_deref()
+                    .map(|m| link(&format!("/ui/models/{m}"), m))
+                    .unwrap_or_default()
+            ),
+            ("duration", format!("{} s", num(t.duration, 3))),
+            ("points", t.points.len().to_string()),
+            ("joints", esc(&t.joint_names.join(", "))),
+            ("API", link(&format!("/v1/trajectories/{id}"), "JSON")),
+        ]),
+        figure(
+            &format!("/v1/trajectories/{id}/plot.svg"),
+            "Joint positions over time",
+            false,
+            ""
+        ),
+        execute_form(&state, &t.robot, &id),
+        esc(&pretty(&t.summary)),
+    );
+    Ok(html::ok(
+        &format!("Trajectory {}", short(&id)),
+        "/ui/trajectories",
+        &body,
+    ))
+}
+
+pub async fn bridges(State(state): State<AppState>) -> Page {
+    let live = state.bridges.workers();
+    let known = execution_repo::list_bridges(&state.db).await?;
+    let mut trs: Vec<Vec<String>> = live
+        .iter()
+        .map(|w| {
+            vec![
+                esc(&w.name),
+                esc(&w.robot),
+                if w.execution_id.is_some() {
+                    "connected, busy"
+                } else {
+                    "connected, idle"
+                }
+                .into(),
+                w.execution_id
+                    .as_deref()
+                    .map(|e| link(&format!("/ui/executions/{e}"), short(e)))
+                    .unwrap_or_default(),
+                esc(&w.connected_at),
+            ]
+        })
+        .collect();
+    for r in known
+        .iter()
+        .filter(|r| live.iter().all(|w| w.name != r.name))
+    {
+        trs.push(vec![
+            esc(&r.name),
+            esc(&r.robot),
+            "disconnected".into(),
+            String::new(),
+            esc(&r.last_seen_at),
+        ]);
+    }
+    let body = format!(
+        "{}<p>Start a simulated worker with <code>reachgrasp bridge --sim</code>.</p>",
+        table(
+            &[
+                "worker",
+                "robot",
+                "status",
+                "execution",
+                "connected / last seen"
+            ],
+            &trs
+        )
+    );
+    Ok(html::ok("Bridges", "/ui/bridges", &body))
+}
+
+pub async fn executions(State(state): State<AppState>, Query(q): Query<PageQuery>) -> Page {
+    let rows = execution_repo::list(&state.db, None, None, 100, q.offset.unwrap_or(0)).await?;
+    let trs: Vec<Vec<String>> = rows
+        .iter()
+        .map(|e| {
+            vec![
+                link(&format!("/ui/executions/{}", e.id), short(&e.id)),
+                esc(&e.robot),
+                esc(&e.mode),
+                execution_progress(
+                    &e.id,
+                    &e.state,
+                    if e.state == "succeeded" { 1.0 } else { 0.0 },
+                ),
+                esc(e.assigned_worker.as_deref().unwrap_or("")),
+                esc(&e.created_at),
+            ]
+        })
+        .collect();
+    let body = table(
+        &[
+            "execution",
+            "robot",
+            "mode",
+            "progress",
+            "worker",
+            "created",
+        ],
+        &trs,
+    );
+    Ok(html::ok("Executions", "/ui/executions", &body))
+}
+
+pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let Some(row) = execution_repo::get(&state.db, &id).await? else {
+        return Ok(html::not_found(
+            "execution",
+            &id,
+            "/ui/executions",
+            "executions",
+        ));
+    };
+    let dto = crate::api::executions::view(&state, row).await;
+    let fraction = match (&dto.last_feedback, dto.state.as_str()) {
+        (_, "succeeded") => 1.0,
+        (Some(f), _) => f.progress,
+        _ => 0.0,
+    };
+    let tracking = dto
+        .tracking
+        .as_ref()
+        .map(|t| {
+            format!(
+                "{} samples, max {}, rms {}",
+                t.samples,
+                num(t.max_error, 4),
+                num(t.rms_error, 4)
+            )
+        })
+        .unwrap_or_default();
+    let source = match dto.kind.as_str() {
+        "trajectory" => link(
+            &format!("/ui/trajectories/{}", dto.source_id),
+            &dto.source_id,
+        ),
+        "model" => link(&format!("/ui/models/{}", dto.source_id), &dto.source_id),
+        _ => esc(&dto.source_id),
+    };
+    let body = format!(
+        "{}{}",
+        facts(&[
+            ("robot", esc(&dto.robot)),
+            (
+                "mode",
+                esc(serde_json::to_value(dto.mode)
+                    .ok()
+                    .and_then(|v| v.as_str().map(str::to_owned))
+                    .as_deref()
+                    .unwrap_or(""))
+            ),
+            ("source", source),
+            ("progress", execution_progress(&id, &dto.state, fraction)),
+            ("reason", esc(dto.reason.as_deref().unwrap_or(""))),
+            (
+                "worker",
+                esc(dto.assigned_worker.as_deref().unwrap_or("(not assigned)"))
+            ),
+            ("tracking error", tracking),
+            ("created", esc(&dto.created_at)),
+            ("finished", esc(dto.finished_at.as_deref().unwrap_or(""))),
+            ("API", link(&format!("/v1/executions/{id}"), "JSON")),
+        ]),
+        figure(
+            &format!("/v1/executions/{id}/plot.svg"),
+            "Planned (dashed) vs measured joint positions",
+            false,
+            ""
+        )
+        .replacen(
+            "<figure class=\"plot\"",
+            "<figure class=\"plot\" data-execution",
+            1
+        ),
+    );
+    Ok(html::ok(
+        &format!("Execution {}", short(&id)),
+        "/ui/executions",
+        &body,
+    ))
+}
