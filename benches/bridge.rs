@@ -148,10 +148,12 @@ fn main() {
         let _ = rx.wait_for(|s| *s).await;
     };
     let opts = WorkerOptions::for_system(&service.ws, TOKEN, "lat-0", ROBOT, &sys, 4.0);
-    wrk.spawn(run_worker(opts, Some(tx), stopped(stop_rx.clone())));
+    let (lat_stop, lat_stop_rx) = watch::channel(false);
+    let lat_worker = wrk.spawn(run_worker(opts, Some(tx), stopped(lat_stop_rx)));
     // A one-point trajectory at the robot's position: it finishes on the first control tick.
     let body = json!({"robot": ROBOT, "mode": "open_loop",
-        "trajectory": {"joint_names": names, "points": min_jerk(&q0, &q0, 0.0, 100.0)[..1]}});
+        "trajectory": {"joint_names": names, "points": [{"t": 0.0, "positions": q0,
+            "velocities": vec![0.0; q0.len()], "accelerations": vec![0.0; q0.len()]}]}});
     wrk.block_on(async {
         loop {
             if let Some(WorkerEvent::Connected) = events.recv().await {
@@ -186,6 +188,10 @@ fn main() {
         })
     });
     c.final_summary();
+
+    // The latency worker leaves, so every load execution goes to a load worker.
+    lat_stop.send_replace(true);
+    wrk.block_on(lat_worker).unwrap().unwrap();
 
     // ------------------------------------------------------------------ 2. 50 workers at 100 Hz
     let workers: usize = std::env::var("BRIDGE_BENCH_WORKERS")

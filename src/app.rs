@@ -5,6 +5,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 
 use anyhow::Context;
+use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 
 use crate::api::{self, AppState, Shutdown, ShutdownTrigger};
@@ -118,6 +119,13 @@ impl App {
         let grace = state.config.shutdown_grace();
         let shutdown = state.shutdown.clone();
         let router = api::router(state.clone());
+        // Small frames (bridge `execute`/`cancel`, SSE events) must not wait for delayed ACKs:
+        // with Nagle's algorithm on they sit ~40 ms on loopback.
+        let listener = listener.tap_io(|tcp| {
+            if let Err(e) = tcp.set_nodelay(true) {
+                tracing::debug!(error = %e, "cannot set TCP_NODELAY");
+            }
+        });
         let server = axum::serve(listener, router).with_graceful_shutdown({
             let shutdown = shutdown.clone();
             async move { shutdown.wait().await }

@@ -175,7 +175,8 @@ pub async fn run_worker(
     tokio::pin!(stop);
     loop {
         let attempt = tokio::select! {
-            r = tokio_tungstenite::connect_async(request.clone()) => r,
+            // Nagle off: feedback and results are small frames that must not wait for ACKs.
+            r = tokio_tungstenite::connect_async_with_config(request.clone(), None, true) => r,
             () = &mut stop => return Ok(()),
         };
         let end = match attempt {
