@@ -56,10 +56,8 @@ fn start_service(rt: &tokio::runtime::Runtime) -> Service {
 }
 
 fn system() -> System {
-    System::from_file(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems/wam_ihy.toml"),
-    )
-    .unwrap()
+    System::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems/wam_ihy.toml"))
+        .unwrap()
 }
 
 fn home(s: &System) -> Vec<f64> {
@@ -91,6 +89,33 @@ fn cpu_seconds(prefix: &str) -> f64 {
         total += (ut + st) / tick;
     }
     total
+}
+
+/// One dispatch: POST, then the time until the worker decoded the `execute`; returns after the
+/// worker finished it (so the next one finds it idle).
+async fn once(
+    client: &reqwest::Client,
+    events: &mut mpsc::UnboundedReceiver<WorkerEvent>,
+    body: &Value,
+    base: &str,
+) -> Duration {
+    let t0 = Instant::now();
+    let res = client
+        .post(format!("{base}/v1/executions"))
+        .json(body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 202);
+    let mut received = None;
+    loop {
+        match events.recv().await.expect("worker alive") {
+            WorkerEvent::Execute { at, .. } => received = Some(at - t0),
+            WorkerEvent::Finished { .. } => break,
+            _ => {}
+        }
+    }
+    received.expect("execute before finished")
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -127,31 +152,6 @@ fn main() {
     // A one-point trajectory at the robot's position: it finishes on the first control tick.
     let body = json!({"robot": ROBOT, "mode": "open_loop",
         "trajectory": {"joint_names": names, "points": min_jerk(&q0, &q0, 0.0, 100.0)[..1]}});
-    let once = |client: reqwest::Client,
-                events: &mut mpsc::UnboundedReceiver<WorkerEvent>,
-                body: Value,
-                base: String| {
-        let fut = async move {
-            let t0 = Instant::now();
-            let res = client
-                .post(format!("{base}/v1/executions"))
-                .json(&body)
-                .send()
-                .await
-                .unwrap();
-            assert_eq!(res.status(), 202);
-            let mut received = None;
-            loop {
-                match events.recv().await.expect("worker alive") {
-                    WorkerEvent::Execute { at, .. } => received = Some(at - t0),
-                    WorkerEvent::Finished { .. } => break,
-                    _ => {}
-                }
-            }
-            received.expect("execute before finished")
-        };
-        fut
-    };
     wrk.block_on(async {
         loop {
             if let Some(WorkerEvent::Connected) = events.recv().await {
@@ -161,13 +161,8 @@ fn main() {
     });
     let mut lat: Vec<f64> = (0..300)
         .map(|_| {
-            wrk.block_on(once(
-                client.clone(),
-                &mut events,
-                body.clone(),
-                service.base.clone(),
-            ))
-            .as_secs_f64()
+            wrk.block_on(once(&client, &mut events, &body, &service.base))
+                .as_secs_f64()
                 * 1e3
         })
         .collect();
@@ -185,12 +180,7 @@ fn main() {
         b.iter_custom(|iters| {
             let mut total = Duration::ZERO;
             for _ in 0..iters {
-                total += wrk.block_on(once(
-                    client.clone(),
-                    &mut events,
-                    body.clone(),
-                    service.base.clone(),
-                ));
+                total += wrk.block_on(once(&client, &mut events, &body, &service.base));
             }
             total
         })
@@ -208,14 +198,8 @@ fn main() {
         .unwrap_or(8.0);
     let (tx, mut load_events) = mpsc::unbounded_channel();
     for i in 0..workers {
-        let mut o = WorkerOptions::for_system(
-            &service.ws,
-            TOKEN,
-            format!("load-{i:02}"),
-            ROBOT,
-            &sys,
-            4.0,
-        );
+        let mut o =
+            WorkerOptions::for_system(&service.ws, TOKEN, format!("load-{i:02}"), ROBOT, &sys, 4.0);
         o.rate_hz = 100.0;
         o.feedback_hz = 100.0;
         wrk.spawn(run_worker(o, Some(tx.clone()), stopped(stop_rx.clone())));
@@ -294,7 +278,11 @@ fn main() {
             .sum::<u64>();
     let max_gap = after
         .iter()
-        .map(|b| b["connection"]["max_heartbeat_gap_ms"].as_f64().unwrap_or(f64::NAN))
+        .map(|b| {
+            b["connection"]["max_heartbeat_gap_ms"]
+                .as_f64()
+                .unwrap_or(f64::NAN)
+        })
         .fold(0.0, f64::max);
     let busy = after.iter().filter(|b| b["status"] == "busy").count();
     let mut disconnects = 0;

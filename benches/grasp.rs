@@ -39,7 +39,15 @@ fn bench(c: &mut Criterion) {
     let reqs = requests();
     let mut group = c.benchmark_group("grasp");
     group.sample_size(10);
+    // `GRASP_SYSTEMS=pa10_ob4f,wam_t42` restricts the run (profiling one system under callgrind).
+    let only = std::env::var("GRASP_SYSTEMS").ok();
     for name in SYSTEMS {
+        if only
+            .as_deref()
+            .is_some_and(|o| !o.split(',').any(|x| x == name))
+        {
+            continue;
+        }
         let sys = System::from_file(&dir.join(format!("{name}.toml"))).expect("system loads");
         let sys = HandArm::from_system(&sys).expect("grasp view");
         let mut times = Vec::new();
@@ -48,6 +56,18 @@ fn bench(c: &mut Criterion) {
             let res = plan_grasp(&sys, r).expect("valid request");
             feasible += usize::from(res.feasible);
             times.push(res.time_s * 1e3);
+            if std::env::var_os("GRASP_VERBOSE").is_some() {
+                println!(
+                    "  {} at {:?}: {:.1} ms, feasible {} ({}/{} starts), best start {:?}",
+                    r.object.spec().name,
+                    r.object.spec().position,
+                    res.time_s * 1e3,
+                    res.feasible,
+                    res.starts_feasible,
+                    res.starts_used,
+                    res.solver
+                );
+            }
         }
         times.sort_by(f64::total_cmp);
         println!(

@@ -57,12 +57,22 @@ fn ik_report() {
         let mut rng = ChaCha8Rng::seed_from_u64(99);
         let mut times = Vec::new();
         let (mut ok, mut iters, mut restarts) = (0usize, 0usize, 0usize);
+        let mut failures = Vec::new();
         let cases = targets(&model, flange, 10_000, 7);
         for (t, seed) in &cases {
             let start = Instant::now();
             let r = solver.solve(&model, t, seed, &opts, &mut rng);
             times.push(start.elapsed());
             ok += r.success as usize;
+            if !r.success {
+                failures.push(format!(
+                    "{:.1} ms, {} restarts, {:.1e} m, {:.1e} rad",
+                    r.elapsed.as_secs_f64() * 1e3,
+                    r.restarts,
+                    r.position_error,
+                    r.orientation_error
+                ));
+            }
             iters += r.iterations;
             restarts += r.restarts;
         }
@@ -79,6 +89,10 @@ fn ik_report() {
             iters as f64 / cases.len() as f64,
             restarts as f64 / cases.len() as f64
         );
+        // Why the failures failed (time budget, restart limit, residual left).
+        for f in failures.iter().take(10) {
+            println!("  failed: {f}");
+        }
     }
 }
 
@@ -125,7 +139,31 @@ fn ik(c: &mut Criterion) {
 
 criterion_group!(benches, fk_jacobian, ik);
 
+/// `KIN_PROFILE=N`: only N FK + Jacobian evaluations, for instruction counts that do not depend
+/// on machine load: `KIN_PROFILE=100000 valgrind --tool=callgrind --toggle-collect='*forward_kinematics*'
+/// --toggle-collect='*frame_jacobian*' target/release/deps/kinematics-*` then divide by N.
+fn profile_fk(n: usize) {
+    let model = arm("wam.urdf");
+    let flange = model.frame_id("wam_flange").unwrap();
+    let mut data = Data::new(&model);
+    let mut j = Matrix6xX::zeros(model.nq());
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let qs: Vec<Vec<f64>> = (0..64).map(|_| random_q(&model, &mut rng)).collect();
+    for i in 0..n {
+        forward_kinematics(&model, &mut data, black_box(&qs[i & 63]));
+        frame_jacobian(&model, &data, flange, &Vector3::zeros(), &mut j);
+        black_box(&j);
+    }
+}
+
 fn main() {
+    if let Some(n) = std::env::var("KIN_PROFILE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        profile_fk(n);
+        return;
+    }
     ik_report();
     benches();
     Criterion::default().configure_from_args().final_summary();

@@ -92,6 +92,7 @@ fn main() {
         let limits = system_limits(&sys, DEFAULT_ACCELERATION_LIMIT);
         let opts = TrainOptions {
             groups: system_groups(&sys),
+            cap_spline_intervals: true,
             ..TrainOptions::default()
         };
         let summary =

@@ -77,8 +77,12 @@ impl App {
             config: Arc::new(config),
             jobs,
             robots: api::robots::RobotCache::default(),
+            seed: crate::seed::SeedStatus::default(),
             shutdown,
         };
+        crate::seed::start(&state)
+            .await
+            .context("cannot start first-start seeding")?;
         Ok(App {
             listener,
             state,

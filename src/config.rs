@@ -72,7 +72,12 @@ pub struct Config {
 
     /// Token bridge workers present (`Authorization: Bearer <token>`) on
     /// `/v1/bridges/connect`. When unset, a random token is generated at start and logged once.
-    #[arg(long, env = "REACHGRASP_BRIDGE_TOKEN", global = true, hide_env_values = true)]
+    #[arg(
+        long,
+        env = "REACHGRASP_BRIDGE_TOKEN",
+        global = true,
+        hide_env_values = true
+    )]
     pub bridge_token: Option<String>,
 
     /// Seconds a queued execution waits while no compatible worker is connected before it
@@ -86,6 +91,12 @@ pub struct Config {
     #[arg(long, env = "REACHGRASP_BRIDGE_HEARTBEAT_MS", default_value_t = DEFAULT_BRIDGE_HEARTBEAT_MS,
           value_parser = clap::value_parser!(u64).range(10..=60_000), global = true)]
     pub bridge_heartbeat_ms: u64,
+
+    /// Skip first-start seeding (generating the default synthetic study, mapping it for every
+    /// bundled system and training each system's default model when one is missing).
+    #[arg(long, env = "REACHGRASP_NO_SEED", global = true,
+          value_parser = clap::builder::BoolishValueParser::new())]
+    pub no_seed: bool,
 
     /// TEST ONLY: expose `POST /v1/_test/jobs/sleep` (a job that only sleeps). Never enable in a
     /// deployment.
@@ -109,6 +120,7 @@ impl Default for Config {
             bridge_token: None,
             bridge_queue_timeout_secs: DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS,
             bridge_heartbeat_ms: DEFAULT_BRIDGE_HEARTBEAT_MS,
+            no_seed: false,
             test_jobs: false,
         }
     }

@@ -20,4 +20,5 @@ pub mod kinematics;
 pub mod mapping;
 pub mod motion;
 pub mod optim;
+pub mod seed;
 pub mod store;

@@ -22,10 +22,15 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Run the HTTP service (the default when no sub-command is given).
+    #[command(
+        after_help = "Example:\n  REACHGRASP_BIND=0.0.0.0:8080 REACHGRASP_BRIDGE_TOKEN=lab-token reachgrasp serve"
+    )]
     Serve,
     /// Print the OpenAPI 3.1 document as JSON on stdout.
+    #[command(after_help = "Example:\n  reachgrasp openapi > openapi/openapi.json")]
     Openapi,
     /// Solve a batch of pose IK targets and print solutions and statistics as JSON.
+    #[command(after_help = "Example:\n  reachgrasp ik --robot wam_ihy --targets targets.json")]
     Ik {
         /// A robot id (bundled or registered) or a system descriptor file.
         #[arg(long)]
@@ -37,15 +42,27 @@ enum Command {
     },
     /// Run a bridge worker: connect to the service's `/v1/bridges/connect` and execute what it
     /// forwards. `--sim` drives a simulated robot (the only built-in robot driver).
+    #[command(
+        after_help = "Example:\n  reachgrasp bridge --sim --robot wam_ihy --url ws://127.0.0.1:8080/v1/bridges/connect --token lab-token --perturb"
+    )]
     Bridge(BridgeArgs),
     /// Generate a seeded synthetic demonstration study and print it as JSON on stdout: an array
     /// of upload documents (each one a valid `POST /v1/demonstrations` body), or with
-    /// `--summary` the ingest summary of each.
+    /// `--summary` the ingest summary of each. Progress bar on stderr.
+    #[command(
+        after_help = "Example:\n  reachgrasp synth --seed 7 --subjects 2 --objects ball,bottle > study.json"
+    )]
     Synth(SynthArgs),
     /// Compute a task-specific grasp offline (same body and result as `POST /v1/grasps`; a
-    /// seeded object is named by `object_id`, e.g. `ball`). Prints the result as JSON.
+    /// seeded object is named by `object_id`, e.g. `ball`). Prints the result as JSON. A request
+    /// file holding an array is a batch: a progress bar on stderr, an array of results.
+    #[command(
+        after_help = "Examples:\n  reachgrasp grasp --robot wam_ihy --object ball --direction 0,0,1 --kind force\n  \
+        reachgrasp grasp --request grasps.json > results.json"
+    )]
     Grasp {
-        /// JSON request file (the `POST /v1/grasps` body); the flags below build one instead.
+        /// JSON request file: the `POST /v1/grasps` body, or an array of them (a batch); the
+        /// flags below build one instead.
         #[arg(long)]
         request: Option<std::path::PathBuf>,
         /// Arm-hand system, e.g. `wam_ihy`.
@@ -83,6 +100,19 @@ enum Command {
         reachgrasp map --robot wam_ihy --demo demos.json --rate 30 --weights 1,1e-4,0.01 > mapped.json"
     )]
     Map(MapArgs),
+    /// Plan a humanlike motion to a task-specific grasp offline (the computation of
+    /// `POST /v1/plans`) against the service's database (`--db`, default
+    /// `./data/reachgrasp.db`), which holds the trained models; the plan, its grasp and its
+    /// trajectory are stored there as the service would store them. Prints the plan as JSON.
+    #[command(
+        after_help = "Example:\n  reachgrasp plan --request examples/plan-ball.json > plan.json"
+    )]
+    Plan {
+        /// JSON request file (the `POST /v1/plans` body; `execute` queues the execution in the
+        /// database, run by the service once a worker connects).
+        #[arg(long)]
+        request: std::path::PathBuf,
+    },
 }
 
 #[derive(Debug, clap::Args)]
@@ -119,8 +149,11 @@ struct BridgeArgs {
     #[arg(long)]
     robot: String,
     /// The service's bridge WebSocket.
-    #[arg(long, env = "REACHGRASP_BRIDGE_URL",
-          default_value = "ws://127.0.0.1:8080/v1/bridges/connect")]
+    #[arg(
+        long,
+        env = "REACHGRASP_BRIDGE_URL",
+        default_value = "ws://127.0.0.1:8080/v1/bridges/connect"
+    )]
     url: String,
     /// The service's bridge token.
     #[arg(long, env = "REACHGRASP_BRIDGE_TOKEN", hide_env_values = true)]
@@ -195,8 +228,9 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Ik { robot, targets } => ik(&cli.config, &robot, &targets),
         Command::Synth(args) => synth(args),
-        Command::Bridge(args) => bridge(&cli.config, args),
         Command::Map(args) => map(&cli.config, args),
+        Command::Plan { request } => plan(cli.config, &request),
+        Command::Bridge(args) => bridge(&cli.config, args),
         Command::Grasp {
             request,
             robot,
@@ -225,27 +259,96 @@ fn main() -> anyhow::Result<()> {
                     })
                 }
             };
-            let body: reachgrasp::api::grasps::GraspIn = serde_json::from_value(body)?;
-            match reachgrasp::api::grasps::grasp_offline(&cli.config.robots, &body) {
-                Ok(r) => {
-                    println!("{}", serde_json::to_string_pretty(&r)?);
-                    Ok(())
-                }
-                Err(e) => {
-                    let fields: Vec<String> = e
-                        .errors()
-                        .iter()
-                        .map(|f| format!("{}: {}", f.path, f.message))
-                        .collect();
-                    anyhow::bail!("{} {}", e.detail(), fields.join("; "))
-                }
-            }
+            grasp(&cli.config, body)
         }
     }
 }
 
+/// An API error as a CLI error: the detail and every offending field.
+fn api_failure(e: reachgrasp::api::ApiError) -> anyhow::Error {
+    let fields: Vec<String> = e
+        .errors()
+        .iter()
+        .map(|f| format!("{}: {}", f.path, f.message))
+        .collect();
+    // The field errors already say everything the summary line would (it repeats the first).
+    if fields.is_empty() {
+        anyhow::anyhow!("{}", e.detail())
+    } else {
+        anyhow::anyhow!("{}", fields.join("; "))
+    }
+}
+
+/// A progress bar on stderr for `len` items of `what`.
+fn progress_bar(len: usize, what: &str) -> anyhow::Result<indicatif::ProgressBar> {
+    let bar = indicatif::ProgressBar::new(len as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{{spinner}} {what} [{{bar:40}}] {{pos}}/{{len}} ({{elapsed}}, eta {{eta}})"
+        ))?
+        .progress_chars("=> "),
+    );
+    bar.tick();
+    Ok(bar)
+}
+
+fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
+    use reachgrasp::api::grasps::{GraspIn, grasp_offline};
+    let out = match body {
+        serde_json::Value::Array(items) => {
+            let bar = progress_bar(items.len(), "grasps")?;
+            let mut results = Vec::with_capacity(items.len());
+            for (i, item) in items.into_iter().enumerate() {
+                let body: GraspIn = serde_json::from_value(item)
+                    .map_err(|e| anyhow::anyhow!("request {i}: {e}"))?;
+                let r = grasp_offline(&config.robots, &body)
+                    .map_err(|e| api_failure(e).context(format!("request {i}")))?;
+                results.push(r);
+                bar.inc(1);
+            }
+            bar.finish_and_clear();
+            serde_json::to_string_pretty(&results)?
+        }
+        one => {
+            let body: GraspIn = serde_json::from_value(one)?;
+            serde_json::to_string_pretty(
+                &grasp_offline(&config.robots, &body).map_err(api_failure)?,
+            )?
+        }
+    };
+    println!("{out}");
+    Ok(())
+}
+
+fn plan(mut config: Config, request: &std::path::Path) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let text = std::fs::read_to_string(request)
+        .with_context(|| format!("cannot read {}", request.display()))?;
+    let body: reachgrasp::api::plans::PlanIn = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a plan request", request.display()))?;
+    anyhow::ensure!(
+        config.db.is_file(),
+        "no database at {} (--db): start the service once so it trains the default models",
+        config.db.display()
+    );
+    // Offline: no listener is served and no seeding starts; the service's own code plans.
+    config.bind = "127.0.0.1:0".parse()?;
+    config.no_seed = true;
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    let dto = runtime.block_on(async {
+        let app = App::build(config).await?;
+        reachgrasp::api::plans::plan(app.state(), &body)
+            .await
+            .map_err(api_failure)
+    })?;
+    println!("{}", serde_json::to_string_pretty(&dto)?);
+    Ok(())
+}
+
 fn synth(args: SynthArgs) -> anyhow::Result<()> {
-    use reachgrasp::human::{ObjectKind, StudyConfig, generate_study, ingest};
+    use reachgrasp::human::{ObjectKind, StudyConfig, generate_study_with_progress, ingest};
     use std::io::Write;
     let objects = if args.objects.is_empty() {
         ObjectKind::ALL.to_vec()
@@ -268,13 +371,17 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
         noise: !args.no_noise,
         rate_hz: args.rate_hz,
     };
-    let study = generate_study(&cfg)?;
+    let bar = progress_bar(cfg.trials().len(), "trials")?;
+    let study = generate_study_with_progress(&cfg, &mut |done, _| bar.set_position(done as u64))?;
+    bar.finish_and_clear();
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     if args.summary {
+        let bar = progress_bar(study.len(), "ingest")?;
         let rows = study
             .iter()
             .map(|input| {
                 let demo = ingest(input)?;
+                bar.inc(1);
                 Ok(serde_json::json!({
                     "external_id": demo.labels.external_id,
                     "subject": demo.subject.id,
@@ -285,10 +392,89 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
                 }))
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
+        bar.finish_and_clear();
         serde_json::to_writer(&mut out, &rows)?;
     } else {
         serde_json::to_writer(&mut out, &study)?;
     }
+    writeln!(out)?;
+    out.flush()?;
+    Ok(())
+}
+
+fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use reachgrasp::api::demonstrations::DemonstrationUpload;
+    use reachgrasp::api::mappings::{
+        RegistrationIn, ScaleIn, WeightsIn, map_offline, parse_params,
+    };
+    use reachgrasp::human::{DemonstrationInput, ingest};
+    use reachgrasp::store::mappings::DemoLabels;
+    use std::io::Write;
+
+    let weights = match args.weights.as_deref() {
+        None => WeightsIn::default(),
+        Some(&[p, o, e]) => WeightsIn {
+            position: Some(p),
+            orientation: Some(o),
+            elbow: Some(e),
+        },
+        Some(_) => anyhow::bail!("--weights takes three numbers: position,orientation,elbow"),
+    };
+    let scale = args.scale.map(|s| match s.parse::<f64>() {
+        Ok(x) => ScaleIn::Factor(x),
+        Err(_) => ScaleIn::Named(s),
+    });
+    let registration = RegistrationIn {
+        scale,
+        ..RegistrationIn::default()
+    };
+    let params = parse_params(&weights, &registration, args.rate).map_err(api_failure)?;
+    let system = reachgrasp::api::robots::resolve_robot_for_cli(config, &args.robot)?;
+    let text = std::fs::read_to_string(&args.demo)
+        .with_context(|| format!("cannot read {}", args.demo.display()))?;
+    let value: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not JSON", args.demo.display()))?;
+    let docs = match value {
+        serde_json::Value::Array(items) => items,
+        one => vec![one],
+    };
+    anyhow::ensure!(
+        !docs.is_empty(),
+        "{} holds no demonstration",
+        args.demo.display()
+    );
+    let mut demos = Vec::with_capacity(docs.len());
+    for (i, doc) in docs.into_iter().enumerate() {
+        let upload: DemonstrationUpload = serde_json::from_value(doc)
+            .with_context(|| format!("demonstration {i} is not an upload document"))?;
+        let input: DemonstrationInput = upload.into();
+        let demo = ingest(&input).with_context(|| format!("demonstration {i}"))?;
+        let labels = DemoLabels {
+            demonstration_id: demo
+                .labels
+                .external_id
+                .clone()
+                .unwrap_or_else(|| i.to_string()),
+            subject_id: demo.subject.id.clone(),
+            object_name: demo.object.name.clone(),
+            task: demo.labels.task.clone(),
+            position_index: demo.labels.position_index,
+            trial: demo.labels.trial,
+        };
+        demos.push((labels, demo.frames));
+    }
+    let bar = progress_bar(demos.len(), "mapping demonstrations")?;
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let result = map_offline(&args.robot, &system, demos, &params, threads, &|done, _| {
+        bar.set_position(done as u64)
+    });
+    bar.finish_and_clear();
+    let result = result.map_err(api_failure)?;
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    serde_json::to_writer(&mut out, &result)?;
     writeln!(out)?;
     out.flush()?;
     Ok(())
@@ -345,104 +531,6 @@ fn bridge(config: &Config, args: BridgeArgs) -> anyhow::Result<()> {
         .enable_all()
         .build()?;
     runtime.block_on(run_worker(opts, None, shutdown_signal()))?;
-    Ok(())
-}
-
-fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
-    use anyhow::Context;
-    use reachgrasp::api::demonstrations::DemonstrationUpload;
-    use reachgrasp::api::mappings::{
-        RegistrationIn, ScaleIn, WeightsIn, map_offline, parse_params,
-    };
-    use reachgrasp::human::{DemonstrationInput, ingest};
-    use reachgrasp::store::mappings::DemoLabels;
-    use std::io::Write;
-
-    // The field errors already say everything the summary line would (it repeats the first).
-    let fail = |e: reachgrasp::api::ApiError| {
-        let fields: Vec<String> = e
-            .errors()
-            .iter()
-            .map(|f| format!("{}: {}", f.path, f.message))
-            .collect();
-        if fields.is_empty() {
-            anyhow::anyhow!("{}", e.detail())
-        } else {
-            anyhow::anyhow!("{}", fields.join("; "))
-        }
-    };
-    let weights = match args.weights.as_deref() {
-        None => WeightsIn::default(),
-        Some(&[p, o, e]) => WeightsIn {
-            position: Some(p),
-            orientation: Some(o),
-            elbow: Some(e),
-        },
-        Some(_) => anyhow::bail!("--weights takes three numbers: position,orientation,elbow"),
-    };
-    let scale = args.scale.map(|s| match s.parse::<f64>() {
-        Ok(x) => ScaleIn::Factor(x),
-        Err(_) => ScaleIn::Named(s),
-    });
-    let registration = RegistrationIn {
-        scale,
-        ..RegistrationIn::default()
-    };
-    let params = parse_params(&weights, &registration, args.rate).map_err(fail)?;
-    let system = reachgrasp::api::robots::resolve_robot_for_cli(config, &args.robot)?;
-    let text = std::fs::read_to_string(&args.demo)
-        .with_context(|| format!("cannot read {}", args.demo.display()))?;
-    let value: serde_json::Value = serde_json::from_str(&text)
-        .with_context(|| format!("{} is not JSON", args.demo.display()))?;
-    let docs = match value {
-        serde_json::Value::Array(items) => items,
-        one => vec![one],
-    };
-    anyhow::ensure!(
-        !docs.is_empty(),
-        "{} holds no demonstration",
-        args.demo.display()
-    );
-    let mut demos = Vec::with_capacity(docs.len());
-    for (i, doc) in docs.into_iter().enumerate() {
-        let upload: DemonstrationUpload = serde_json::from_value(doc)
-            .with_context(|| format!("demonstration {i} is not an upload document"))?;
-        let input: DemonstrationInput = upload.into();
-        let demo = ingest(&input).with_context(|| format!("demonstration {i}"))?;
-        let labels = DemoLabels {
-            demonstration_id: demo
-                .labels
-                .external_id
-                .clone()
-                .unwrap_or_else(|| i.to_string()),
-            subject_id: demo.subject.id.clone(),
-            object_name: demo.object.name.clone(),
-            task: demo.labels.task.clone(),
-            position_index: demo.labels.position_index,
-            trial: demo.labels.trial,
-        };
-        demos.push((labels, demo.frames));
-    }
-    let bar = indicatif::ProgressBar::new(demos.len() as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} mapping [{bar:40}] {pos}/{len} demonstrations ({elapsed}, eta {eta})",
-        )?
-        .progress_chars("=> "),
-    );
-    bar.tick();
-    let threads = args
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let result = map_offline(&args.robot, &system, demos, &params, threads, &|done, _| {
-        bar.set_position(done as u64)
-    });
-    bar.finish_and_clear();
-    let result = result.map_err(fail)?;
-    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
-    serde_json::to_writer(&mut out, &result)?;
-    writeln!(out)?;
-    out.flush()?;
     Ok(())
 }
 

@@ -49,6 +49,9 @@ pub struct Problem {
     /// For validation problems: every offending field.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub errors: Vec<FieldError>,
+    /// For `not-ready`: the job preparing what the request needs (`GET /v1/jobs/{job_id}`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub job_id: Option<String>,
 }
 
 /// The error every handler returns; it renders as problem+json.
@@ -68,6 +71,7 @@ pub struct Problem {
 /// | `unsupported-media-type` | 415 | body is not `application/json` |
 /// | `validation` | 422 | well-formed JSON with bad values (see `errors`) |
 /// | `unavailable` | 503 | dependency down, shutting down |
+/// | `not-ready` | 503 | a job (see `job_id`) is still preparing what the request needs |
 /// | `timeout` | 503 | the request took longer than the configured timeout |
 /// | `internal` | 500 | a bug; logged, never detailed to the client |
 #[derive(Debug)]
@@ -77,6 +81,7 @@ pub struct ApiError {
     title: &'static str,
     detail: Cow<'static, str>,
     errors: Vec<FieldError>,
+    job_id: Option<String>,
     /// The logged cause of an internal error (never sent).
     source: Option<anyhow::Error>,
 }
@@ -94,6 +99,7 @@ impl ApiError {
             title,
             detail: detail.into(),
             errors: Vec::new(),
+            job_id: None,
             source: None,
         }
     }
@@ -229,6 +235,19 @@ impl ApiError {
         )
     }
 
+    /// 503: job `job` is still preparing what the request needs (e.g. a default model during
+    /// first-start seeding); retry once it has finished.
+    pub fn not_ready(detail: impl Into<Cow<'static, str>>, job: impl fmt::Display) -> Self {
+        let mut e = ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "not-ready",
+            "Not ready yet",
+            detail,
+        );
+        e.job_id = Some(job.to_string());
+        e
+    }
+
     /// 503: the request exceeded the configured timeout.
     pub fn timeout(seconds: u64) -> Self {
         ApiError::new(
@@ -300,6 +319,7 @@ impl ApiError {
             status: self.status.as_u16(),
             detail: self.detail.to_string(),
             errors: self.errors.clone(),
+            job_id: self.job_id.clone(),
         }
     }
 }

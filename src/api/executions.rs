@@ -11,6 +11,7 @@ use axum::response::IntoResponse;
 use axum::response::sse::{Event, KeepAlive, Sse};
 use futures::Stream;
 use serde::{Deserialize, Serialize};
+use tokio::sync::watch;
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -257,7 +258,10 @@ mod stored {
         if row.robot != robot {
             return Err(ApiError::invalid_field(
                 path,
-                format!("model '{model_id}' is for robot '{}', not '{robot}'", row.robot),
+                format!(
+                    "model '{model_id}' is for robot '{}', not '{robot}'",
+                    row.robot
+                ),
             ));
         }
         models::load_params(&state.db, model_id)
@@ -289,7 +293,10 @@ mod stored {
             if t.robot != body.robot {
                 return Err(ApiError::invalid_field(
                     "$.trajectory_id",
-                    format!("trajectory '{id}' is for robot '{}', not '{}'", t.robot, body.robot),
+                    format!(
+                        "trajectory '{id}' is for robot '{}', not '{}'",
+                        t.robot, body.robot
+                    ),
                 ));
             }
             let paths = PayloadPaths {
@@ -501,39 +508,44 @@ async fn execution_events(
     Path(id): Path<Uuid>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let key = id.to_string();
-    // Subscribe before the first read so no change in between is missed.
-    let rx = state.bridges.subscribe(&key);
-    load(&state, &id).await?;
-    let stream = futures::stream::unfold(
-        (Some(rx), 0u64, true),
-        move |(rx, seq, first)| {
-            let state = state.clone();
-            let key = key.clone();
-            async move {
-                let mut rx = rx?;
-                if !first {
-                    tokio::select! {
-                        // A closed channel means the execution finished; a timeout re-reads
-                        // the store in case a change was coalesced away.
-                        _ = rx.changed() => {}
-                        () = tokio::time::sleep(Duration::from_secs(1)) => {}
-                        () = state.shutdown.wait() => return None,
-                    }
-                    // Coalesce bursts of feedback into one event per 20 ms.
-                    tokio::time::sleep(Duration::from_millis(20)).await;
-                    rx.borrow_and_update();
+    let first = load(&state, &id).await?;
+    // A finished execution gets its final event only; a live one is followed. The first event
+    // is read after subscribing, so no change in between is missed.
+    let rx = if repo::is_final(&first.state) {
+        watch::channel(0).1
+    } else {
+        state.bridges.subscribe(&key)
+    };
+    let stream = futures::stream::unfold((Some(rx), 0u64, true), move |(rx, seq, first)| {
+        let state = state.clone();
+        let key = key.clone();
+        async move {
+            let mut rx = rx?;
+            if !first {
+                tokio::select! {
+                    // A closed channel means the execution finished; a timeout re-reads
+                    // the store in case a change was coalesced away.
+                    _ = rx.changed() => {}
+                    () = tokio::time::sleep(Duration::from_secs(1)) => {}
+                    () = state.shutdown.wait() => return None,
                 }
-                let row = repo::get(&state.db, &key).await.ok().flatten()?;
-                let dto = view(&state, row).await;
-                let last = repo::is_final(&dto.state);
-                let event = Event::default()
-                    .event(if last { "final" } else { "progress" })
-                    .id(seq.to_string())
-                    .json_data(&dto)
-                    .expect("an execution serialises");
-                Some((Ok(event), (if last { None } else { Some(rx) }, seq + 1, false)))
+                // Coalesce bursts of feedback into one event per 20 ms.
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                rx.borrow_and_update();
             }
-        },
-    );
+            let row = repo::get(&state.db, &key).await.ok().flatten()?;
+            let dto = view(&state, row).await;
+            let last = repo::is_final(&dto.state);
+            let event = Event::default()
+                .event(if last { "final" } else { "progress" })
+                .id(seq.to_string())
+                .json_data(&dto)
+                .expect("an execution serialises");
+            Some((
+                Ok(event),
+                (if last { None } else { Some(rx) }, seq + 1, false),
+            ))
+        }
+    });
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
 }

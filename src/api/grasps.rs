@@ -2,7 +2,6 @@
 //! (task-specific grasps, paper eq. 10-29; batches as jobs).
 
 use std::collections::HashMap;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use axum::extract::State;
@@ -14,7 +13,7 @@ use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::{ApiError, AppState, FieldError, Json, Path, Problem};
+use super::{ApiError, AppState, FieldError, Json, Path, Problem, robots};
 use crate::grasp::objects::{ObjectSpec, ShapeSpec, SupportPlane, parse_obj, parse_stl};
 use crate::grasp::{
     Goal, GraspError, GraspRequest, GraspResult, HandArm, Object, QualityMeasure, TaskDirection,
@@ -88,7 +87,8 @@ pub struct TaskDirectionIn {
 /// The object of a grasp request: a stored object's id, or an inline description.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
 pub struct GraspIn {
-    /// Arm-hand system name, e.g. `wam_ihy` (a descriptor in the robots folder's `systems/`).
+    /// Robot (arm-hand system) id: a bundled system such as `wam_ihy`, or the id of one registered
+    /// with `POST /v1/robots`.
     pub robot: String,
     /// Id of a stored object (give this or `object`).
     pub object_id: Option<String>,
@@ -112,6 +112,7 @@ pub struct GraspIn {
 /// A batch: the same robot and task settings over many objects or placements.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
 pub struct GraspBatchIn {
+    /// Robot id (bundled or registered), as in `POST /v1/grasps`.
     pub robot: String,
     /// Each item is an object id or an inline object (e.g. the same shape at several poses).
     pub items: Vec<BatchItemIn>,
@@ -191,7 +192,7 @@ fn grasp_error(prefix: &str, e: GraspError) -> ApiError {
 }
 
 /// Standard base64 (RFC 4648) decoding; hand-rolled because it is the only use in the service.
-fn decode_base64(s: &str) -> Option<Vec<u8>> {
+pub(crate) fn decode_base64(s: &str) -> Option<Vec<u8>> {
     let mut out = Vec::with_capacity(s.len() * 3 / 4);
     let mut acc = 0u32;
     let mut bits = 0;
@@ -284,14 +285,48 @@ fn object_dto(row: repo::ObjectRow) -> Result<ObjectDto, ApiError> {
     })
 }
 
-/// Process-wide cache of loaded systems, keyed by descriptor path (a system loads in a few ms,
-/// but a batch or a busy client asks for the same one over and over).
-fn system_cache() -> &'static Mutex<HashMap<PathBuf, Arc<HandArm>>> {
-    static CACHE: OnceLock<Mutex<HashMap<PathBuf, Arc<HandArm>>>> = OnceLock::new();
+/// Grasp views of the systems, by robot id, with the loaded system they were built from: a view
+/// is rebuilt only when [`robots::resolve_system`] hands out a different system (the robot's row
+/// changed), since building one samples every link's collision spheres.
+type ViewCache = Mutex<HashMap<String, (Arc<System>, Arc<HandArm>)>>;
+
+fn view_cache() -> &'static ViewCache {
+    static CACHE: OnceLock<ViewCache> = OnceLock::new();
     CACHE.get_or_init(|| Mutex::new(HashMap::new()))
 }
 
-/// Resolve a robot (arm-hand system) name to its grasp view; blocking (file I/O + parsing).
+fn hand_arm_of(key: &str, sys: &Arc<System>) -> Result<Arc<HandArm>, ApiError> {
+    if let Some((s, v)) = view_cache().lock().expect("cache lock").get(key)
+        && Arc::ptr_eq(s, sys)
+    {
+        return Ok(v.clone());
+    }
+    let view = Arc::new(HandArm::from_system(sys).map_err(|e| grasp_error("$.robot", e))?);
+    view_cache()
+        .lock()
+        .expect("cache lock")
+        .insert(key.to_owned(), (sys.clone(), view.clone()));
+    Ok(view)
+}
+
+/// A grasp request's robot: any system of the robots store (bundled or registered), resolved
+/// like every other resource does; an unknown id in the body is a 422 naming `$.robot`.
+async fn robot_view(state: &AppState, robot: &str) -> Result<Arc<HandArm>, ApiError> {
+    let sys = robots::resolve_system(state, robot).await.map_err(|e| {
+        if e.status() == StatusCode::NOT_FOUND {
+            ApiError::invalid_field("$.robot", format!("unknown robot '{robot}'"))
+        } else {
+            e
+        }
+    })?;
+    let key = robot.to_owned();
+    tokio::task::spawn_blocking(move || hand_arm_of(&key, &sys))
+        .await
+        .map_err(ApiError::internal)?
+}
+
+/// Resolve a bundled system by file name to its grasp view, for the offline CLI (no database);
+/// blocking (file I/O + parsing).
 pub fn load_system(robots: &std::path::Path, name: &str) -> Result<Arc<HandArm>, ApiError> {
     let valid = !name.is_empty()
         && name.len() <= 64
@@ -305,17 +340,11 @@ pub fn load_system(robots: &std::path::Path, name: &str) -> Result<Arc<HandArm>,
             format!("unknown robot '{name}'"),
         ));
     }
-    if let Some(s) = system_cache().lock().expect("cache lock").get(&path) {
-        return Ok(s.clone());
-    }
     let sys =
         System::from_file(&path).map_err(|e| ApiError::invalid_field("$.robot", e.to_string()))?;
-    let view = Arc::new(HandArm::from_system(&sys).map_err(|e| grasp_error("$.robot", e))?);
-    system_cache()
-        .lock()
-        .expect("cache lock")
-        .insert(path, view.clone());
-    Ok(view)
+    Ok(Arc::new(
+        HandArm::from_system(&sys).map_err(|e| grasp_error("$.robot", e))?,
+    ))
 }
 
 struct Settings {
@@ -443,7 +472,7 @@ fn new_grasp(
     }
 }
 
-fn grasp_dto(row: repo::GraspRow) -> Result<GraspDto, ApiError> {
+pub(crate) fn grasp_dto(row: repo::GraspRow) -> Result<GraspDto, ApiError> {
     Ok(GraspDto {
         id: row.id,
         robot: row.robot,
@@ -533,6 +562,23 @@ async fn create_grasp(
     State(state): State<AppState>,
     Json(body): Json<GraspIn>,
 ) -> Result<Response, ApiError> {
+    let (new, _) = compute_grasp(&state, &body).await?;
+    let out = store_grasp(&state, &new).await?;
+    let location = format!("/v1/grasps/{}", out.id);
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, location)],
+        Json(out),
+    )
+        .into_response())
+}
+
+/// Computes one grasp, ready to store (the work of `POST /v1/grasps`, shared with `/v1/plans`,
+/// which stores it only once the rest of the plan has been checked).
+pub(crate) async fn compute_grasp(
+    state: &AppState,
+    body: &GraspIn,
+) -> Result<(repo::NewGrasp, GraspResult), ApiError> {
     let settings = parse_settings(
         &body.task_directions,
         body.quality,
@@ -541,11 +587,9 @@ async fn create_grasp(
         body.seed,
         body.elbow_reference,
     )?;
-    let (object_id, object) = resolve_object(&state, "$.", &body.object_id, &body.object).await?;
-    let robots = state.config.robots.clone();
-    let robot = body.robot.clone();
+    let (object_id, object) = resolve_object(state, "$.", &body.object_id, &body.object).await?;
+    let sys = robot_view(state, &body.robot).await?;
     let (result, object) = tokio::task::spawn_blocking(move || {
-        let sys = load_system(&robots, &robot)?;
         let req = make_request(object.clone(), &settings);
         let r = plan_grasp(&sys, &req).map_err(|e| grasp_error("$", e))?;
         Ok::<_, ApiError>(((r, settings.dto), object))
@@ -553,19 +597,18 @@ async fn create_grasp(
     .await
     .map_err(ApiError::internal)??;
     let (result, dto) = result;
-    let row = repo::insert_grasp(
-        &state.db,
-        &new_grasp(&body.robot, object_id, &object, &dto, &result),
-    )
-    .await?;
-    let out = grasp_dto(row)?;
-    let location = format!("/v1/grasps/{}", out.id);
     Ok((
-        StatusCode::CREATED,
-        [(header::LOCATION, location)],
-        Json(out),
-    )
-        .into_response())
+        new_grasp(&body.robot, object_id, &object, &dto, &result),
+        result,
+    ))
+}
+
+/// Stores a grasp from [`compute_grasp`].
+pub(crate) async fn store_grasp(
+    state: &AppState,
+    new: &repo::NewGrasp,
+) -> Result<GraspDto, ApiError> {
+    grasp_dto(repo::insert_grasp(&state.db, new).await?)
 }
 
 /// One stored grasp.
@@ -612,14 +655,8 @@ async fn create_batch(
             resolve_object(&state, &format!("$.items[{i}]."), &it.object_id, &it.object).await?,
         );
     }
-    let robots = state.config.robots.clone();
     let robot = body.robot.clone();
-    let sys = {
-        let (robots, robot) = (robots.clone(), robot.clone());
-        tokio::task::spawn_blocking(move || load_system(&robots, &robot))
-            .await
-            .map_err(ApiError::internal)??
-    };
+    let sys = robot_view(&state, &robot).await?;
     // Checked once before the job exists, so a bad quality measure is a 422, not a failed job.
     if let Some((_, o)) = objects.first() {
         make_request(o.clone(), &settings)

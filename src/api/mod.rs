@@ -67,6 +67,7 @@ pub mod jobs;
 pub mod mappings;
 pub mod middleware;
 pub mod models;
+pub mod plans;
 pub mod robots;
 pub mod testing;
 
@@ -103,6 +104,8 @@ pub struct AppState {
     pub robots: robots::RobotCache,
     /// Connected bridge workers and the execution dispatcher.
     pub bridges: crate::bridge::Hub,
+    /// Robots whose default model the first-start seeding is still preparing.
+    pub seed: crate::seed::SeedStatus,
     /// Resolves when the service starts shutting down (ends long-lived streams).
     pub shutdown: Shutdown,
 }
@@ -154,12 +157,13 @@ impl ShutdownTrigger {
         (name = "robots", description = "Arm-hand systems: library, FK, Jacobians, IK, manipulability"),
         (name = "demonstrations", description = "Human reach-to-grasp demonstrations: upload (JSON or CSV), derived kinematics, synthetic studies"),
         (name = "grasps", description = "Graspable objects and task-specific grasps (paper eq. 10-29)"),
+        (name = "mappings", description = "Human demonstrations mapped onto a robot arm-hand system (paper eq. 1-7): joint trajectories and per-frame metrics"),
         (name = "models", description = "Humanlike motion models: PCA manifolds + certified navigation functions (paper eq. 8-9), closed-loop law"),
         (name = "trajectories", description = "Humanlike trajectories generated from a motion model, with Cartesian paths"),
         (name = "executions", description = "Trajectories and closed-loop motions executed by bridge workers"),
         (name = "bridges", description = "Bridge workers: connected robots and the WebSocket protocol"),
-        (name = "mappings", description = "Human demonstrations mapped onto a robot arm-hand system (paper eq. 1-7): joint trajectories and per-frame metrics"),
         (name = "figures", description = "Figures as SVG (paper Fig. 2-6 and more); 3-D views take azimuth/elevation"),
+        (name = "plans", description = "One request from object and task to a humanlike motion ending in a task-specific grasp, and its execution"),
     ),
     components(schemas(Problem, FieldError))
 )]
@@ -173,10 +177,11 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(robots::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
+        .merge(mappings::router())
         .merge(models::router())
         .merge(executions::router())
         .merge(bridges::router())
-        .merge(mappings::router())
+        .merge(plans::router())
         .merge(figures::router())
 }
 

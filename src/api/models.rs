@@ -90,7 +90,9 @@ pub struct CreateModel {
     pub components: Option<usize>,
     /// Keep the fewest components explaining this fraction of the variance (default 0.88).
     pub variance_threshold: Option<f64>,
-    /// Spline resolution: knot intervals per PCA axis of the learned field (default 6).
+    /// Spline resolution: knot intervals per PCA axis of the learned field (default 6, lowered
+    /// for a manifold with so many components that the spline would exceed its coefficient
+    /// budget; an explicit value is never lowered).
     pub spline_intervals: Option<usize>,
     /// Weight of the spline fit's smoothness + ridge penalty (default 3).
     pub regularisation: Option<f64>,
@@ -154,6 +156,8 @@ pub struct ManifoldDto {
     pub all_explained_variance: Vec<f64>,
     /// Demonstrated points in the spline fit.
     pub spline_points: usize,
+    /// Knot intervals per PCA axis of the learned field.
+    pub spline_intervals: usize,
     /// Mean cosine between the flow and the demonstrated velocity (training data).
     pub train_alignment: f64,
     pub certificate: CertificateDto,
@@ -670,6 +674,7 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, A
             format!("must be between 1 and {MAX_SPLINE_INTERVALS}, got {intervals}"),
         ));
     } else if let Components::Count(c) = components
+        && body.spline_intervals.is_some()
         && (1..=MAX_DIM).contains(&c)
     {
         let coefficients = TensorBSpline::coefficient_count(c, intervals);
@@ -740,6 +745,9 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, A
             groups,
             components,
             spline_intervals: intervals,
+            // the default resolution is lowered where many components would exceed the
+            // coefficient budget; an explicit one is honoured or refused
+            cap_spline_intervals: body.spline_intervals.is_none(),
             regularisation,
             k,
             ..TrainOptions::default()
@@ -786,6 +794,7 @@ fn model_report(
                 cumulative_explained_variance: fit.cumulative_explained_variance,
                 all_explained_variance: m.pca.all_explained_variance.clone(),
                 spline_points: fit.spline_points,
+                spline_intervals: m.nf.spline.intervals(),
                 train_alignment: fit.train_alignment,
                 certificate: certificate_dto(group_name(ng, g), &m.certificate),
                 goal_region: GoalRegionDto {
@@ -1210,7 +1219,7 @@ fn trajectory_report(
     }
 }
 
-fn trajectory_dto(t: trajectories::StoredTrajectory) -> Result<TrajectoryDto, ApiError> {
+pub(crate) fn trajectory_dto(t: trajectories::StoredTrajectory) -> Result<TrajectoryDto, ApiError> {
     Ok(TrajectoryDto {
         report: serde_json::from_str(&t.summary).map_err(ApiError::internal)?,
         id: t.id,
@@ -1311,6 +1320,35 @@ async fn create_trajectory(
     State(state): State<AppState>,
     Json(body): Json<CreateTrajectory>,
 ) -> Result<Response, ApiError> {
+    let dto = generate_trajectory(&state, &body).await?;
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, format!("/v1/trajectories/{}", dto.id))],
+        Json(dto),
+    )
+        .into_response())
+}
+
+/// Checks that `model` is trained and that `start` is a valid configuration for it (names,
+/// finite values, joint limits) before a caller does expensive work; returns the model's robot.
+pub(crate) async fn check_start(
+    state: &AppState,
+    model: &str,
+    start: &JointValues,
+) -> Result<String, ApiError> {
+    let l = loaded_model(state, model, Some("$.model")).await?;
+    let system = super::robots::system(state, &l.robot).await?;
+    let q = joint_values(&system, start, "$.start")?;
+    check_limits(&l.model, &l.names, &q, Some(&start.joint_names), "$.start")?;
+    Ok(l.robot.clone())
+}
+
+/// Generates and stores one trajectory (the work of `POST /v1/trajectories`, shared with
+/// `/v1/plans`).
+pub(crate) async fn generate_trajectory(
+    state: &AppState,
+    body: &CreateTrajectory,
+) -> Result<TrajectoryDto, ApiError> {
     let requested = match &body.duration {
         None => None,
         Some(AutoOr::Auto(s)) if s == "auto" => None,
@@ -1329,8 +1367,8 @@ async fn create_trajectory(
             format!("must be in (0, {MAX_RATE}] Hz, got {rate}"),
         ));
     }
-    let l = loaded_model(&state, &body.model, Some("$.model")).await?;
-    let system = super::robots::system(&state, &l.robot).await.map_err(|e| {
+    let l = loaded_model(state, &body.model, Some("$.model")).await?;
+    let system = super::robots::system(state, &l.robot).await.map_err(|e| {
         if e.status() == StatusCode::NOT_FOUND {
             ApiError::conflict(format!("the model's robot '{}' no longer exists", l.robot))
         } else {
@@ -1338,7 +1376,7 @@ async fn create_trajectory(
         }
     })?;
     let start = joint_values(&system, &body.start, "$.start")?;
-    let (goal, goal_names, grasp) = resolve_goal(&state, &system, &l.robot, &body.goal).await?;
+    let (goal, goal_names, grasp) = resolve_goal(state, &system, &l.robot, &body.goal).await?;
     check_limits(
         &l.model,
         &l.names,
@@ -1393,13 +1431,7 @@ async fn create_trajectory(
         },
     )
     .await?;
-    let dto = trajectory_dto(stored)?;
-    Ok((
-        StatusCode::CREATED,
-        [(header::LOCATION, format!("/v1/trajectories/{}", dto.id))],
-        Json(dto),
-    )
-        .into_response())
+    trajectory_dto(stored)
 }
 
 /// One stored trajectory with its points and report.

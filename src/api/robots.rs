@@ -5,7 +5,7 @@
 //! once against the model ([`JointVector`]). Kinematic errors become 422 problem+json naming the
 //! field and the joint, link or frame.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::Path as FsPath;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
@@ -25,7 +25,7 @@ use utoipa_axum::routes;
 use super::{ApiError, AppState, FieldError, Json, Path, Problem};
 use crate::kinematics::{
     self, Data, FrameId, IkOptions, IkSolver, IkTarget, JointKind, JointVector, KinematicsError,
-    NoMeshes, System, SystemDescriptor, UrdfSources, forward_kinematics, frame_jacobian,
+    MapMeshes, NoMeshes, System, SystemDescriptor, UrdfSources, forward_kinematics, frame_jacobian,
 };
 use crate::store::{self, robots as repo};
 
@@ -128,6 +128,14 @@ fn inf_to_none(v: f64) -> Option<f64> {
 /// Builds the system of a stored row (URDF texts + descriptor; meshes are not stored, so
 /// registered systems use primitives).
 pub fn system_from_row(row: &repo::RobotRow) -> Result<System, KinematicsError> {
+    system_from_stored(row, &NoMeshes)
+}
+
+/// [`system_from_row`] with the meshes uploaded with the system.
+fn system_from_stored(
+    row: &repo::RobotRow,
+    meshes: &dyn kinematics::MeshSource,
+) -> Result<System, KinematicsError> {
     let desc: SystemDescriptor =
         serde_json::from_str(&row.descriptor).map_err(|e| KinematicsError::Descriptor {
             field: "descriptor".into(),
@@ -140,29 +148,46 @@ pub fn system_from_row(row: &repo::RobotRow) -> Result<System, KinematicsError> 
                 arm: &row.arm_urdf,
                 hand,
             },
-            &NoMeshes,
+            meshes,
         ),
-        None => System::from_sources(desc, UrdfSources::Combined(&row.arm_urdf), &NoMeshes),
+        None => System::from_sources(desc, UrdfSources::Combined(&row.arm_urdf), meshes),
     }
 }
 
-/// The loaded system `id` (404 if unknown), from the cache when the row has not changed. Other
-/// resources (mappings, grasps, trajectories) use this to resolve a robot id.
-pub async fn system(state: &AppState, id: &str) -> Result<Arc<System>, ApiError> {
+/// The one way every resource resolves a robot id: the loaded system `id`, bundled or
+/// registered through `POST /v1/robots` (404 problem+json if unknown), built from its stored row
+/// and kept in the state's cache until the row changes. Mappings, grasps, models and trajectories
+/// use this; a handler that takes the id from a request body can turn the 404 into a field error
+/// (see `api::grasps`).
+pub async fn resolve_system(state: &AppState, id: &str) -> Result<Arc<System>, ApiError> {
     let row = repo::get(&state.db, id)
         .await?
         .ok_or_else(|| ApiError::not_found("robot", id))?;
-    load_cached(&state.robots, row).await
+    load_cached(state, row).await
 }
 
-async fn load_cached(cache: &RobotCache, row: repo::RobotRow) -> Result<Arc<System>, ApiError> {
+/// [`resolve_system`] under its earlier name, kept for callers written against it.
+pub async fn system(state: &AppState, id: &str) -> Result<Arc<System>, ApiError> {
+    resolve_system(state, id).await
+}
+
+async fn load_cached(state: &AppState, row: repo::RobotRow) -> Result<Arc<System>, ApiError> {
+    let cache = &state.robots;
     if let Some((stamp, s)) = cache.0.read().expect("robot cache lock").get(&row.id)
         && *stamp == row.updated_at
     {
         return Ok(s.clone());
     }
+    let meshes = if row.bundled {
+        Default::default()
+    } else {
+        repo::meshes(&state.db, &row.id)
+            .await?
+            .into_iter()
+            .collect()
+    };
     let (id, stamp) = (row.id.clone(), row.updated_at.clone());
-    let built = tokio::task::spawn_blocking(move || system_from_row(&row))
+    let built = tokio::task::spawn_blocking(move || system_from_stored(&row, &MapMeshes(meshes)))
         .await
         .map_err(ApiError::internal)?
         // A stored row was validated when written; failing now is a bug, not bad input.
@@ -346,8 +371,9 @@ pub struct RobotDetail {
 }
 
 /// Register a system: a descriptor plus either `arm_urdf` + `hand_urdf` (with `descriptor.mount`)
-/// or one combined `urdf` (with `descriptor.wrist_frame`). Meshes cannot be uploaded; use
-/// collision primitives.
+/// or one combined `urdf` (with `descriptor.wrist_frame`). Collision meshes the URDFs reference
+/// (STL or OBJ) are uploaded in `meshes`, keyed by the filename exactly as the URDF writes it;
+/// a reference to a mesh not uploaded is a 422 naming the link.
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CreateRobot {
@@ -357,6 +383,60 @@ pub struct CreateRobot {
     pub arm_urdf: Option<String>,
     pub hand_urdf: Option<String>,
     pub urdf: Option<String>,
+    /// Mesh files by URDF filename (e.g. `package://my_arm/meshes/link1.stl`), at most
+    /// [`MAX_MESHES`]; stored with the robot.
+    #[serde(default)]
+    pub meshes: BTreeMap<String, MeshUpload>,
+}
+
+/// Most meshes uploaded with one system.
+pub const MAX_MESHES: usize = 64;
+
+/// One uploaded mesh file: STL (ASCII, or binary as base64) or OBJ text.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct MeshUpload {
+    /// File contents: text, or base64 when `encoding` is `base64`.
+    pub data: String,
+    /// `text` (default) or `base64`.
+    #[serde(default)]
+    pub encoding: Option<String>,
+}
+
+/// The uploaded meshes as bytes, each error naming its `$.meshes[...]` entry.
+fn decode_meshes(
+    meshes: &BTreeMap<String, MeshUpload>,
+) -> Result<BTreeMap<String, Vec<u8>>, ApiError> {
+    if meshes.len() > MAX_MESHES {
+        return Err(ApiError::invalid_field(
+            "$.meshes",
+            format!("at most {MAX_MESHES} meshes, got {}", meshes.len()),
+        ));
+    }
+    let mut out = BTreeMap::new();
+    for (name, m) in meshes {
+        let path = format!("$.meshes['{name}']");
+        if name.is_empty() || name.len() > 512 {
+            return Err(ApiError::invalid_field(
+                path,
+                "a mesh filename must have 1 to 512 bytes",
+            ));
+        }
+        let bytes = match m.encoding.as_deref().unwrap_or("text") {
+            "text" => m.data.clone().into_bytes(),
+            "base64" => super::grasps::decode_base64(&m.data).ok_or_else(|| {
+                ApiError::invalid_field(format!("{path}.data"), "not valid base64")
+            })?,
+            other => {
+                return Err(ApiError::invalid_field(
+                    format!("{path}.encoding"),
+                    format!("must be text or base64, got '{other}'"),
+                ));
+            }
+        };
+        out.insert(name.clone(), bytes);
+    }
+    Ok(out)
 }
 
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
@@ -598,7 +678,7 @@ async fn list_robots(State(state): State<AppState>) -> Result<Json<RobotList>, A
     let rows = repo::list(&state.db).await?;
     let mut items = Vec::with_capacity(rows.len());
     for row in rows {
-        let s = load_cached(&state.robots, row.clone()).await?;
+        let s = load_cached(&state, row.clone()).await?;
         items.push(summary(&row, &s));
     }
     Ok(Json(RobotList { items }))
@@ -618,7 +698,7 @@ async fn get_robot(
     let row = repo::get(&state.db, &id)
         .await?
         .ok_or_else(|| ApiError::not_found("robot", &id))?;
-    let s = load_cached(&state.robots, row.clone()).await?;
+    let s = load_cached(&state, row.clone()).await?;
     Ok(Json(detail(&row, &s)))
 }
 
@@ -699,6 +779,7 @@ async fn create_robot(
             ));
         }
     };
+    let meshes = decode_meshes(&body.meshes)?;
     // Build it once to validate (the same path that loads it later).
     let desc_json = serde_json::to_string(&desc).map_err(ApiError::internal)?;
     let probe = repo::RobotRow {
@@ -711,17 +792,20 @@ async fn create_robot(
         created_at: String::new(),
         updated_at: String::new(),
     };
-    let built = tokio::task::spawn_blocking(move || {
-        system_from_row(&probe).map_err(|e| {
+    let source = MapMeshes(meshes);
+    let (built, source) = tokio::task::spawn_blocking(move || {
+        let built = system_from_stored(&probe, &source).map_err(|e| {
             let which = urdf_field_of(&e, &probe.arm_urdf, probe.hand_urdf.as_deref());
             kin_error(e, which)
-        })
+        });
+        (built, source)
     })
     .await
     .map_err(ApiError::internal)?;
     let system = built?;
+    let meshes: Vec<(String, Vec<u8>)> = source.0.into_iter().collect();
     let id = uuid::Uuid::new_v4().to_string();
-    let row = repo::insert(
+    let row = repo::insert_with_meshes(
         &state.db,
         &repo::NewRobot {
             id: &id,
@@ -731,6 +815,7 @@ async fn create_robot(
             arm_urdf: &arm,
             hand_urdf: hand.as_deref(),
         },
+        &meshes,
     )
     .await?;
     let s = Arc::new(system);
@@ -794,6 +879,11 @@ async fn delete_robot(
     if row.bundled {
         return Err(ApiError::conflict(format!(
             "robot {id} is bundled (from robots/) and read-only"
+        )));
+    }
+    if store::grasps::robot_in_use(&state.db, &id).await? {
+        return Err(ApiError::conflict(format!(
+            "robot {id} is still referenced by stored grasps; it cannot be deleted"
         )));
     }
     match repo::delete(&state.db, &id).await {

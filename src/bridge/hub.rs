@@ -22,9 +22,8 @@ use tokio::sync::{Notify, mpsc, watch};
 use utoipa::ToSchema;
 
 use super::protocol::{
-    Capability, ErrorCode, ErrorReply, Execute, ExecutionPayload, ExecutionResult, Feedback,
-    Hello, Mode, Outcome, PROTOCOL_VERSION, ServiceMessage, Welcome, WorkerMessage,
-    decode_worker_message,
+    Capability, ErrorCode, ErrorReply, Execute, ExecutionPayload, ExecutionResult, Feedback, Hello,
+    Mode, Outcome, PROTOCOL_VERSION, ServiceMessage, Welcome, WorkerMessage, decode_worker_message,
 };
 use crate::api::{ApiError, AppState, Shutdown};
 use crate::store::executions as repo;
@@ -491,11 +490,7 @@ impl Hub {
         Ok(())
     }
 
-    fn register(
-        &self,
-        hello: &Hello,
-        tx: mpsc::Sender<ServiceMessage>,
-    ) -> Result<u64, ErrorReply> {
+    fn register(&self, hello: &Hello, tx: mpsc::Sender<ServiceMessage>) -> Result<u64, ErrorReply> {
         let mut s = self.lock();
         if s.workers.values().any(|w| w.snapshot.name == hello.worker) {
             return Err(error(
@@ -561,7 +556,9 @@ impl Hub {
             .await
             {
                 Ok(_) => tracing::warn!(execution = %id, "execution interrupted"),
-                Err(e) => tracing::error!(execution = %id, error = %e, "cannot record an interrupted execution"),
+                Err(e) => {
+                    tracing::error!(execution = %id, error = %e, "cannot record an interrupted execution")
+                }
             }
             self.notify_final(&id);
         }

@@ -84,10 +84,7 @@ pub fn validate_payload(
             if points.is_empty() || points.len() > MAX_POINTS {
                 errors.push(FieldError::new(
                     &paths.points,
-                    format!(
-                        "must have 1 to {MAX_POINTS} points, got {}",
-                        points.len()
-                    ),
+                    format!("must have 1 to {MAX_POINTS} points, got {}", points.len()),
                 ));
             }
             for (i, p) in points.iter().enumerate() {
@@ -120,11 +117,7 @@ pub fn validate_payload(
                 } else if i > 0 && p.t <= points[i - 1].t {
                     errors.push(FieldError::new(
                         format!("{at}.t"),
-                        format!(
-                            "times must increase: {} after {}",
-                            p.t,
-                            points[i - 1].t
-                        ),
+                        format!("times must increase: {} after {}", p.t, points[i - 1].t),
                     ));
                 }
                 if p.positions.len() == n

@@ -6,6 +6,10 @@
 //! proportional term; closed loop runs the model's law `u(q)` (`ControlParams::control`,
 //! DESIGN §5) on the measured state.
 
+// The integrators index several parallel per-joint arrays (state, command, limits) with one
+// joint index; zipped iterator chains over five arrays read worse than the update rules.
+#![allow(clippy::needless_range_loop)]
+
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -13,8 +17,8 @@ use super::protocol::{Execute, ExecutionPayload, Feedback, Mode, Outcome};
 use crate::motion::{ControlParams, TrajectoryPoint};
 
 /// Default joint acceleration limit (rad/s²) where the system descriptor gives none (URDFs
-/// carry only velocity limits); a conservative figure for a 7-DoF arm like the WAM.
-pub const DEFAULT_ACCELERATION_LIMIT: f64 = 4.0;
+/// carry only velocity limits); the same default as the motion models' `acceleration_limit`.
+pub const DEFAULT_ACCELERATION_LIMIT: f64 = 5.0;
 /// Velocity limit (rad/s) used for a joint whose URDF gives none (or zero).
 pub const DEFAULT_VELOCITY_LIMIT: f64 = 1.5;
 
@@ -255,7 +259,10 @@ impl Run {
                         && p.velocities.len() == n
                         && p.accelerations.len() == n
                         && p.t.is_finite()
-                        && p.positions.iter().chain(&p.velocities).all(|x| x.is_finite())
+                        && p.positions
+                            .iter()
+                            .chain(&p.velocities)
+                            .all(|x| x.is_finite())
                         && (i == 0 || p.t > points[i - 1].t);
                     if !ok {
                         return Err(format!("trajectory point {i} is invalid"));

@@ -89,14 +89,7 @@ impl WorkerOptions {
             m.velocity_limits(),
             acceleration_limit,
         );
-        WorkerOptions::new(
-            url,
-            token,
-            name,
-            robot,
-            m.joint_names().to_vec(),
-            limits,
-        )
+        WorkerOptions::new(url, token, name, robot, m.joint_names().to_vec(), limits)
     }
 }
 
@@ -105,17 +98,27 @@ impl WorkerOptions {
 pub enum WorkerEvent {
     Connected,
     /// An `execute` arrived (the instant it was decoded).
-    Execute { id: String, at: Instant },
+    Execute {
+        id: String,
+        at: Instant,
+    },
     /// An execution ended on this worker (`kicks`: perturbations applied during it).
     Finished {
         id: String,
         outcome: Outcome,
         kicks: u32,
     },
-    Cancelled { id: String },
+    Cancelled {
+        id: String,
+    },
     /// The service sent an error.
-    Error { code: ErrorCode, message: String },
-    Disconnected { reason: String },
+    Error {
+        code: ErrorCode,
+        message: String,
+    },
+    Disconnected {
+        reason: String,
+    },
 }
 
 /// Why the worker stopped for good.
@@ -154,12 +157,11 @@ pub async fn run_worker(
             url: opts.url.clone(),
             reason: e.to_string(),
         })?;
-    let bearer = HeaderValue::from_str(&format!("Bearer {}", opts.token)).map_err(|e| {
-        WorkerError::Url {
+    let bearer =
+        HeaderValue::from_str(&format!("Bearer {}", opts.token)).map_err(|e| WorkerError::Url {
             url: opts.url.clone(),
             reason: format!("token is not a valid header value: {e}"),
-        }
-    })?;
+        })?;
     request.headers_mut().insert(header::AUTHORIZATION, bearer);
     let initial = opts.initial.clone().unwrap_or_else(|| opts.limits.home());
     let mut robot = SimRobot::new(opts.limits.clone(), initial);

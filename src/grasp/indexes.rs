@@ -1,7 +1,14 @@
-//! Manipulability, transmission ratios, compatibility indexes and grasp quality measures
-//! (paper eq. 10-21). Pure functions on matrices; callers own the buffers.
+//! Transmission ratios, compatibility indexes and grasp quality measures (paper eq. 10-21).
+//! Pure functions on matrices; callers own the buffers. Manipulability, ellipsoids and the
+//! ratios themselves are `kinematics::manipulability`'s; this module adds their regularised use
+//! (finite at singular configurations), TC/GC and their gradients, the grasp matrix and the
+//! quality measures.
 
 use nalgebra::{DMatrix, Matrix3, Matrix3xX, Point3, SymmetricEigen, Vector3};
+
+use crate::kinematics::manipulability::{
+    ellipsoid_of_jjt, force_ratio_of_jjt, jjt, velocity_ratio_of_jjt,
+};
 use serde::{Deserialize, Serialize};
 
 /// What a task direction must transmit.
@@ -50,17 +57,13 @@ impl TaskDirection {
 /// directions; the floor keeps β finite (≈ √floor there) instead of NaN.
 pub const EIGEN_FLOOR: f64 = 1e-12;
 
-/// Yoshikawa manipulability `√det(J Jᵀ)` (eq. 12) of a k × n Jacobian.
-pub fn manipulability(j: &DMatrix<f64>) -> f64 {
-    let m = j * j.transpose();
-    m.determinant().max(0.0).sqrt()
-}
-
-/// `M = J_v J_vᵀ` for the 3 × n translational block.
+/// `M = J_v J_vᵀ` for the 3 × n translational block (the kinematics' [`jjt`]).
 pub fn transmission_matrix(jv: &Matrix3xX<f64>) -> Matrix3<f64> {
-    jv * jv.transpose()
+    jjt(jv)
 }
 
+/// `M⁻¹` with eigenvalues raised to [`EIGEN_FLOOR`]: the inverse behind the floored velocity
+/// ratio, which the TC gradient needs explicitly.
 fn inverse_floored(m: &Matrix3<f64>) -> Matrix3<f64> {
     let e = SymmetricEigen::new(*m);
     let mut inv = Matrix3::zeros();
@@ -72,11 +75,13 @@ fn inverse_floored(m: &Matrix3<f64>) -> Matrix3<f64> {
 }
 
 /// Force ratio `α = (dᵀ M d)^{-1/2}` (eq. 14, 17) or velocity ratio `β = (dᵀ M⁻¹ d)^{-1/2}`
-/// (eq. 15, 18) along unit `d`, with `M = J Jᵀ`.
+/// (eq. 15, 18) along unit `d`, with `M = J Jᵀ`: the kinematics' ratios in their regularised
+/// form (floored at [`EIGEN_FLOOR`]), so that the indexes stay finite and smooth for the
+/// optimiser.
 pub fn transmission_ratio(m: &Matrix3<f64>, d: &Vector3<f64>, kind: Transmission) -> f64 {
     match kind {
-        Transmission::Force => d.dot(&(m * d)).max(EIGEN_FLOOR).powf(-0.5),
-        Transmission::Velocity => d.dot(&(inverse_floored(m) * d)).powf(-0.5),
+        Transmission::Force => force_ratio_of_jjt(m, d, EIGEN_FLOOR),
+        Transmission::Velocity => velocity_ratio_of_jjt(m, d, EIGEN_FLOOR),
     }
 }
 
@@ -135,24 +140,21 @@ pub struct Ellipsoids {
 }
 
 impl Ellipsoids {
-    /// Axes of `M = J Jᵀ`.
+    /// Axes of `M = J Jᵀ` (the kinematics' [`ellipsoid_of_jjt`], with both sets of lengths).
     pub fn of(m: &Matrix3<f64>) -> Self {
-        let e = SymmetricEigen::new(*m);
-        let mut order = [0usize, 1, 2];
-        order.sort_by(|&a, &b| e.eigenvalues[b].total_cmp(&e.eigenvalues[a]));
+        let e = ellipsoid_of_jjt(m);
         let mut axes = [[0.0; 3]; 3];
-        let mut vel = [0.0; 3];
         let mut force = [0.0; 3];
-        for (k, &i) in order.iter().enumerate() {
-            let v = e.eigenvectors.column(i);
+        for k in 0..3 {
+            let v = e.directions.column(k);
             axes[k] = [v[0], v[1], v[2]];
-            let lam = e.eigenvalues[i].max(0.0);
-            vel[k] = lam.sqrt();
-            force[k] = lam.max(EIGEN_FLOOR).powf(-0.5);
+            force[k] = (e.semi_axes[k] * e.semi_axes[k])
+                .max(EIGEN_FLOOR)
+                .powf(-0.5);
         }
         Ellipsoids {
             axes,
-            velocity_semi_axes: vel,
+            velocity_semi_axes: [e.semi_axes[0], e.semi_axes[1], e.semi_axes[2]],
             force_semi_axes: force,
         }
     }
@@ -294,8 +296,6 @@ mod tests {
         let x = Vector3::x();
         assert!((transmission_ratio(&m, &x, Transmission::Force) - 0.5).abs() < 1e-12);
         assert!((transmission_ratio(&m, &x, Transmission::Velocity) - 2.0).abs() < 1e-12);
-        let dj = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![2.0, 0.5, 1.0]));
-        assert!((manipulability(&dj) - 1.0).abs() < 1e-12);
         // The product α β along any direction of a diagonal M... along an eigenvector it is 1.
         let y = Vector3::y();
         let a = transmission_ratio(&m, &y, Transmission::Force);

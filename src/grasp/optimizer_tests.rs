@@ -396,6 +396,84 @@ fn claim_b_force_and_velocity_optima_put_different_ellipsoids_along_d() {
     assert!(angle_deg(&vel_z.arm_ellipsoids.velocity_major(), &z) < 10.0);
 }
 
+/// Claim (b) on the shipped arms: for the WAM and the PA10 (with the T42 hand), grasping the
+/// seeded ball at a documented reachable placement, force- and velocity-optimal results along
+/// the same direction `d` differ as theory says, for every direction tried: the force optimum
+/// has the larger force ratio α along `d` and the velocity optimum the larger velocity ratio β.
+/// The major-axis alignment of the paper's figures is checked per kind: each kind's optimum
+/// puts its own ellipsoid's major axis within 20° of `d` for at least one of the directions.
+/// (Measured: on the WAM the force axis comes within 15° along x and the velocity axis within
+/// 3° along y; on the PA10 both come within 18° along x (17.8° and 15.3°) and the velocity axis
+/// within 3° along y. No single direction gets both within 10° at this placement — maximising a
+/// ratio along `d` need not turn the ellipsoid's axis onto `d`; the printout gives every angle.)
+#[test]
+fn claim_b_holds_on_the_wam_and_the_pa10() {
+    use crate::grasp::objects::seeded_object;
+    let dir_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let candidates = [
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [h, 0.0, h],
+        [0.0, h, h],
+    ];
+    for name in ["wam_t42", "pa10_t42"] {
+        let s =
+            crate::kinematics::System::from_file(&dir_path.join(format!("{name}.toml"))).unwrap();
+        let sys = HandArm::from_system(&s).unwrap();
+        let mut best = (f64::INFINITY, f64::INFINITY);
+        for d in candidates {
+            let d = Vector3::from(d);
+            let solve = |kind| {
+                let obj = Object::new(seeded_object("ball", 0.5, 0.0, 0.0).unwrap()).unwrap();
+                let mut req =
+                    GraspRequest::new(obj, vec![dir(d, kind)], QualityMeasure::CentroidDistance);
+                req.weights.q = 0.1;
+                req.starts = 8;
+                let r = plan_grasp(&sys, &req).unwrap();
+                assert!(r.feasible, "{name} {kind:?}: {:?}", r.reason);
+                r
+            };
+            let force = solve(Transmission::Force);
+            let vel = solve(Transmission::Velocity);
+            let af = angle_deg(&force.arm_ellipsoids.force_major(), &d);
+            let av = angle_deg(&vel.arm_ellipsoids.velocity_major(), &d);
+            let m = |r: &GraspResult| {
+                let e = &r.arm_ellipsoids;
+                let mut m = Matrix3::zeros();
+                for k in 0..3 {
+                    let a = Vector3::from(e.axes[k]);
+                    m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+                }
+                m
+            };
+            let ratio = |r: &GraspResult, kind| indexes::transmission_ratio(&m(r), &d, kind);
+            let (ff, vf) = (
+                ratio(&force, Transmission::Force),
+                ratio(&vel, Transmission::Force),
+            );
+            let (vv, fv) = (
+                ratio(&vel, Transmission::Velocity),
+                ratio(&force, Transmission::Velocity),
+            );
+            println!(
+                "{name} d={:?}: α {ff:.3} (velocity optimum {vf:.3}), force axis {af:.1}°; \
+                 β {vv:.3} (force optimum {fv:.3}), velocity axis {av:.1}°",
+                d.as_slice()
+            );
+            assert!(ff > vf, "{name} {d:?}: α {ff} vs {vf}");
+            assert!(vv > fv, "{name} {d:?}: β {vv} vs {fv}");
+            best = (best.0.min(af), best.1.min(av));
+        }
+        println!(
+            "{name}: best force-axis alignment {:.1}°, best velocity-axis alignment {:.1}°",
+            best.0, best.1
+        );
+        assert!(best.0 < 20.0 && best.1 < 20.0, "{name}: {best:?}");
+    }
+}
+
 /// Fig. 5: the Q_DC-optimal grasp of a cylinder has a smaller centroid distance than random
 /// feasible grasps.
 #[test]

@@ -43,7 +43,9 @@ pub use model::{
     hand_spec,
 };
 pub use storage::{FRAME_WIDTH, pack_frames, unpack_frames};
-pub use synth::{ObjectKind, StudyConfig, generate_study, generate_trial};
+pub use synth::{
+    ObjectKind, StudyConfig, generate_study, generate_study_with_progress, generate_trial,
+};
 
 use nalgebra::{Isometry3, Point3};
 

@@ -302,6 +302,14 @@ impl StudyConfig {
 
 /// Generate the whole study (raw sensor streams, labelled synthetic).
 pub fn generate_study(cfg: &StudyConfig) -> Result<Vec<DemonstrationInput>, HumanError> {
+    generate_study_with_progress(cfg, &mut |_, _| {})
+}
+
+/// [`generate_study`], calling `progress(done, total)` after each trial.
+pub fn generate_study_with_progress(
+    cfg: &StudyConfig,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Vec<DemonstrationInput>, HumanError> {
     cfg.validate()?;
     let trials = cfg.trials();
     let mut out = Vec::with_capacity(trials.len());
@@ -315,6 +323,7 @@ pub fn generate_study(cfg: &StudyConfig) -> Result<Vec<DemonstrationInput>, Huma
             )),
         };
         out.push(generate_trial_with(spec, cfg.seed, hk)?);
+        progress(out.len(), trials.len());
     }
     Ok(out)
 }

@@ -2,9 +2,10 @@
 //! compute every frame placement once with [`forward_kinematics`], then extract Jacobians cheaply.
 //! Nothing here allocates.
 
-use nalgebra::{Isometry3, Matrix6xX, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix6xX, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
-use super::model::{FrameId, Model, Motion};
+use super::model::{FrameId, Model, Step};
+use super::sincos::sin_cos;
 
 /// Per-worker scratch: one per thread, reused across calls. Holds the world placement of every
 /// frame after [`forward_kinematics`].
@@ -36,34 +37,75 @@ impl Data {
 /// another model (a programming error; validate input with `JointVector` at the edge).
 pub fn forward_kinematics(model: &Model, data: &mut Data, q: &[f64]) {
     assert_eq!(q.len(), model.nq(), "q has the wrong length for this model");
-    assert_eq!(
-        data.placements.len(),
-        model.n_frames(),
-        "Data built for another model"
-    );
-    data.placements[0] = Isometry3::identity();
-    for i in 1..model.parents.len() {
-        let origin = &model.origins[i];
-        // origin * motion, written out so neither a full isometry product nor an axis-angle
-        // conversion of the identity is paid for fixed joints.
-        let local = match model.motions[i] {
-            Motion::Fixed => *origin,
-            Motion::Revolute { axis, act } => {
-                let angle = act.multiplier * q[act.q_index] + act.offset;
-                Isometry3::from_parts(
-                    origin.translation,
-                    origin.rotation * UnitQuaternion::from_axis_angle(&axis, angle),
-                )
+    let n = model.n_frames();
+    assert_eq!(data.placements.len(), n, "Data built for another model");
+    let (parents, origins, steps) = (&model.parents[..n], &model.origins[..n], &model.steps[..n]);
+    let x = &mut data.placements[..n];
+    x[0] = Isometry3::identity();
+    for i in 1..n {
+        let o = &origins[i];
+        // X_i = X_parent · origin · motion(q), with origin · motion formed directly: a rotation
+        // about z is a quaternion (cos θ/2, 0, 0, sin θ/2), whose product costs 8 multiplies.
+        let (rot, t_local) = match steps[i] {
+            Step::Fixed => (o.rotation, o.translation.vector),
+            Step::RevoluteZ {
+                q_index,
+                multiplier,
+                offset,
+            } => {
+                let (s, c) = sin_cos(0.5 * (multiplier * q[q_index] + offset));
+                let r = o.rotation.quaternion();
+                let (w, v) = (r.w, &r.coords);
+                let local = Quaternion::new(
+                    w * c - v.z * s,
+                    v.x * c + v.y * s,
+                    v.y * c - v.x * s,
+                    v.z * c + w * s,
+                );
+                (UnitQuaternion::new_unchecked(local), o.translation.vector)
             }
-            Motion::Prismatic { axis, act } => {
-                let d = act.multiplier * q[act.q_index] + act.offset;
-                let t = origin.translation.vector + origin.rotation * (axis.into_inner() * d);
-                Isometry3::from_parts(Translation3::from(t), origin.rotation)
+            Step::Revolute {
+                axis,
+                q_index,
+                multiplier,
+                offset,
+            } => {
+                let (s, c) = sin_cos(0.5 * (multiplier * q[q_index] + offset));
+                let m = UnitQuaternion::new_unchecked(Quaternion::new(
+                    c,
+                    s * axis.x,
+                    s * axis.y,
+                    s * axis.z,
+                ));
+                (o.rotation * m, o.translation.vector)
+            }
+            Step::Prismatic {
+                axis_in_parent,
+                q_index,
+                multiplier,
+                offset,
+            } => {
+                let d = multiplier * q[q_index] + offset;
+                (o.rotation, o.translation.vector + axis_in_parent * d)
             }
         };
-        let parent = model.parents[i];
-        data.placements[i] = data.placements[parent] * local;
+        let p = x[parents[i]];
+        x[i] = Isometry3::from_parts(
+            Translation3::from(p.translation.vector + p.rotation * t_local),
+            p.rotation * rot,
+        );
     }
+}
+
+/// The z axis of a unit quaternion's rotation (third column of its matrix).
+#[inline]
+fn z_axis(r: &UnitQuaternion<f64>) -> Vector3<f64> {
+    let (w, v) = (r.w, &r.coords);
+    Vector3::new(
+        2.0 * (v.x * v.z + w * v.y),
+        2.0 * (v.y * v.z - w * v.x),
+        1.0 - 2.0 * (v.x * v.x + v.y * v.y),
+    )
 }
 
 /// Geometric Jacobian of the point `point_in_frame` (coordinates in `frame`) rigidly attached to
@@ -80,34 +122,111 @@ pub fn frame_jacobian(
     out: &mut Matrix6xX<f64>,
 ) {
     assert_eq!(out.ncols(), model.nq(), "Jacobian buffer must be 6 x nq");
-    out.fill(0.0);
-    let p = data.placements[frame.0] * Point3::from(*point_in_frame);
+    let x = &data.placements[..];
+    let o = out.as_mut_slice();
+    o.fill(0.0);
+    let p = (x[frame.0] * Point3::from(*point_in_frame)).coords;
+    let mut i = frame.0;
+    // Columns are contiguous (column-major 6 × nq): column k is o[6k..6k + 6].
+    let mut add = |k: usize, m: f64, v: &Vector3<f64>, a: &Vector3<f64>| {
+        let col = &mut o[6 * k..6 * k + 6];
+        col[0] += m * v.x;
+        col[1] += m * v.y;
+        col[2] += m * v.z;
+        col[3] += m * a.x;
+        col[4] += m * a.y;
+        col[5] += m * a.z;
+    };
+    while i != usize::MAX {
+        match model.steps[i] {
+            Step::Fixed => {}
+            // The joint axis is invariant under its own rotation, so the child frame's rotation
+            // maps it to the world; the child origin lies on the axis.
+            Step::RevoluteZ {
+                q_index,
+                multiplier,
+                ..
+            } => {
+                let a = z_axis(&x[i].rotation);
+                let v = a.cross(&(p - x[i].translation.vector));
+                add(q_index, multiplier, &v, &a);
+            }
+            Step::Revolute {
+                axis,
+                q_index,
+                multiplier,
+                ..
+            } => {
+                let a = x[i].rotation * axis;
+                let v = a.cross(&(p - x[i].translation.vector));
+                add(q_index, multiplier, &v, &a);
+            }
+            Step::Prismatic {
+                axis_in_parent,
+                q_index,
+                multiplier,
+                ..
+            } => {
+                // The parent's rotation times the axis in the parent frame.
+                let a = x[model.parents[i]].rotation * axis_in_parent;
+                add(q_index, multiplier, &a, &Vector3::zeros());
+            }
+        }
+        i = model.parents[i];
+    }
+}
+
+/// `grad += J_v(frame, point)ᵀ · v`: the linear rows of [`frame_jacobian`] transposed and applied
+/// to a world vector, accumulated into `grad` (length `model.nq()`) without forming the 6 × nq
+/// matrix. This is what a gradient of a function of one world point needs (constraint and cost
+/// gradients of many points), at the cost of one pass up the chain. For a revolute column,
+/// `(a × (p − o)) · v = a · ((p − o) × v)`.
+///
+/// Requires a prior [`forward_kinematics`]. Panics if `grad.len() != model.nq()`.
+pub fn add_point_jacobian_transpose(
+    model: &Model,
+    data: &Data,
+    frame: FrameId,
+    point_in_frame: &Vector3<f64>,
+    v: &Vector3<f64>,
+    grad: &mut [f64],
+) {
+    assert_eq!(
+        grad.len(),
+        model.nq(),
+        "gradient buffer must have length nq"
+    );
+    let x = &data.placements[..];
+    let p = (x[frame.0] * Point3::from(*point_in_frame)).coords;
     let mut i = frame.0;
     while i != usize::MAX {
-        match model.motions[i] {
-            Motion::Fixed => {}
-            Motion::Revolute { axis, act } => {
-                // The joint axis is invariant under its own rotation, so the child frame's
-                // rotation maps it to the world; the child origin lies on the axis.
-                let x = &data.placements[i];
-                let a = x.rotation * axis.into_inner();
-                let v = a.cross(&(p.coords - x.translation.vector));
-                let m = act.multiplier;
-                let mut col = out.column_mut(act.q_index);
-                col[0] += m * v.x;
-                col[1] += m * v.y;
-                col[2] += m * v.z;
-                col[3] += m * a.x;
-                col[4] += m * a.y;
-                col[5] += m * a.z;
+        match model.steps[i] {
+            Step::Fixed => {}
+            Step::RevoluteZ {
+                q_index,
+                multiplier,
+                ..
+            } => {
+                let a = z_axis(&x[i].rotation);
+                grad[q_index] += multiplier * a.dot(&(p - x[i].translation.vector).cross(v));
             }
-            Motion::Prismatic { axis, act } => {
-                let a = data.placements[i].rotation * axis.into_inner();
-                let m = act.multiplier;
-                let mut col = out.column_mut(act.q_index);
-                col[0] += m * a.x;
-                col[1] += m * a.y;
-                col[2] += m * a.z;
+            Step::Revolute {
+                axis,
+                q_index,
+                multiplier,
+                ..
+            } => {
+                let a = x[i].rotation * axis;
+                grad[q_index] += multiplier * a.dot(&(p - x[i].translation.vector).cross(v));
+            }
+            Step::Prismatic {
+                axis_in_parent,
+                q_index,
+                multiplier,
+                ..
+            } => {
+                let a = x[model.parents[i]].rotation * axis_in_parent;
+                grad[q_index] += multiplier * a.dot(v);
             }
         }
         i = model.parents[i];
@@ -247,6 +366,32 @@ pub(crate) mod tests {
                         rng.random_range(-0.3..0.3),
                     );
                     check_jacobian_fd(&model, &q, FrameId(f), &p, 1e-6);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn point_jacobian_transpose_product_equals_the_jacobian_rows() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        for seed in 0..20 {
+            let model = random_tree(seed, 12);
+            let q = random_q(&model, &mut rng);
+            let mut data = Data::new(&model);
+            forward_kinematics(&model, &mut data, &q);
+            let mut j = Matrix6xX::zeros(model.nq());
+            for f in 0..model.n_frames() {
+                let p = Vector3::new(rng.random_range(-0.3..0.3), 0.2, -0.1);
+                let v = Vector3::new(0.3, -1.2, rng.random_range(-1.0..1.0));
+                frame_jacobian(&model, &data, FrameId(f), &p, &mut j);
+                let expected = j.fixed_rows::<3>(0).transpose() * v;
+                let mut g = vec![0.5; model.nq()];
+                add_point_jacobian_transpose(&model, &data, FrameId(f), &p, &v, &mut g);
+                for k in 0..model.nq() {
+                    assert!(
+                        (g[k] - 0.5 - expected[k]).abs() < 1e-12,
+                        "frame {f} column {k}"
+                    );
                 }
             }
         }

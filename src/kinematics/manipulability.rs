@@ -57,7 +57,16 @@ where
     S: RawStorage<f64, R, C>,
     DefaultAllocator: Allocator<R, R> + Allocator<R> + Allocator<<R as DimSub<U1>>::Output>,
 {
-    let eig = jjt(j).symmetric_eigen();
+    ellipsoid_of_jjt(&jjt(j))
+}
+
+/// [`velocity_ellipsoid`] from `M = J Jᵀ` already formed (a hand-object Jacobian's `M`, say).
+pub fn ellipsoid_of_jjt<R>(m: &OMatrix<f64, R, R>) -> Ellipsoid<R>
+where
+    R: DimName + DimSub<U1>,
+    DefaultAllocator: Allocator<R, R> + Allocator<R> + Allocator<<R as DimSub<U1>>::Output>,
+{
+    let eig = m.clone().symmetric_eigen();
     let n = R::dim();
     // Sort descending with a fixed-size selection sort (n ≤ 6): no allocation.
     let mut semi_axes = OVector::<f64, R>::zeros();
@@ -89,8 +98,19 @@ where
     S: RawStorage<f64, R, C>,
     DefaultAllocator: Allocator<R, R> + Allocator<R>,
 {
+    force_ratio_of_jjt(&jjt(j), d, 0.0)
+}
+
+/// Eq. 14 from `M = J Jᵀ`. With `floor > 0`, `dᵀ M d` is raised to `floor` first, which keeps
+/// the ratio finite (≤ floor^{-1/2}) where `J` cannot move along `d`: the regularised form an
+/// optimiser needs (the grasp indexes use it); `floor = 0` is the exact ratio.
+pub fn force_ratio_of_jjt<R>(m: &OMatrix<f64, R, R>, d: &OVector<f64, R>, floor: f64) -> f64
+where
+    R: DimName,
+    DefaultAllocator: Allocator<R, R> + Allocator<R>,
+{
     let d = d.normalize();
-    let q = (jjt(j) * &d).dot(&d);
+    let q = (m * &d).dot(&d).max(floor);
     if q > 0.0 {
         1.0 / q.sqrt()
     } else {
@@ -108,14 +128,28 @@ where
     S: RawStorage<f64, R, C>,
     DefaultAllocator: Allocator<R, R> + Allocator<R> + Allocator<<R as DimSub<U1>>::Output>,
 {
+    velocity_ratio_of_jjt(&jjt(j), d, 0.0)
+}
+
+/// Eq. 15 from `M = J Jᵀ`. With `floor > 0`, eigenvalues of `M` are raised to `floor` before
+/// inverting (`M⁻¹ ≈ Σ v vᵀ / max(λ, floor)`), so the ratio is smooth and about `√floor` along
+/// directions `J` cannot move in (the regularised form of the grasp indexes); with `floor = 0`
+/// it is exact and 0 along such directions.
+pub fn velocity_ratio_of_jjt<R>(m: &OMatrix<f64, R, R>, d: &OVector<f64, R>, floor: f64) -> f64
+where
+    R: DimName + DimSub<U1>,
+    DefaultAllocator: Allocator<R, R> + Allocator<R> + Allocator<<R as DimSub<U1>>::Output>,
+{
     let d = d.normalize();
-    let eig = jjt(j).symmetric_eigen();
+    let eig = m.clone().symmetric_eigen();
     let scale = eig.eigenvalues.amax().max(f64::MIN_POSITIVE);
     let mut q = 0.0;
     for k in 0..R::dim() {
         let c = eig.eigenvectors.column(k).dot(&d);
         let lambda = eig.eigenvalues[k];
-        if lambda <= 1e-14 * scale {
+        if floor > 0.0 {
+            q += c * c / lambda.max(floor);
+        } else if lambda <= 1e-14 * scale {
             if c.abs() > 1e-9 {
                 return 0.0;
             }

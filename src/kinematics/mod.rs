@@ -14,10 +14,11 @@ mod mesh;
 mod model;
 #[cfg(test)]
 mod robot_tests;
+mod sincos;
 mod system;
 pub mod urdf;
 
-pub use algorithms::{Data, forward_kinematics, frame_jacobian};
+pub use algorithms::{Data, add_point_jacobian_transpose, forward_kinematics, frame_jacobian};
 pub use error::KinematicsError;
 pub use ik::{IkOptions, IkReport, IkSolver, IkTarget};
 pub use joint_vector::JointVector;
@@ -29,4 +30,6 @@ pub use model::{
     Actuation, Collision, FrameId, Joint, JointKind, JointLimits, Mimic, Model, ModelBuilder,
 };
 pub use system::{Finger, FingerSpec, Mount, SpreadPair, System, SystemDescriptor, UrdfSources};
-pub use urdf::{DirMeshes, MeshSource, NoMeshes, model_from_urdf_file, model_from_urdf_str};
+pub use urdf::{
+    DirMeshes, MapMeshes, MeshSource, NoMeshes, model_from_urdf_file, model_from_urdf_str,
+};

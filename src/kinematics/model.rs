@@ -133,6 +133,67 @@ pub(crate) enum Motion {
     },
 }
 
+/// The FK table entry of a frame, derived from [`Motion`] at build time so the hot loops branch
+/// once per frame on plain numbers: revolute joints about ±z (every DH-style URDF, both bundled
+/// arms) get their own case, the sign of a −z axis folded into the multiplier and offset, and
+/// prismatic axes are pre-rotated into the parent frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Step {
+    Fixed,
+    RevoluteZ {
+        q_index: usize,
+        multiplier: f64,
+        offset: f64,
+    },
+    Revolute {
+        axis: Vector3<f64>,
+        q_index: usize,
+        multiplier: f64,
+        offset: f64,
+    },
+    Prismatic {
+        /// The axis in the parent frame (`origin.rotation * axis`).
+        axis_in_parent: Vector3<f64>,
+        q_index: usize,
+        multiplier: f64,
+        offset: f64,
+    },
+}
+
+impl Step {
+    fn of(motion: &Motion, origin: &Isometry3<f64>) -> Step {
+        match *motion {
+            Motion::Fixed => Step::Fixed,
+            Motion::Revolute { axis, act } => {
+                let sign = if axis.x == 0.0 && axis.y == 0.0 {
+                    Some(axis.z.signum())
+                } else {
+                    None
+                };
+                match sign {
+                    Some(sign) => Step::RevoluteZ {
+                        q_index: act.q_index,
+                        multiplier: sign * act.multiplier,
+                        offset: sign * act.offset,
+                    },
+                    None => Step::Revolute {
+                        axis: axis.into_inner(),
+                        q_index: act.q_index,
+                        multiplier: act.multiplier,
+                        offset: act.offset,
+                    },
+                }
+            }
+            Motion::Prismatic { axis, act } => Step::Prismatic {
+                axis_in_parent: origin.rotation * axis.into_inner(),
+                q_index: act.q_index,
+                multiplier: act.multiplier,
+                offset: act.offset,
+            },
+        }
+    }
+}
+
 /// A collision primitive or mesh rigidly attached to a frame.
 #[derive(Clone)]
 pub struct Collision {
@@ -162,6 +223,8 @@ pub struct Model {
     /// Placement of the joint frame in the parent frame, per frame (identity for the root).
     pub(crate) origins: Vec<Isometry3<f64>>,
     pub(crate) motions: Vec<Motion>,
+    /// `motions` specialised for FK and Jacobians (see [`Step`]).
+    pub(crate) steps: Vec<Step>,
     /// The joint whose child is this frame (`None` for the root).
     pub(crate) joint_of_frame: Vec<Option<usize>>,
     pub(crate) frame_index: HashMap<String, usize>,
@@ -542,6 +605,11 @@ impl ModelBuilder {
                 _ => Motion::Fixed,
             };
         }
+        let steps = motions
+            .iter()
+            .zip(&origins)
+            .map(|(m, o)| Step::of(m, o))
+            .collect();
         let q_joint_names = q_joints
             .iter()
             .map(|&j| self.joints[j].name.clone())
@@ -561,6 +629,7 @@ impl ModelBuilder {
             parents: self.parents,
             origins,
             motions,
+            steps,
             joint_of_frame,
             frame_index: self.frame_index,
             joints: self.joints,

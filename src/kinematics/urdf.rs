@@ -34,6 +34,19 @@ impl MeshSource for NoMeshes {
     }
 }
 
+/// Meshes supplied with the URDF text (uploaded with a registered system), by the filename
+/// exactly as the URDF references it.
+pub struct MapMeshes(pub std::collections::BTreeMap<String, Vec<u8>>);
+
+impl MeshSource for MapMeshes {
+    fn read(&self, filename: &str) -> Result<Vec<u8>, String> {
+        self.0.get(filename).cloned().ok_or_else(|| {
+            let known: Vec<&str> = self.0.keys().map(String::as_str).collect();
+            format!("mesh '{filename}' was not uploaded with the robot (uploaded: {known:?})")
+        })
+    }
+}
+
 /// Meshes relative to the URDF's directory. `package://pkg/rest` and `file://` are resolved by
 /// looking for `rest` (then `pkg/rest`) in the URDF directory and its ancestors, which covers the
 /// usual ROS package layouts without a ROS installation.

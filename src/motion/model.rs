@@ -99,6 +99,9 @@ pub struct TrainOptions {
     pub components: Components,
     /// Knot intervals per PCA axis of the spline `s`.
     pub spline_intervals: usize,
+    /// Lower `spline_intervals` for a manifold whose spline would exceed the coefficient budget
+    /// (many components: `(intervals + 3)^d` coefficients) instead of refusing to train.
+    pub cap_spline_intervals: bool,
     /// Relative weight of the smoothness + ridge penalty of the spline fit.
     pub regularisation: f64,
     /// Demonstrated points closer to their goal than this fraction of the demonstration's
@@ -122,6 +125,7 @@ impl Default for TrainOptions {
             groups: Vec::new(),
             components: Components::default(),
             spline_intervals: 6,
+            cap_spline_intervals: false,
             regularisation: 3.0,
             goal_exclusion: 0.25,
             k: KChoice::Auto,
@@ -269,7 +273,8 @@ pub struct Trajectory {
     /// Largest velocity / acceleration limit use along the output (≤ 1).
     pub max_velocity_ratio: f64,
     pub max_acceleration_ratio: f64,
-    /// Largest excursion beyond a position limit along the path (0 when within limits).
+    /// Largest excursion beyond a position limit of the interpolated path before it was held
+    /// on the limit (0 when within limits); the output points are always within limits.
     pub max_position_excess: f64,
     pub converged: bool,
     /// Per group: PCA-space distance to the goal where the flow stopped (before the exact goal
@@ -624,7 +629,14 @@ pub fn train(
         }
         let rho = rho.max(1e-9);
         let radius = opts.workspace_margin * rho;
-        let coeffs = TensorBSpline::coefficient_count(d, opts.spline_intervals);
+        let mut intervals = opts.spline_intervals;
+        while opts.cap_spline_intervals
+            && intervals > 1
+            && TensorBSpline::coefficient_count(d, intervals) > MAX_COEFFICIENTS
+        {
+            intervals -= 1;
+        }
+        let coeffs = TensorBSpline::coefficient_count(d, intervals);
         if coeffs > MAX_COEFFICIENTS {
             return Err(MotionError::SplineTooLarge {
                 coefficients: coeffs,
@@ -633,7 +645,7 @@ pub fn train(
         }
         let box_lo: Vec<f64> = center.iter().map(|c| c - radius).collect();
         let box_hi: Vec<f64> = center.iter().map(|c| c + radius).collect();
-        let template = TensorBSpline::zeros(&box_lo, &box_hi, opts.spline_intervals);
+        let template = TensorBSpline::zeros(&box_lo, &box_hi, intervals);
         let train_y: Vec<DemoY<'_>> = train_idx.iter().map(|&di| DemoY { y: &ys[di] }).collect();
         let fit = fit_spline(
             &template,
@@ -1133,6 +1145,14 @@ impl MotionModel {
                     excess = excess
                         .max(self.limits.lower[j] - p[j])
                         .max(p[j] - self.limits.upper[j]);
+                    // The interpolated humanlike path can bulge slightly past a limit when an
+                    // end sits on it (a hand joint fully open, say). A robot must never be sent
+                    // past its limits, so the point is held on the limit there.
+                    if p[j] < self.limits.lower[j] || p[j] > self.limits.upper[j] {
+                        p[j] = p[j].clamp(self.limits.lower[j], self.limits.upper[j]);
+                        v[j] = 0.0;
+                        a[j] = 0.0;
+                    }
                 }
                 points.push(TrajectoryPoint {
                     t: tau * total,

@@ -403,3 +403,30 @@ fn a_given_k_is_certified_by_shrinking_the_field() {
         Err(MotionError::CertificateUnattainable { group: 0, .. })
     ));
 }
+
+#[test]
+fn capped_spline_intervals_fit_the_budget_where_the_requested_ones_would_not() {
+    let data = small_study(13);
+    // four components per group at 6 intervals need 9^4 coefficients
+    let opts = TrainOptions {
+        components: Components::Count(4),
+        ..options(&data, None)
+    };
+    assert!(matches!(
+        train(&data.demos, &data.limits, &opts),
+        Err(MotionError::SplineTooLarge { .. })
+    ));
+    let capped = TrainOptions {
+        cap_spline_intervals: true,
+        ..opts
+    };
+    let (model, _) = train(&data.demos, &data.limits, &capped).unwrap();
+    for m in &model.manifolds {
+        assert_eq!(m.pca.d(), 4);
+        let i = m.nf.spline.intervals();
+        assert!((1..6).contains(&i));
+        assert!(TensorBSpline::coefficient_count(4, i) <= MAX_SPLINE_COEFFICIENTS);
+        assert!(TensorBSpline::coefficient_count(4, i + 1) > MAX_SPLINE_COEFFICIENTS);
+        assert!(m.certificate.holds);
+    }
+}

@@ -12,6 +12,11 @@
 //! `∇f + c · JF1ᵀ (t − Π_C t)` are written here rather than taken from OpEn's `AlmFactory`
 //! because the factory allocates fresh vectors on every evaluation; here they use scratch
 //! buffers owned by the solver.
+//!
+//! Hot loops that solve thousands of small box problems a second (the motion mapping, one per
+//! frame) use [`BoxSolver`] instead: the same PANOC backend through the same `panoc` call, with
+//! borrowed bounds, no allocation per solve, and pair orderings projected exactly
+//! ([`OrderedBox`]); see `ordered.rs` for why it is a second entry rather than a `Problem`.
 
 use std::cell::RefCell;
 use std::time::{Duration, Instant};

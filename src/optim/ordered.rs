@@ -7,7 +7,7 @@
 //! motion mapping (paper eq. 6-7) solves thousands of frames per second (the ≥ 5,000 frames/s
 //! bench) and needs (a) no allocation per frame and (b) the spread ordering (eq. 28) as an exact
 //! projection, so it holds on every iterate like the joint limits. Both entries run the same
-//! backend through [`panoc`] and the same feasible set type ([`OrderedBox`]; with no pairs it is
+//! backend through `optim::panoc` and the same feasible set type ([`OrderedBox`]; with no pairs it is
 //! the plain box the general adapter uses).
 //!
 //! Why PANOC (optimization_engine): the mapping problem is a smooth (up to the eq. 3 cone at zero

@@ -166,6 +166,22 @@ pub async fn list(
     Ok((rows, total))
 }
 
+/// Ids of the demonstrations whose external id starts with `prefix` (a synthetic study's rows:
+/// `synth-<seed>-…`), in external-id order.
+pub async fn ids_by_external_prefix(
+    pool: &SqlitePool,
+    prefix: &str,
+) -> Result<Vec<String>, sqlx::Error> {
+    // `substr` rather than LIKE: external ids may contain `%` and `_`.
+    sqlx::query_scalar(
+        "SELECT id FROM demonstrations WHERE substr(external_id, 1, length(?1)) = ?1 \
+         ORDER BY external_id",
+    )
+    .bind(prefix)
+    .fetch_all(pool)
+    .await
+}
+
 /// The encoded frame BLOB of a demonstration.
 pub async fn frames(pool: &SqlitePool, id: &str) -> Result<Option<Vec<u8>>, sqlx::Error> {
     sqlx::query_scalar("SELECT frames FROM demonstrations WHERE id = ?")

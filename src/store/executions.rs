@@ -174,9 +174,9 @@ pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<ExecutionRow>, sq
         columns!(),
         " FROM executions WHERE id = ?"
     ))
-        .bind(id)
-        .fetch_optional(pool)
-        .await
+    .bind(id)
+    .fetch_optional(pool)
+    .await
 }
 
 /// The stored payload of an execution.
@@ -377,7 +377,9 @@ mod tests {
     #[tokio::test]
     async fn payload_points_round_trip_through_the_blob_and_states_move_once() {
         let dir = tempfile::tempdir().unwrap();
-        let pool = super::super::connect(&dir.path().join("t.db")).await.unwrap();
+        let pool = super::super::connect(&dir.path().join("t.db"))
+            .await
+            .unwrap();
         let p = ExecutionPayload::Trajectory {
             trajectory_id: "inline".into(),
             joint_names: vec!["a".into(), "b".into()],
@@ -400,6 +402,10 @@ mod tests {
         assert_eq!(recover_interrupted(&pool).await.unwrap(), 1);
         let after = get(&pool, &row.id).await.unwrap().unwrap();
         assert_eq!(after.state, INTERRUPTED);
-        assert!(!finish(&pool, &row.id, FAILED, None, None, None).await.unwrap());
+        assert!(
+            !finish(&pool, &row.id, FAILED, None, None, None)
+                .await
+                .unwrap()
+        );
     }
 }

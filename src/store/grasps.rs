@@ -194,6 +194,19 @@ pub async fn get_batch(
     Ok(Some((b, ids.into_iter().map(|r| r.0).collect())))
 }
 
+/// Whether any stored grasp or batch was computed for `robot` (`grasps.robot` is not a foreign
+/// key, so deleting a robot asks here before it refuses with 409).
+pub async fn robot_in_use(pool: &SqlitePool, robot: &str) -> Result<bool, sqlx::Error> {
+    let (n,): (i64,) = sqlx::query_as(
+        "SELECT (SELECT COUNT(*) FROM grasps WHERE robot = ?) + (SELECT COUNT(*) FROM grasp_batches WHERE robot = ?)",
+    )
+    .bind(robot)
+    .bind(robot)
+    .fetch_one(pool)
+    .await?;
+    Ok(n > 0)
+}
+
 /// The newest grasps first (the dashboard's list).
 pub async fn list_grasps(pool: &SqlitePool, limit: u32) -> Result<Vec<GraspRow>, sqlx::Error> {
     sqlx::query_as(

@@ -6,6 +6,7 @@
 //! Joint trajectories and per-frame metrics are `store::blob` arrays (see the migration).
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use sqlx::sqlite::SqliteRow;
 use sqlx::{Sqlite, SqlitePool, Transaction};
 
 use crate::mapping::{FrameMetrics, MAX_FINGERS, MappedTrajectory, Registration};
@@ -381,19 +382,47 @@ pub async fn list_mappings(
     Ok((rows, total))
 }
 
-async fn count_demos(
+macro_rules! demo_page_filter {
+    () => {
+        " WHERE mapping_id = ?1 AND (?2 IS NULL OR demonstration_id = ?2)"
+    };
+}
+macro_rules! demo_meta_columns {
+    () => {
+        "position, demonstration_id, subject_id, object_name, task, position_index, trial, \
+         frame_count, summary"
+    };
+}
+
+/// One page of a mapping's `mapping_demonstrations` rows (query `sql`, request order,
+/// optionally one demonstration id) and the number matching without the page.
+async fn fetch_page<T>(
     pool: &SqlitePool,
+    sql: &'static str,
     mapping_id: &str,
     demonstration: Option<&str>,
-) -> Result<i64, sqlx::Error> {
-    sqlx::query_scalar(
-        "SELECT COUNT(*) FROM mapping_demonstrations \
-         WHERE mapping_id = ?1 AND (?2 IS NULL OR demonstration_id = ?2)",
-    )
+    limit: i64,
+    offset: i64,
+) -> Result<(Vec<T>, i64), sqlx::Error>
+where
+    T: for<'r> sqlx::FromRow<'r, SqliteRow> + Send + Unpin,
+{
+    let rows: Vec<T> = sqlx::query_as(sql)
+        .bind(mapping_id)
+        .bind(demonstration)
+        .bind(limit)
+        .bind(offset)
+        .fetch_all(pool)
+        .await?;
+    let total: i64 = sqlx::query_scalar(concat!(
+        "SELECT COUNT(*) FROM mapping_demonstrations",
+        demo_page_filter!()
+    ))
     .bind(mapping_id)
     .bind(demonstration)
     .fetch_one(pool)
-    .await
+    .await?;
+    Ok((rows, total))
 }
 
 /// The stored demonstrations of a mapping (request order) without their arrays, optionally only
@@ -405,20 +434,14 @@ pub async fn list_demos(
     limit: i64,
     offset: i64,
 ) -> Result<(Vec<MappedDemoRow>, i64), sqlx::Error> {
-    let rows = sqlx::query_as(
-        "SELECT position, demonstration_id, subject_id, object_name, task, position_index, \
-         trial, frame_count, summary FROM mapping_demonstrations \
-         WHERE mapping_id = ?1 AND (?2 IS NULL OR demonstration_id = ?2) \
-         ORDER BY position LIMIT ?3 OFFSET ?4",
-    )
-    .bind(mapping_id)
-    .bind(demonstration)
-    .bind(limit)
-    .bind(offset)
-    .fetch_all(pool)
-    .await?;
-    let total = count_demos(pool, mapping_id, demonstration).await?;
-    Ok((rows, total))
+    const SQL: &str = concat!(
+        "SELECT ",
+        demo_meta_columns!(),
+        " FROM mapping_demonstrations",
+        demo_page_filter!(),
+        " ORDER BY position LIMIT ?3 OFFSET ?4"
+    );
+    fetch_page(pool, SQL, mapping_id, demonstration, limit, offset).await
 }
 
 /// [`list_demos`] with the decoded trajectories and metrics.
@@ -429,20 +452,15 @@ pub async fn load_page(
     limit: i64,
     offset: i64,
 ) -> Result<(Vec<(MappedDemoRow, StoredMappedDemo)>, i64), sqlx::Error> {
-    let rows: Vec<FullDemoRow> = sqlx::query_as(
-        "SELECT position, demonstration_id, subject_id, object_name, task, position_index, \
-         trial, frame_count, summary, joint_names, frames, metrics, registration \
-         FROM mapping_demonstrations \
-         WHERE mapping_id = ?1 AND (?2 IS NULL OR demonstration_id = ?2) \
-         ORDER BY position LIMIT ?3 OFFSET ?4",
-    )
-    .bind(mapping_id)
-    .bind(demonstration)
-    .bind(limit)
-    .bind(offset)
-    .fetch_all(pool)
-    .await?;
-    let total = count_demos(pool, mapping_id, demonstration).await?;
+    const SQL: &str = concat!(
+        "SELECT ",
+        demo_meta_columns!(),
+        ", joint_names, frames, metrics, registration FROM mapping_demonstrations",
+        demo_page_filter!(),
+        " ORDER BY position LIMIT ?3 OFFSET ?4"
+    );
+    let (rows, total): (Vec<FullDemoRow>, i64) =
+        fetch_page(pool, SQL, mapping_id, demonstration, limit, offset).await?;
     let out = rows
         .into_iter()
         .map(|r| {

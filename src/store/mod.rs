@@ -12,6 +12,7 @@ pub mod grasps;
 pub mod jobs;
 pub mod mappings;
 pub mod models;
+pub mod plans;
 pub mod robots;
 pub mod trajectories;
 

@@ -41,7 +41,18 @@ pub async fn list(pool: &SqlitePool) -> Result<Vec<RobotRow>, sqlx::Error> {
 }
 
 pub async fn insert(pool: &SqlitePool, r: &NewRobot<'_>) -> Result<RobotRow, sqlx::Error> {
+    insert_with_meshes(pool, r, &[]).await
+}
+
+/// Inserts a registered system with the collision meshes its URDF references (filename as the
+/// URDF writes it, file bytes), in one transaction.
+pub async fn insert_with_meshes(
+    pool: &SqlitePool,
+    r: &NewRobot<'_>,
+    meshes: &[(String, Vec<u8>)],
+) -> Result<RobotRow, sqlx::Error> {
     let t = now();
+    let mut tx = pool.begin().await?;
     sqlx::query(
         "INSERT INTO robots (id, name, bundled, descriptor, arm_urdf, hand_urdf, created_at, updated_at) \
          VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
@@ -54,8 +65,17 @@ pub async fn insert(pool: &SqlitePool, r: &NewRobot<'_>) -> Result<RobotRow, sql
     .bind(r.hand_urdf)
     .bind(&t)
     .bind(&t)
-    .execute(pool)
+    .execute(&mut *tx)
     .await?;
+    for (filename, data) in meshes {
+        sqlx::query("INSERT INTO robot_meshes (robot_id, filename, data) VALUES (?, ?, ?)")
+            .bind(r.id)
+            .bind(filename)
+            .bind(data)
+            .execute(&mut *tx)
+            .await?;
+    }
+    tx.commit().await?;
     Ok(RobotRow {
         id: r.id.to_owned(),
         name: r.name.to_owned(),
@@ -139,4 +159,12 @@ pub async fn delete(pool: &SqlitePool, id: &str) -> Result<bool, sqlx::Error> {
         .execute(pool)
         .await?;
     Ok(done.rows_affected() > 0)
+}
+
+/// The meshes uploaded with a registered system (none for bundled ones), by URDF filename.
+pub async fn meshes(pool: &SqlitePool, id: &str) -> Result<Vec<(String, Vec<u8>)>, sqlx::Error> {
+    sqlx::query_as("SELECT filename, data FROM robot_meshes WHERE robot_id = ? ORDER BY filename")
+        .bind(id)
+        .fetch_all(pool)
+        .await
 }

@@ -253,7 +253,10 @@ async fn open_loop_execution_succeeds_with_bounded_tracking_error_and_streams_ev
         .await
         .expect("the event stream ends with a final event");
     assert!(body.contains("event: progress"), "{body}");
-    assert!(body.contains("\"last_feedback\":{"), "feedback in the events");
+    assert!(
+        body.contains("\"last_feedback\":{"),
+        "feedback in the events"
+    );
 
     let done = app.wait(&id, 10, |e| e["state"] != "running").await;
     assert_eq!(done["state"], "succeeded", "{done}");
@@ -347,7 +350,10 @@ fn trained() -> Trained {
 async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
     let app = spawn(|_| {}).await;
     let Trained {
-        params, start, goal, ..
+        params,
+        start,
+        goal,
+        ..
     } = tokio::task::spawn_blocking(trained).await.unwrap();
     let mut opts = app.worker("sim-cl");
     opts.initial = Some(start.clone());
@@ -373,15 +379,28 @@ async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
     )
     .await
     .expect("queued");
-    let done = app.wait(&id, 40, |e| e["state"] != "queued" && e["state"] != "running").await;
+    let done = app
+        .wait(&id, 40, |e| {
+            e["state"] != "queued" && e["state"] != "running"
+        })
+        .await;
     assert_eq!(done["state"], "succeeded", "{done}");
     assert_eq!(done["mode"], "closed_loop");
     assert_eq!(done["kind"], "model");
     let last = floats(&done["last_feedback"]["positions"]);
-    assert!(max_abs_diff(&last, &goal) <= 0.011, "converged: {last:?} vs {goal:?}");
-    assert!(max_abs_diff(&start, &goal) > 0.1, "the reach is not trivial");
+    assert!(
+        max_abs_diff(&last, &goal) <= 0.011,
+        "converged: {last:?} vs {goal:?}"
+    );
+    assert!(
+        max_abs_diff(&start, &goal) > 0.1,
+        "the reach is not trivial"
+    );
     let kicked = w
-        .until(5, |e| matches!(e, WorkerEvent::Finished { id: f, .. } if *f == id))
+        .until(
+            5,
+            |e| matches!(e, WorkerEvent::Finished { id: f, .. } if *f == id),
+        )
         .await;
     assert!(
         matches!(kicked, WorkerEvent::Finished { kicks, outcome: reachgrasp::bridge::protocol::Outcome::Succeeded, .. } if kicks >= 1),
@@ -428,10 +447,15 @@ async fn cancellation_stops_the_worker_and_a_queued_execution_cancels_at_once() 
         .await;
     assert_eq!(res.status(), 202);
     assert_eq!(res.json::<Value>().await.unwrap()["state"], "cancelled");
-    let res = app.post(&format!("/v1/executions/{id}/cancel"), &json!({})).await;
-    assert_eq!(res.status(), 202);
-    w.until(10, |e| matches!(e, WorkerEvent::Cancelled { id: c } if *c == id))
+    let res = app
+        .post(&format!("/v1/executions/{id}/cancel"), &json!({}))
         .await;
+    assert_eq!(res.status(), 202);
+    w.until(
+        10,
+        |e| matches!(e, WorkerEvent::Cancelled { id: c } if *c == id),
+    )
+    .await;
     let done = app.wait(&id, 10, |e| e["state"] != "running").await;
     assert_eq!(done["state"], "cancelled", "{done}");
     assert_eq!(done["cancel_requested"], true);
@@ -445,7 +469,9 @@ async fn cancellation_stops_the_worker_and_a_queued_execution_cancels_at_once() 
     let b2 = app.get("/v1/bridges").await;
     let p2 = floats(&b2["items"][0]["connection"]["positions"]);
     assert!(max_abs_diff(&p1, &p2) < 1e-6, "the robot stopped moving");
-    let again = app.post(&format!("/v1/executions/{id}/cancel"), &json!({})).await;
+    let again = app
+        .post(&format!("/v1/executions/{id}/cancel"), &json!({}))
+        .await;
     assert_problem(again, 409, "conflict").await;
     w.task.abort();
 }
@@ -541,8 +567,10 @@ async fn stored_trajectories_and_models_execute_by_id() {
     goal_names.reverse();
     goal_values.reverse();
     let by_model = app
-        .execute(&json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id,
-                         "goal": {"joint_names": goal_names, "positions": goal_values}}))
+        .execute(
+            &json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id,
+                         "goal": {"joint_names": goal_names, "positions": goal_values}}),
+        )
         .await;
     let done = app.wait(&by_model, 40, finished).await;
     assert_eq!(done["state"], "succeeded", "{done}");
@@ -551,16 +579,33 @@ async fn stored_trajectories_and_models_execute_by_id() {
 
     // bad references
     let cases = [
-        (json!({"robot": ROBOT, "mode": "open_loop", "trajectory_id": "nope"}), "$.trajectory_id"),
-        (json!({"robot": "wam_t42", "mode": "open_loop", "trajectory_id": stored.id}), "$.trajectory_id"),
-        (json!({"robot": ROBOT, "mode": "open_loop", "model_id": model_id,
-                "goal": {"joint_names": names(), "positions": t.goal}}), "$.mode"),
-        (json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id}), "$.goal"),
-        (json!({"robot": ROBOT, "mode": "closed_loop", "model_id": "nope",
-                "goal": {"joint_names": names(), "positions": t.goal}}), "$.model_id"),
-        (json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id,
+        (
+            json!({"robot": ROBOT, "mode": "open_loop", "trajectory_id": "nope"}),
+            "$.trajectory_id",
+        ),
+        (
+            json!({"robot": "wam_t42", "mode": "open_loop", "trajectory_id": stored.id}),
+            "$.trajectory_id",
+        ),
+        (
+            json!({"robot": ROBOT, "mode": "open_loop", "model_id": model_id,
+                "goal": {"joint_names": names(), "positions": t.goal}}),
+            "$.mode",
+        ),
+        (
+            json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id}),
+            "$.goal",
+        ),
+        (
+            json!({"robot": ROBOT, "mode": "closed_loop", "model_id": "nope",
+                "goal": {"joint_names": names(), "positions": t.goal}}),
+            "$.model_id",
+        ),
+        (
+            json!({"robot": ROBOT, "mode": "closed_loop", "model_id": model_id,
                 "goal": {"joint_names": names()[1..].to_vec(), "positions": t.goal[1..].to_vec()}}),
-         "$.goal.joint_names"),
+            "$.goal.joint_names",
+        ),
     ];
     for (body, path) in cases {
         let p = assert_problem(app.post("/v1/executions", &body).await, 422, "validation").await;
@@ -581,7 +626,9 @@ async fn raw_connect(
         req.headers_mut()
             .insert("authorization", format!("Bearer {t}").parse().unwrap());
     }
-    tokio_tungstenite::connect_async(req).await.map(|(ws, _)| ws)
+    tokio_tungstenite::connect_async(req)
+        .await
+        .map(|(ws, _)| ws)
 }
 
 type Raw =
@@ -657,16 +704,31 @@ async fn hello_is_checked_joint_names_version_robot_and_name() {
     let mut short = names();
     short.pop();
     for (h, code) in [
-        (hello("w1", reversed, PROTOCOL_VERSION), ErrorCode::HelloRefused),
-        (hello("w1", short, PROTOCOL_VERSION), ErrorCode::HelloRefused),
-        (hello("w1", names(), PROTOCOL_VERSION + 1), ErrorCode::UnsupportedVersion),
-        (hello("bad name!", names(), PROTOCOL_VERSION), ErrorCode::HelloRefused),
+        (
+            hello("w1", reversed, PROTOCOL_VERSION),
+            ErrorCode::HelloRefused,
+        ),
+        (
+            hello("w1", short, PROTOCOL_VERSION),
+            ErrorCode::HelloRefused,
+        ),
+        (
+            hello("w1", names(), PROTOCOL_VERSION + 1),
+            ErrorCode::UnsupportedVersion,
+        ),
+        (
+            hello("bad name!", names(), PROTOCOL_VERSION),
+            ErrorCode::HelloRefused,
+        ),
         (
             json!({"type": "hello", "protocol_version": PROTOCOL_VERSION, "worker": "w1",
                    "robot": "no_such_robot", "joint_names": names(), "capabilities": ["open_loop"]}),
             ErrorCode::HelloRefused,
         ),
-        (json!({"type": "heartbeat", "seq": 1}), ErrorCode::UnexpectedMessage),
+        (
+            json!({"type": "heartbeat", "seq": 1}),
+            ErrorCode::UnexpectedMessage,
+        ),
         (json!({"type": "dance"}), ErrorCode::UnknownType),
     ] {
         let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
@@ -674,27 +736,41 @@ async fn hello_is_checked_joint_names_version_robot_and_name() {
         let reply = next_msg(&mut ws).await;
         if let Some(ServiceMessage::Error(e)) = &reply
             && e.code == ErrorCode::HelloRefused
-            && h["joint_names"].as_array().is_some_and(|a| a.len() == names().len())
+            && h["joint_names"]
+                .as_array()
+                .is_some_and(|a| a.len() == names().len())
             && h["robot"] == ROBOT
             && h["worker"] == "w1"
         {
             assert!(e.message.contains("joint_names[0]"), "{}", e.message);
         }
         assert_eq!(error_code(reply), (code, true), "{h}");
-        assert!(next_msg(&mut ws).await.is_none(), "closed after a refused hello");
+        assert!(
+            next_msg(&mut ws).await.is_none(),
+            "closed after a refused hello"
+        );
     }
     // the reference worker with the wrong joint order stops with the refusal
     let mut opts = app.worker("sim-j");
     opts.joint_names.swap(0, 1);
     let r = run_worker(opts, None, std::future::pending()).await;
-    assert!(matches!(&r, Err(WorkerError::Refused(m)) if m.contains("joint")), "{r:?}");
+    assert!(
+        matches!(&r, Err(WorkerError::Refused(m)) if m.contains("joint")),
+        "{r:?}"
+    );
     // a duplicate name is refused while the first is connected
     let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
     send(&mut ws, hello("twin", names(), PROTOCOL_VERSION)).await;
-    assert!(matches!(next_msg(&mut ws).await, Some(ServiceMessage::Welcome(_))));
+    assert!(matches!(
+        next_msg(&mut ws).await,
+        Some(ServiceMessage::Welcome(_))
+    ));
     let mut ws2 = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
     send(&mut ws2, hello("twin", names(), PROTOCOL_VERSION)).await;
-    assert_eq!(error_code(next_msg(&mut ws2).await), (ErrorCode::NameInUse, true));
+    assert_eq!(
+        error_code(next_msg(&mut ws2).await),
+        (ErrorCode::NameInUse, true)
+    );
 }
 
 #[tokio::test]
@@ -706,16 +782,29 @@ async fn a_misbehaving_worker_gets_error_replies_and_does_not_disturb_others() {
 
     let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
     send(&mut ws, hello("rogue", names(), PROTOCOL_VERSION)).await;
-    assert!(matches!(next_msg(&mut ws).await, Some(ServiceMessage::Welcome(_))));
+    assert!(matches!(
+        next_msg(&mut ws).await,
+        Some(ServiceMessage::Welcome(_))
+    ));
     let n = names().len();
     let cases: Vec<(Message, ErrorCode)> = vec![
         (Message::Text("{not json".into()), ErrorCode::Malformed),
-        (Message::Text(json!({"type": "teleport"}).to_string().into()), ErrorCode::UnknownType),
         (
-            Message::Text(json!({"type": "heartbeat", "seq": "one"}).to_string().into()),
+            Message::Text(json!({"type": "teleport"}).to_string().into()),
+            ErrorCode::UnknownType,
+        ),
+        (
+            Message::Text(
+                json!({"type": "heartbeat", "seq": "one"})
+                    .to_string()
+                    .into(),
+            ),
             ErrorCode::Malformed,
         ),
-        (Message::Binary(vec![1u8, 2, 3].into()), ErrorCode::Malformed),
+        (
+            Message::Binary(vec![1u8, 2, 3].into()),
+            ErrorCode::Malformed,
+        ),
         (
             Message::Text(hello("rogue", names(), PROTOCOL_VERSION).to_string().into()),
             ErrorCode::UnexpectedMessage,
@@ -755,7 +844,11 @@ async fn a_misbehaving_worker_gets_error_replies_and_does_not_disturb_others() {
     // the good worker's execution is unaffected (the rogue keeps its heartbeats going)
     let mut done = Value::Null;
     for seq in 2..200 {
-        send(&mut ws, json!({"type": "heartbeat", "seq": seq, "positions": home()})).await;
+        send(
+            &mut ws,
+            json!({"type": "heartbeat", "seq": seq, "positions": home()}),
+        )
+        .await;
         done = app.get(&format!("/v1/executions/{id}")).await;
         if done["state"] != "running" && done["state"] != "queued" {
             break;
@@ -772,7 +865,10 @@ async fn a_misbehaving_worker_gets_error_replies_and_does_not_disturb_others() {
         .find(|b| b["name"] == "rogue")
         .unwrap();
     assert_eq!(rogue["connected"], true);
-    assert!(rogue["connection"]["heartbeats"].as_u64().unwrap() >= 1, "{rogue}");
+    assert!(
+        rogue["connection"]["heartbeats"].as_u64().unwrap() >= 1,
+        "{rogue}"
+    );
     // a frame above the transport limit ends the connection
     ws.send(Message::Text("y".repeat(2 << 20).into()))
         .await
@@ -811,15 +907,33 @@ async fn executions_are_validated_and_wait_queued_until_the_no_worker_timeout() 
     assert_eq!(p["errors"][0]["path"], "$.trajectory.joint_names");
     let mut outside = inline(&a, &b, 1.0);
     outside["trajectory"]["points"][3]["positions"][3] = json!(9.0);
-    let p = assert_problem(app.post("/v1/executions", &outside).await, 422, "validation").await;
-    assert_eq!(p["errors"][0]["path"], "$.trajectory.points[3].positions[3]");
+    let p = assert_problem(
+        app.post("/v1/executions", &outside).await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(
+        p["errors"][0]["path"],
+        "$.trajectory.points[3].positions[3]"
+    );
     let mut back_in_time = inline(&a, &b, 1.0);
     back_in_time["trajectory"]["points"][2]["t"] = json!(0.0);
-    let p = assert_problem(app.post("/v1/executions", &back_in_time).await, 422, "validation").await;
+    let p = assert_problem(
+        app.post("/v1/executions", &back_in_time).await,
+        422,
+        "validation",
+    )
+    .await;
     assert_eq!(p["errors"][0]["path"], "$.trajectory.points[2].t");
     let mut unknown = inline(&a, &b, 1.0);
     unknown["robot"] = json!("no_such_robot");
-    let p = assert_problem(app.post("/v1/executions", &unknown).await, 422, "validation").await;
+    let p = assert_problem(
+        app.post("/v1/executions", &unknown).await,
+        422,
+        "validation",
+    )
+    .await;
     assert_eq!(p["errors"][0]["path"], "$.robot");
     let mut mode = inline(&a, &b, 1.0);
     mode["mode"] = json!("closed_loop");
@@ -829,7 +943,11 @@ async fn executions_are_validated_and_wait_queued_until_the_no_worker_timeout() 
     assert_problem(app.post("/v1/executions", &none).await, 422, "validation").await;
     let res = app
         .client
-        .get(format!("{}/v1/executions/{}", app.base, uuid::Uuid::new_v4()))
+        .get(format!(
+            "{}/v1/executions/{}",
+            app.base,
+            uuid::Uuid::new_v4()
+        ))
         .send()
         .await
         .unwrap();
@@ -843,7 +961,10 @@ async fn executions_are_validated_and_wait_queued_until_the_no_worker_timeout() 
     assert_eq!(listed["items"][0]["id"], id.as_str());
     let failed = app.wait(&id, 10, |e| e["state"] != "queued").await;
     assert_eq!(failed["state"], "failed");
-    assert!(failed["reason"].as_str().unwrap().starts_with("no worker"), "{failed}");
+    assert!(
+        failed["reason"].as_str().unwrap().starts_with("no worker"),
+        "{failed}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -911,7 +1032,10 @@ async fn a_service_restart_keeps_queued_executions_and_the_worker_reconnects_to_
     let mut first = start_service(&db, port).await;
     let mut worker = tokio::process::Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
         .args(["bridge", "--sim", "--robot", ROBOT, "--name", "sim-bin"])
-        .args(["--url", &format!("ws://127.0.0.1:{port}/v1/bridges/connect")])
+        .args([
+            "--url",
+            &format!("ws://127.0.0.1:{port}/v1/bridges/connect"),
+        ])
         .args(["--token", TOKEN, "--start-tolerance", "10"])
         .env("REACHGRASP_ROBOTS", robots_dir())
         .env("REACHGRASP_DB", dir.path().join("worker-unused.db"))
@@ -923,9 +1047,10 @@ async fn a_service_restart_keeps_queued_executions_and_the_worker_reconnects_to_
         .expect("the worker starts");
     let connected = |v: &Option<Value>| {
         v.as_ref().is_some_and(|v| {
-            v["items"]
-                .as_array()
-                .is_some_and(|a| a.iter().any(|b| b["name"] == "sim-bin" && b["connected"] == true))
+            v["items"].as_array().is_some_and(|a| {
+                a.iter()
+                    .any(|b| b["name"] == "sim-bin" && b["connected"] == true)
+            })
         })
     };
     let mut ok = false;
@@ -989,7 +1114,10 @@ async fn a_service_restart_keeps_queued_executions_and_the_worker_reconnects_to_
         }
         tokio::time::sleep(Duration::from_millis(25)).await;
     }
-    assert_eq!(last["state"], "succeeded", "the reconnected worker ran it: {last}");
+    assert_eq!(
+        last["state"], "succeeded",
+        "the reconnected worker ran it: {last}"
+    );
     assert_eq!(last["assigned_worker"], "sim-bin");
     worker.kill().await.unwrap();
     second.kill().await.unwrap();

@@ -233,23 +233,27 @@ async fn delete_removes_it_and_refuses_while_a_mapping_uses_it_unless_cascading(
         .unwrap();
     assert_problem(res, 404, "not-found").await;
 
-    // A mapping (table of migration 0005, created here if that migration is not there yet)
-    // that uses `b`.
+    // A stored mapping (migration 0005) whose results include `b`. Written directly: mapping a
+    // real study is what tests/api/mappings.rs does; here only the link matters.
     let db = sqlx::SqlitePool::connect(&format!(
         "sqlite:{}",
         app._dir.path().join("db/test.db").display()
     ))
     .await
     .unwrap();
-    sqlx::query("CREATE TABLE IF NOT EXISTS mappings (id TEXT PRIMARY KEY, demonstration_id TEXT)")
-        .execute(&db)
-        .await
-        .unwrap();
-    sqlx::query("INSERT INTO mappings (id, demonstration_id) VALUES ('m1', ?)")
-        .bind(b)
-        .execute(&db)
-        .await
-        .unwrap();
+    for sql in [
+        "INSERT INTO jobs (id, kind, status, created_at) VALUES ('j1', 'mapping', 'succeeded', '2026')",
+        "INSERT INTO mappings (id, job_id, robot, request, summary, created_at) \
+         VALUES ('m1', 'j1', 'wam_ihy', '{}', '{}', '2026')",
+        "INSERT INTO mapping_demonstrations (mapping_id, position, demonstration_id, subject_id, \
+         object_name, task, position_index, trial, joint_names, frame_count, frames, metrics, \
+         registration, summary) VALUES ('m1', 0, ?, 'S1', 'ball', 'grasp', 0, 0, '[]', 0, x'', \
+         x'', '{}', '{}')",
+    ] {
+        let q = sqlx::query(sql);
+        let q = if sql.contains('?') { q.bind(b) } else { q };
+        q.execute(&db).await.unwrap();
+    }
     let res = app
         .client
         .delete(app.url(&format!("/v1/demonstrations/{b}")))

@@ -309,3 +309,43 @@ async fn a_batch_runs_as_a_job_and_stores_every_grasp() {
     let p = assert_problem(bad, 422, "validation").await;
     assert_eq!(p["errors"][0]["path"], "$.items");
 }
+
+#[tokio::test]
+async fn a_registered_robot_can_grasp_and_is_then_held_by_its_grasps() {
+    let app = app().await;
+    let created: Value = app
+        .post_json("/v1/robots", &crate::robots::wam_t42_body())
+        .await
+        .json()
+        .await
+        .unwrap();
+    let id = created["id"].as_str().unwrap().to_owned();
+    let ball = seeded_id(&app, "ball").await;
+    let res = app
+        .post_json(
+            "/v1/grasps",
+            &json!({"robot": id, "object_id": ball, "starts": 2, "seed": 3}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let g: Value = res.json().await.unwrap();
+    assert_eq!(g["robot"], id.as_str());
+    assert_eq!(g["result"]["feasible"], true, "{}", g["result"]["reason"]);
+    assert_eq!(g["result"]["contacts"].as_array().unwrap().len(), 2);
+    // The stored grasp refers to the robot, so it can no longer be deleted.
+    let del = app
+        .client
+        .delete(app.url(&format!("/v1/robots/{id}")))
+        .send()
+        .await
+        .unwrap();
+    assert_problem(del, 409, "conflict").await;
+    // A batch resolves registered robots the same way.
+    let res = app
+        .post_json(
+            "/v1/grasps/batch",
+            &json!({"robot": id, "starts": 1, "items": [{"object_id": ball}]}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+}

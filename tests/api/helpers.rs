@@ -18,8 +18,8 @@ pub struct TestApp {
 
 static TRACING: Once = Once::new();
 
-/// Starts the app with test defaults: temp DB, `127.0.0.1:0`, job concurrency 2, and the
-/// TEST-ONLY sleep-job route enabled.
+/// Starts the app with test defaults: temp DB, `127.0.0.1:0`, job concurrency 2, no first-start
+/// seeding, and the TEST-ONLY sleep-job route enabled.
 pub async fn spawn_app() -> TestApp {
     spawn_app_with(|_| {}).await
 }
@@ -43,6 +43,8 @@ pub async fn spawn_app_with(tweak: impl FnOnce(&mut Config)) -> TestApp {
         job_concurrency: Some(2),
         shutdown_grace_secs: 2,
         test_jobs: true,
+        // Seeding trains six models; only the tests about it turn it on.
+        no_seed: true,
         ..Config::default()
     };
     tweak(&mut config);

@@ -11,5 +11,7 @@ mod jobs;
 mod mappings;
 mod models;
 mod openapi;
+mod plans;
 mod process;
+mod quickstart;
 mod robots;

@@ -2,8 +2,6 @@
 //! frame, the data served back in pages), every rejection of bad input (4xx, nothing stored) and
 //! cancellation (nothing stored).
 
-use std::time::Duration;
-
 use reachgrasp::human::{StudyConfig, generate_study};
 use serde_json::{Value, json};
 
@@ -14,23 +12,6 @@ async fn app() -> TestApp {
         c.robots = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
     })
     .await
-}
-
-/// Polls the job until `done(job)`; mapping jobs can take a while on a loaded machine.
-async fn wait(app: &TestApp, id: &str, done: impl Fn(&Value) -> bool) -> Value {
-    for _ in 0..1200 {
-        let job: Value = app
-            .get(&format!("/v1/jobs/{id}"))
-            .await
-            .json()
-            .await
-            .unwrap();
-        if done(&job) {
-            return job;
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    panic!("job {id} did not reach the expected state within 60 s");
 }
 
 /// A small synthetic study (one subject, one position, `trials` trials); returns its job id.
@@ -44,10 +25,9 @@ async fn study(app: &TestApp, trials: u32) -> String {
     assert_eq!(res.status(), 202);
     let job: Value = res.json().await.unwrap();
     let id = job["id"].as_str().unwrap().to_owned();
-    let done = wait(app, &id, |j| {
-        j["status"] != "queued" && j["status"] != "running"
-    })
-    .await;
+    let done = app
+        .wait_job(&id, |j| j["status"] != "queued" && j["status"] != "running")
+        .await;
     assert_eq!(done["status"], "succeeded", "{done}");
     id
 }
@@ -115,10 +95,11 @@ async fn a_mapping_job_stores_trajectories_within_the_limits_and_serves_them_in_
         2
     );
 
-    let done = wait(&app, &job_id, |j| {
-        j["status"] != "queued" && j["status"] != "running"
-    })
-    .await;
+    let done = app
+        .wait_job(&job_id, |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
     assert_eq!(done["status"], "succeeded", "{done}");
     assert_eq!(done["result"]["href"], mapping_url.as_str());
 
@@ -438,10 +419,9 @@ async fn a_cancelled_mapping_stores_no_trajectory() {
         app.post_json(&format!("/v1/jobs/{bid}/cancel"), &json!({}))
             .await;
     }
-    let done = wait(&app, &id, |j| {
-        j["status"] != "queued" && j["status"] != "running"
-    })
-    .await;
+    let done = app
+        .wait_job(&id, |j| j["status"] != "queued" && j["status"] != "running")
+        .await;
     assert_eq!(done["status"], "cancelled");
     assert!(done["result"].is_null());
     let m: Value = app.get(&mapping_url).await.json().await.unwrap();

@@ -21,6 +21,7 @@ async fn start(db: &Path) -> Proc {
         .env("REACHGRASP_DB", db)
         .env("REACHGRASP_ROBOTS", db.with_file_name("no-robots"))
         .env("REACHGRASP_TEST_JOBS", "1")
+        .env("REACHGRASP_NO_SEED", "1")
         .env("REACHGRASP_LOG_JSON", "1")
         .env("REACHGRASP_LOG", "info")
         .env("REACHGRASP_SHUTDOWN_GRACE", "5")

@@ -20,7 +20,7 @@ fn read(rel: &str) -> String {
     std::fs::read_to_string(robots_dir().join(rel)).unwrap()
 }
 
-fn wam_t42_body() -> Value {
+pub(crate) fn wam_t42_body() -> Value {
     let desc: Value =
         serde_json::to_value(toml::from_str::<toml::Value>(&read("systems/wam_t42.toml")).unwrap())
             .unwrap();
@@ -528,5 +528,70 @@ async fn bundled_systems_sync_idempotently_and_a_changed_file_updates_its_entry(
     assert_eq!(
         b2["updated_at"], b["updated_at"],
         "unchanged files are left alone"
+    );
+}
+
+const TETRA_OBJ: &str =
+    "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+
+#[tokio::test]
+async fn meshes_uploaded_with_a_registered_system_are_stored_and_reload_after_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("meshes.db");
+    let spawn = || {
+        let db = db.clone();
+        spawn_app_with(move |c| {
+            c.robots = robots_dir();
+            c.db = db;
+        })
+    };
+    let app = spawn().await;
+    let mesh = "package://wam/meshes/shoulder.obj";
+    let mut body = wam_t42_body();
+    body["arm_urdf"] = json!(body["arm_urdf"].as_str().unwrap().replace(
+        "<sphere radius=\"0.09\"/>",
+        &format!("<mesh filename=\"{mesh}\"/>")
+    ));
+    let before = count(&app).await;
+    // Referenced but not uploaded: 422 naming the link and the file.
+    let p = assert_problem(app.post_json("/v1/robots", &body).await, 422, "validation").await;
+    let detail = p["detail"].as_str().unwrap();
+    assert!(detail.contains("wam_link1") && detail.contains(mesh), "{p}");
+    // Undecodable upload: 422 naming the entry.
+    body["meshes"] = json!({mesh: {"data": "@@@", "encoding": "base64"}});
+    let p = assert_problem(app.post_json("/v1/robots", &body).await, 422, "validation").await;
+    assert_eq!(
+        p["errors"][0]["path"],
+        format!("$.meshes['{mesh}'].data"),
+        "{p}"
+    );
+    assert_eq!(count(&app).await, before);
+    body["meshes"] = json!({mesh: {"data": TETRA_OBJ}});
+    let res = app.post_json("/v1/robots", &body).await;
+    assert_eq!(res.status(), 201);
+    let id = res.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    // A fresh process (empty cache) rebuilds the system from the stored URDF and meshes.
+    let again = spawn().await;
+    let detail: Value = again
+        .get(&format!("/v1/robots/{id}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    let (names, q) = q_zero(&detail);
+    let fk = again
+        .post_json(
+            &format!("/v1/robots/{id}/fk"),
+            &json!({"joint_names": names, "positions": q}),
+        )
+        .await;
+    assert_eq!(fk.status(), 200);
+    // The meshes go with the robot.
+    assert_eq!(
+        delete(&again, &format!("/v1/robots/{id}")).await.status(),
+        204
     );
 }

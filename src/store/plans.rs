@@ -1,0 +1,104 @@
+//! Plans (migration 0009): the links from one `POST /v1/plans` to the grasp, trajectory and
+//! execution it produced.
+
+use sqlx::SqlitePool;
+use uuid::Uuid;
+
+use super::now;
+
+#[derive(Debug, Clone, sqlx::FromRow)]
+pub struct PlanRow {
+    pub id: String,
+    pub robot: String,
+    pub model_id: Option<String>,
+    pub grasp_id: String,
+    pub trajectory_id: Option<String>,
+    pub execution_id: Option<String>,
+    pub feasible: bool,
+    pub reason: Option<String>,
+    pub request: String,
+    pub timings: String,
+    pub created_at: String,
+}
+
+/// A plan to insert (id and timestamp are set here).
+#[derive(Debug, Clone)]
+pub struct NewPlan {
+    pub robot: String,
+    pub model_id: Option<String>,
+    pub grasp_id: String,
+    pub trajectory_id: Option<String>,
+    pub execution_id: Option<String>,
+    pub feasible: bool,
+    pub reason: Option<String>,
+    pub request: String,
+    pub timings: String,
+}
+
+pub async fn insert(pool: &SqlitePool, p: NewPlan) -> Result<PlanRow, sqlx::Error> {
+    let row = PlanRow {
+        id: Uuid::new_v4().to_string(),
+        robot: p.robot,
+        model_id: p.model_id,
+        grasp_id: p.grasp_id,
+        trajectory_id: p.trajectory_id,
+        execution_id: p.execution_id,
+        feasible: p.feasible,
+        reason: p.reason,
+        request: p.request,
+        timings: p.timings,
+        created_at: now(),
+    };
+    sqlx::query(
+        "INSERT INTO plans (id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, \
+         reason, request, timings, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+    )
+    .bind(&row.id)
+    .bind(&row.robot)
+    .bind(&row.model_id)
+    .bind(&row.grasp_id)
+    .bind(&row.trajectory_id)
+    .bind(&row.execution_id)
+    .bind(row.feasible)
+    .bind(&row.reason)
+    .bind(&row.request)
+    .bind(&row.timings)
+    .bind(&row.created_at)
+    .execute(pool)
+    .await?;
+    Ok(row)
+}
+
+pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<PlanRow>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
+         request, timings, created_at FROM plans WHERE id = ?",
+    )
+    .bind(id)
+    .fetch_optional(pool)
+    .await
+}
+
+/// A page of plans, newest first, optionally of one robot; with the total count.
+pub async fn list(
+    pool: &SqlitePool,
+    robot: Option<&str>,
+    limit: i64,
+    offset: i64,
+) -> Result<(Vec<PlanRow>, i64), sqlx::Error> {
+    let rows = sqlx::query_as(
+        "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
+         request, timings, created_at FROM plans WHERE (?1 IS NULL OR robot = ?1) \
+         ORDER BY created_at DESC, id LIMIT ?2 OFFSET ?3",
+    )
+    .bind(robot)
+    .bind(limit)
+    .bind(offset)
+    .fetch_all(pool)
+    .await?;
+    let total = sqlx::query_scalar("SELECT COUNT(*) FROM plans WHERE (?1 IS NULL OR robot = ?1)")
+        .bind(robot)
+        .fetch_one(pool)
+        .await?;
+    Ok((rows, total))
+}

@@ -1,0 +1,224 @@
+//! First start and the README quickstart, end to end: seeding on an empty database (503
+//! `not-ready` while it runs), the quickstart's curl calls exactly as the README writes them
+//! against the live service and a real simulated worker, the executed plan, and a second start
+//! that reuses what is stored.
+
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use reachgrasp::app::App;
+use reachgrasp::config::Config;
+use serde_json::Value;
+use tokio::process::Command;
+
+use crate::helpers::spawn_app_with;
+
+const TOKEN: &str = "lab-token";
+/// The address the README's calls use.
+const README_HOST: &str = "localhost:8080";
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The curl lines of the README block marked `quickstart-calls`.
+fn quickstart_calls() -> Vec<String> {
+    let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
+    let after = readme
+        .split("<!-- quickstart-calls")
+        .nth(1)
+        .expect("README has the quickstart-calls marker");
+    let block = after
+        .split("```sh\n")
+        .nth(1)
+        .and_then(|b| b.split("```").next())
+        .expect("a sh block follows the marker");
+    let calls: Vec<String> = block
+        .lines()
+        .map(str::trim)
+        .filter(|l| l.starts_with("curl "))
+        .map(str::to_owned)
+        .collect();
+    assert!(calls.len() >= 5, "quickstart calls: {calls:?}");
+    calls
+}
+
+async fn get_json(client: &reqwest::Client, url: &str) -> Value {
+    client.get(url).send().await.unwrap().json().await.unwrap()
+}
+
+/// Polls `check` every 250 ms until it yields a value, for at most `limit`.
+async fn wait_for<T, F, Fut>(what: &str, limit: Duration, mut check: F) -> T
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = Option<T>>,
+{
+    let start = Instant::now();
+    loop {
+        if let Some(v) = check().await {
+            return v;
+        }
+        assert!(start.elapsed() < limit, "timed out waiting for {what}");
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+}
+
+async fn default_model(client: &reqwest::Client, base: &str, robot: &str) -> Option<String> {
+    let list = get_json(client, &format!("{base}/v1/models?robot={robot}")).await;
+    if let Some(failed) = list["items"]
+        .as_array()?
+        .iter()
+        .find(|m| m["status"] == "failed")
+    {
+        panic!("seeding failed to train {robot}: {failed}");
+    }
+    list["items"].as_array()?.iter().find_map(|m| {
+        (m["status"] == "succeeded" && m["default"] == true)
+            .then(|| m["id"].as_str().unwrap().to_owned())
+    })
+}
+
+async fn run_call(line: &str, host: &str) -> (bool, String) {
+    let line = line.replace(README_HOST, host);
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg(&line)
+        .current_dir(root())
+        .stdin(Stdio::null())
+        .output()
+        .await
+        .expect("sh runs (curl must be installed)");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
+    let app = spawn_app_with(|c| {
+        c.robots = root().join("robots");
+        c.no_seed = false;
+        c.bridge_token = Some(TOKEN.into());
+    })
+    .await;
+    let base = app.base_url.clone();
+    let host = base.trim_start_matches("http://").to_owned();
+    let client = app.client.clone();
+
+    // While seeding runs, a plan that needs the default model is 503 with the job to watch.
+    let body: Value = serde_json::from_str(
+        &std::fs::read_to_string(root().join("examples/plan-bottle.json")).unwrap(),
+    )
+    .unwrap();
+    let res = client
+        .post(format!("{base}/v1/plans"))
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 503);
+    let problem: Value = res.json().await.unwrap();
+    assert_eq!(problem["type"], "urn:reachgrasp:problem:not-ready");
+    let job = problem["job_id"].as_str().expect("job_id").to_owned();
+    let job: Value = get_json(&client, &format!("{base}/v1/jobs/{job}")).await;
+    assert!(job["kind"].is_string(), "{job}");
+
+    // Seeding finishes with a default model for every bundled system.
+    let robots = [
+        "wam_t42",
+        "wam_ihy",
+        "wam_ob4f",
+        "pa10_t42",
+        "pa10_ihy",
+        "pa10_ob4f",
+    ];
+    let started = Instant::now();
+    for robot in robots {
+        wait_for(
+            &format!("the default model of {robot}"),
+            Duration::from_secs(900),
+            || default_model(&client, &base, robot),
+        )
+        .await;
+    }
+    eprintln!(
+        "seeding finished after {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+
+    // The README's worker, as the built binary.
+    let mut worker = Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
+        .args(["bridge", "--sim", "--robot", "wam_ihy", "--token", TOKEN])
+        .arg("--url")
+        .arg(format!("ws://{host}/v1/bridges/connect"))
+        .arg("--robots")
+        .arg(root().join("robots"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    wait_for("the worker to connect", Duration::from_secs(60), || async {
+        let list = get_json(&client, &format!("{base}/v1/bridges")).await;
+        list["items"]
+            .as_array()?
+            .iter()
+            .any(|w| w["robot"] == "wam_ihy" && w["connected"] == true)
+            .then_some(())
+    })
+    .await;
+
+    // Every call as written; the plans come back feasible, the ball plan with an execution.
+    let mut execution = None;
+    for line in quickstart_calls() {
+        let (ok, out) = run_call(&line, &host).await;
+        assert!(ok, "`{line}` failed: {out}");
+        let v: Value =
+            serde_json::from_str(&out).unwrap_or_else(|e| panic!("`{line}`: {e}: {out}"));
+        if line.contains("plan-") {
+            assert_eq!(v["feasible"], true, "`{line}`: {}", v["reason"]);
+            assert!(v["trajectory"]["points"].as_array().unwrap().len() > 10);
+            assert!(v["grasp"]["result"]["feasible"] == true);
+        }
+        if line.contains("plan-ball") {
+            execution = Some(v["execution_id"].as_str().expect("execution id").to_owned());
+        }
+    }
+    let execution = execution.expect("the ball plan was executed");
+    let state = wait_for("the execution to end", Duration::from_secs(180), || async {
+        let e = get_json(&client, &format!("{base}/v1/executions/{execution}")).await;
+        let s = e["state"].as_str()?.to_owned();
+        matches!(
+            s.as_str(),
+            "succeeded" | "failed" | "aborted" | "interrupted" | "cancelled"
+        )
+        .then_some(e)
+    })
+    .await;
+    assert_eq!(state["state"], "succeeded", "{state}");
+    worker.kill().await.unwrap();
+
+    // A second start on the same database reuses the models: no seeding job is submitted.
+    let db = app._dir.path().join("db/test.db");
+    assert_reused(&db).await;
+}
+
+async fn assert_reused(db: &Path) {
+    let config = Config {
+        bind: "127.0.0.1:0".parse().unwrap(),
+        db: db.to_owned(),
+        robots: root().join("robots"),
+        bridge_token: Some(TOKEN.into()),
+        ..Config::default()
+    };
+    assert!(!config.no_seed);
+    let app = App::build(config).await.unwrap();
+    for robot in ["wam_ihy", "pa10_ob4f"] {
+        assert!(
+            app.state().seed.pending_job(robot).is_none(),
+            "{robot} is being seeded again"
+        );
+    }
+}
