@@ -479,11 +479,14 @@ mod tests {
         let mut r = SimRobot::new(limits(2), vec![0.0, 0.0]);
         let dt = 0.01;
         let mut prev = r.qd.clone();
-        for _ in 0..200 {
+        for _ in 0..300 {
             r.step(&[100.0, -100.0], dt);
             for j in 0..2 {
                 assert!(r.qd[j].abs() <= 1.0 + 1e-12);
-                assert!((r.qd[j] - prev[j]).abs() <= 4.0 * dt + 1e-12);
+                // (a joint reaching its position limit stops at once, like a hard stop)
+                if r.q[j].abs() < 2.0 {
+                    assert!((r.qd[j] - prev[j]).abs() <= 4.0 * dt + 1e-12);
+                }
             }
             prev.clone_from(&r.qd);
         }
