@@ -17,6 +17,7 @@ use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
+use axum::Router;
 use axum::body::Body;
 use axum::http::{Method, Request, StatusCode, header};
 use serde_json::{Value, json};
@@ -70,7 +71,9 @@ pub async fn start(state: &AppState) -> anyhow::Result<()> {
         tracing::info!("seeding: every bundled system has a default model");
         return Ok(());
     }
-    let study = submit_study(state).await?;
+    // One router for every in-process request of this run (building it mounts Swagger UI).
+    let router = crate::api::router(state.clone());
+    let study = submit_study(&router).await?;
     for r in &missing {
         state.seed.set(r, study);
     }
@@ -78,7 +81,7 @@ pub async fn start(state: &AppState) -> anyhow::Result<()> {
     let state = state.clone();
     tokio::spawn(async move {
         let started = Instant::now();
-        match run(&state, study, &missing).await {
+        match run(&state, &router, study, &missing).await {
             Ok(()) => tracing::info!(
                 seconds = started.elapsed().as_secs_f64(),
                 "seeding: finished; every bundled system has a default model"
@@ -106,7 +109,12 @@ async fn robots_missing_a_model(state: &AppState) -> anyhow::Result<Vec<String>>
     Ok(missing)
 }
 
-async fn run(state: &AppState, study: Uuid, robots: &[String]) -> anyhow::Result<()> {
+async fn run(
+    state: &AppState,
+    router: &Router,
+    study: Uuid,
+    robots: &[String],
+) -> anyhow::Result<()> {
     wait(state, study, "synthetic study").await?;
     let demos =
         store::demonstrations::ids_by_external_prefix(&state.db, &format!("synth-{STUDY_SEED}-"))
@@ -116,9 +124,10 @@ async fn run(state: &AppState, study: Uuid, robots: &[String]) -> anyhow::Result
     }
     let mut tasks = tokio::task::JoinSet::new();
     for r in robots {
-        let (state, robot, demos) = (state.clone(), r.clone(), demos.clone());
+        let (state, router, robot, demos) =
+            (state.clone(), router.clone(), r.clone(), demos.clone());
         tasks.spawn(async move {
-            let r = seed_robot(&state, &robot, demos).await;
+            let r = seed_robot(&state, &router, &robot, demos).await;
             state.seed.clear(&robot);
             r.with_context(|| format!("seeding {robot}"))
         });
@@ -139,9 +148,14 @@ async fn run(state: &AppState, study: Uuid, robots: &[String]) -> anyhow::Result
     first_error.map_or(Ok(()), Err)
 }
 
-async fn seed_robot(state: &AppState, robot: &str, demos: Vec<String>) -> anyhow::Result<()> {
+async fn seed_robot(
+    state: &AppState,
+    router: &Router,
+    robot: &str,
+    demos: Vec<String>,
+) -> anyhow::Result<()> {
     let (job, mapping) = submit(
-        state,
+        router,
         "/v1/mappings",
         json!({"robot": robot, "demonstrations": demos, "output_rate_hz": MAPPING_RATE_HZ}),
     )
@@ -151,7 +165,7 @@ async fn seed_robot(state: &AppState, robot: &str, demos: Vec<String>) -> anyhow
     wait(state, job, "mapping").await?;
     let mapping = mapping.context("the mapping answer has no Content-Location")?;
     let (job, model) = submit(
-        state,
+        router,
         "/v1/models",
         json!({"robot": robot, "mappings": [mapping], "held_out": false, "default": true}),
     )
@@ -167,9 +181,9 @@ async fn seed_robot(state: &AppState, robot: &str, demos: Vec<String>) -> anyhow
     Ok(())
 }
 
-async fn submit_study(state: &AppState) -> anyhow::Result<Uuid> {
+async fn submit_study(router: &Router) -> anyhow::Result<Uuid> {
     Ok(submit(
-        state,
+        router,
         "/v1/demonstrations/synthetic",
         json!({"seed": STUDY_SEED}),
     )
@@ -180,7 +194,7 @@ async fn submit_study(state: &AppState) -> anyhow::Result<Uuid> {
 /// POSTs `body` to a job-creating route in-process; returns the job id (`Location`) and the
 /// resource id the job fills (`Content-Location`), if given.
 async fn submit(
-    state: &AppState,
+    router: &Router,
     path: &str,
     body: Value,
 ) -> anyhow::Result<(Uuid, Option<String>)> {
@@ -189,7 +203,8 @@ async fn submit(
         .uri(path)
         .header(header::CONTENT_TYPE, "application/json")
         .body(Body::from(body.to_string()))?;
-    let response = crate::api::router(state.clone())
+    let response = router
+        .clone()
         .oneshot(request)
         .await
         .expect("the router is infallible");
