@@ -506,7 +506,8 @@ pub struct IkRequest {
     pub orientation_weight: Option<f64>,
     pub position_tolerance: Option<f64>,
     pub orientation_tolerance: Option<f64>,
-    /// Default 5 ms, at most 2000 ms.
+    /// The solver's CPU-time budget in ms (default 5, at most 2000): time the thread is
+    /// descheduled is not charged, and the wall time of one solve is capped at 4 × the budget.
     pub time_budget_ms: Option<f64>,
     pub max_restarts: Option<usize>,
     /// Seed of the random restarts (default 0): the same request gives the same answer.
