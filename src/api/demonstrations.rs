@@ -2,8 +2,8 @@
 //! and the synthetic study generator as a job.
 
 use axum::extract::{FromRequest, Multipart, Request, State};
-use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
-use axum::response::{IntoResponse, Response};
+use axum::http::{StatusCode, header};
+use axum::response::Response;
 use serde::{Deserialize, Serialize};
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
@@ -288,11 +288,7 @@ async fn ingest_blocking(input: DemonstrationInput) -> Result<Demonstration, Api
 }
 
 fn created(dto: DemonstrationDto, status: StatusCode) -> Response {
-    let mut headers = HeaderMap::new();
-    if let Ok(v) = HeaderValue::from_str(&format!("/v1/demonstrations/{}", dto.id)) {
-        headers.insert(header::LOCATION, v);
-    }
-    (status, headers, Json(dto)).into_response()
+    super::created(status, format!("/v1/demonstrations/{}", dto.id), dto)
 }
 
 async fn read_form(mut form: Multipart) -> Result<DemonstrationInput, ApiError> {
@@ -563,11 +559,7 @@ async fn generate_synthetic(
             run_study(&ctx, &cfg)
         })
         .await?;
-    let mut headers = HeaderMap::new();
-    if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
-        headers.insert(header::LOCATION, v);
-    }
-    Ok((StatusCode::ACCEPTED, headers, Json(job)).into_response())
+    Ok(super::accepted_job(job, None))
 }
 
 fn run_study(ctx: &JobContext, cfg: &StudyConfig) -> Result<JobOutput, JobError> {

@@ -5,8 +5,8 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock};
 
 use axum::extract::State;
-use axum::http::{StatusCode, header};
-use axum::response::{IntoResponse, Response};
+use axum::http::StatusCode;
+use axum::response::Response;
 use nalgebra::{Point3, Vector3};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
@@ -512,13 +512,11 @@ async fn create_object(
     let spec = serde_json::to_string(obj.spec()).map_err(ApiError::internal)?;
     let row = repo::insert_object(&state.db, &obj.spec().name, &spec).await?;
     let dto = object_dto(row)?;
-    let location = format!("/v1/objects/{}", dto.id);
-    Ok((
+    Ok(super::created(
         StatusCode::CREATED,
-        [(header::LOCATION, location)],
-        Json(dto),
-    )
-        .into_response())
+        format!("/v1/objects/{}", dto.id),
+        dto,
+    ))
 }
 
 /// One object.
@@ -564,13 +562,11 @@ async fn create_grasp(
 ) -> Result<Response, ApiError> {
     let (new, _) = compute_grasp(&state, &body).await?;
     let out = store_grasp(&state, &new).await?;
-    let location = format!("/v1/grasps/{}", out.id);
-    Ok((
+    Ok(super::created(
         StatusCode::CREATED,
-        [(header::LOCATION, location)],
-        Json(out),
-    )
-        .into_response())
+        format!("/v1/grasps/{}", out.id),
+        out,
+    ))
 }
 
 /// Computes one grasp, ready to store (the work of `POST /v1/grasps`, shared with `/v1/plans`,
@@ -683,13 +679,7 @@ async fn create_batch(
             }))
         })
         .await?;
-    let location = format!("/v1/jobs/{}", job.id);
-    Ok((
-        StatusCode::ACCEPTED,
-        [(header::LOCATION, location)],
-        Json(job),
-    )
-        .into_response())
+    Ok(super::accepted_job(job, None))
 }
 
 /// A finished batch: counts and grasp ids in item order.

@@ -11,8 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use axum::extract::State;
-use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
-use axum::response::{IntoResponse, Response};
+use axum::response::Response;
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 use utoipa::{IntoParams, ToSchema};
@@ -913,14 +912,10 @@ async fn create_mapping(
         let _ = state.jobs.cancel(job.id).await;
         return Err(e.into());
     }
-    let mut headers = HeaderMap::new();
-    if let Ok(v) = HeaderValue::from_str(&format!("/v1/jobs/{}", job.id)) {
-        headers.insert(header::LOCATION, v);
-    }
-    if let Ok(v) = HeaderValue::from_str(&format!("/v1/mappings/{mapping_id}")) {
-        headers.insert(header::CONTENT_LOCATION, v);
-    }
-    Ok((StatusCode::ACCEPTED, headers, Json(job)).into_response())
+    Ok(super::accepted_job(
+        job,
+        Some(format!("/v1/mappings/{mapping_id}")),
+    ))
 }
 
 fn run_job(

@@ -91,6 +91,41 @@ use utoipa_swagger_ui::SwaggerUi;
 pub use error::{ApiError, FieldError, Problem};
 pub use extract::{Json, Path, Query};
 
+/// The answer to a create: `status` (201, or 200 for an idempotent re-upload) with
+/// `Location: location` and the stored resource as the body.
+pub(crate) fn created<T: serde::Serialize>(
+    status: axum::http::StatusCode,
+    location: String,
+    body: T,
+) -> axum::response::Response {
+    (
+        status,
+        [(axum::http::header::LOCATION, location)],
+        Json(body),
+    )
+        .into_response()
+}
+
+/// The answer to submitted long work: `202 Accepted` with the job, `Location` the job and, when
+/// the work fills a resource that exists already (a pending mapping or model),
+/// `Content-Location` that resource.
+pub(crate) fn accepted_job(
+    job: crate::jobs::JobRecord,
+    content_location: Option<String>,
+) -> axum::response::Response {
+    use axum::http::header;
+    let mut res = (
+        axum::http::StatusCode::ACCEPTED,
+        [(header::LOCATION, format!("/v1/jobs/{}", job.id))],
+        Json(job),
+    )
+        .into_response();
+    if let Some(v) = content_location.and_then(|c| axum::http::HeaderValue::try_from(c).ok()) {
+        res.headers_mut().insert(header::CONTENT_LOCATION, v);
+    }
+    res
+}
+
 use crate::config::Config;
 use crate::jobs::JobRunner;
 

@@ -11,8 +11,8 @@ use std::collections::{BTreeSet, HashMap};
 use std::sync::{Arc, Mutex, OnceLock};
 
 use axum::extract::State;
-use axum::http::{StatusCode, header};
-use axum::response::{IntoResponse, Response};
+use axum::http::StatusCode;
+use axum::response::Response;
 use serde::{Deserialize, Serialize};
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
@@ -1019,16 +1019,15 @@ async fn create_model(
         })
         .await?;
     new_model.job_id = job.id.to_string();
-    repo::insert_pending(&state.db, &new_model).await?;
-    Ok((
-        StatusCode::ACCEPTED,
-        [
-            (header::LOCATION, format!("/v1/jobs/{}", job.id)),
-            (header::CONTENT_LOCATION, format!("/v1/models/{model_id}")),
-        ],
-        Json(job),
-    )
-        .into_response())
+    if let Err(e) = repo::insert_pending(&state.db, &new_model).await {
+        // Without its row the model could not be found; stop the job rather than orphan it.
+        let _ = state.jobs.cancel(job.id).await;
+        return Err(e.into());
+    }
+    Ok(super::accepted_job(
+        job,
+        Some(format!("/v1/models/{model_id}")),
+    ))
 }
 
 /// List models, newest first (pending and failed ones included, with their job's status).
@@ -1321,12 +1320,11 @@ async fn create_trajectory(
     Json(body): Json<CreateTrajectory>,
 ) -> Result<Response, ApiError> {
     let dto = generate_trajectory(&state, &body).await?;
-    Ok((
+    Ok(super::created(
         StatusCode::CREATED,
-        [(header::LOCATION, format!("/v1/trajectories/{}", dto.id))],
-        Json(dto),
-    )
-        .into_response())
+        format!("/v1/trajectories/{}", dto.id),
+        dto,
+    ))
 }
 
 /// Checks that `model` is trained and that `start` is a valid configuration for it (names,

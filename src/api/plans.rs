@@ -13,8 +13,8 @@
 use std::time::Instant;
 
 use axum::extract::State;
-use axum::http::{StatusCode, header};
-use axum::response::{IntoResponse, Response};
+use axum::http::StatusCode;
+use axum::response::Response;
 use serde::{Deserialize, Serialize};
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
@@ -371,12 +371,11 @@ async fn create_plan(
     Json(body): Json<PlanIn>,
 ) -> Result<Response, ApiError> {
     let dto = plan(&state, &body).await?;
-    Ok((
+    Ok(super::created(
         StatusCode::CREATED,
-        [(header::LOCATION, format!("/v1/plans/{}", dto.id))],
-        Json(dto),
-    )
-        .into_response())
+        format!("/v1/plans/{}", dto.id),
+        dto,
+    ))
 }
 
 /// One plan with its grasp and trajectory.

@@ -826,13 +826,11 @@ async fn create_robot(
         .write()
         .expect("robot cache lock")
         .insert(id.clone(), (row.updated_at.clone(), s.clone()));
-    let location = format!("/v1/robots/{id}");
-    Ok((
+    Ok(super::created(
         StatusCode::CREATED,
-        [(header::LOCATION, location)],
-        Json(detail(&row, &s)),
-    )
-        .into_response())
+        format!("/v1/robots/{id}"),
+        detail(&row, &s),
+    ))
 }
 
 /// Which URDF text a loader error is about: a text that does not parse, or the one whose link

@@ -3,8 +3,7 @@
 
 use axum::Router;
 use axum::extract::State;
-use axum::http::{StatusCode, header};
-use axum::response::{IntoResponse, Response};
+use axum::response::Response;
 use axum::routing::post;
 use serde::Deserialize;
 
@@ -48,11 +47,5 @@ async fn submit_sleep(
         .jobs
         .submit(SLEEP_KIND, sleep_job(req.steps, req.step_ms, req.fail_at))
         .await?;
-    let location = format!("/v1/jobs/{}", job.id);
-    Ok((
-        StatusCode::ACCEPTED,
-        [(header::LOCATION, location)],
-        Json(job),
-    )
-        .into_response())
+    Ok(super::accepted_job(job, None))
 }
