@@ -2,7 +2,9 @@
 //! one figure from already-loaded data, as the `plot.svg` handlers do: robot posture (FK),
 //! demonstration (a synthetic trial's frames), grasp (a planned grasp), mapping (Fig. 2, a
 //! demonstration-length joint trajectory with three postures), trajectory and execution
-//! (7 joints × 300 points), model (variance bars and 10 + 10 PCA paths).
+//! (7 joints × 300 points), the largest execution figure (every wam_ihy joint, a 200 s plan at
+//! 100 Hz and a feedback history at its bound of 4000 samples), model (variance bars and
+//! 10 + 10 PCA paths).
 
 use std::path::Path;
 
@@ -143,6 +145,28 @@ fn bench(c: &mut Criterion) {
     });
     g.bench_function("execution", |b| {
         b.iter(|| execution_figure("e", &names, &planned, &measured).unwrap())
+    });
+    // The largest execution figure: every wam_ihy joint, a 200 s trajectory at 100 Hz and a
+    // feedback history at its bound (store::feedback::MAX_SAMPLES).
+    let all: Vec<String> = sys.model.joint_names().to_vec();
+    let long_plan = points(20_000, all.len());
+    let long_measured: Vec<ExecutionSample> = long_plan
+        .iter()
+        .step_by(5)
+        .take(reachgrasp::store::feedback::MAX_SAMPLES)
+        .map(|p| ExecutionSample {
+            t: p.t + 0.005,
+            positions: p.positions.iter().map(|x| x + 0.01).collect(),
+        })
+        .collect();
+    println!(
+        "execution_full_history figure: {} joints, {} planned points, {} measured samples",
+        all.len(),
+        long_plan.len(),
+        long_measured.len()
+    );
+    g.bench_function("execution_full_history", |b| {
+        b.iter(|| execution_figure("e", &all, &long_plan, &long_measured).unwrap())
     });
     let paths: Vec<PcaPath> = (0..20)
         .map(|i| PcaPath {

@@ -1,6 +1,7 @@
 //! `/v1/executions`: trajectories and closed-loop motions queued for bridge workers
 //! (DESIGN §7): create (202), list, inspect (state, last feedback, tracking error summary),
-//! follow (SSE), cancel.
+//! follow (SSE), cancel, and the measured state history (`/feedback`, decimated and bounded by
+//! [`crate::store::feedback`]).
 
 use std::convert::Infallible;
 use std::time::Duration;
@@ -22,6 +23,7 @@ use crate::bridge::protocol::{Feedback, TrajectoryPointSchema};
 use crate::bridge::{ExecutionPayload, Mode, PayloadPaths, TrackingSummary};
 use crate::motion::TrajectoryPoint;
 use crate::store::executions as repo;
+use crate::store::feedback::{self, History};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -29,6 +31,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(get_execution))
         .routes(routes!(execution_events))
         .routes(routes!(cancel_execution))
+        .routes(routes!(execution_feedback))
 }
 
 // ------------------------------------------------------------------------------------ DTOs
@@ -91,9 +94,57 @@ pub struct ExecutionDto {
     /// The latest feedback (kept when interrupted).
     pub last_feedback: Option<Feedback>,
     pub tracking: Option<TrackingSummary>,
+    /// Samples in the measured state history (`GET /v1/executions/{id}/feedback`).
+    pub feedback_samples: u64,
     pub created_at: String,
     pub dispatched_at: Option<String>,
     pub finished_at: Option<String>,
+}
+
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct FeedbackQuery {
+    /// Only samples with `t` greater than this (s; default: from the start). Pass the previous
+    /// page's `next_since` to read the next page.
+    pub since: Option<f64>,
+    /// Page size, 1 to 5000 (default 1000).
+    pub limit: Option<u32>,
+}
+
+/// One measured state (joint order of the history's `joint_names`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct FeedbackSampleDto {
+    /// Seconds since the execution started on the worker.
+    pub t: f64,
+    pub positions: Vec<f64>,
+    pub velocities: Vec<f64>,
+    /// 0..1, as in the worker's feedback.
+    pub progress: f64,
+    /// Largest joint deviation from the reference (open loop) or the goal (closed loop).
+    pub tracking_error: f64,
+}
+
+/// A page of an execution's measured state history, oldest first.
+///
+/// The history is the worker's feedback decimated to at most `max_rate_hz` samples per second
+/// and bounded to `max_samples` per execution: when the bound is reached every other sample is
+/// dropped and the rate halves, so it always spans the whole execution. Its last sample is the
+/// last state the worker reported. Kept when the execution is interrupted (what was flushed,
+/// every 250 ms, or at the disconnect).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct FeedbackHistoryDto {
+    pub execution_id: String,
+    /// The execution's state when read.
+    pub state: String,
+    pub joint_names: Vec<String>,
+    /// Samples in the whole history.
+    pub total: u64,
+    pub max_rate_hz: f64,
+    pub max_samples: u64,
+    /// This page's samples, strictly increasing `t`.
+    pub samples: Vec<FeedbackSampleDto>,
+    /// `since` for the next page; null on the last page.
+    pub next_since: Option<f64>,
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
@@ -124,8 +175,8 @@ pub async fn view(state: &AppState, row: repo::ExecutionRow) -> ExecutionDto {
     let live = (row.state == repo::RUNNING)
         .then(|| state.bridges.live(&row.id))
         .flatten();
-    let (last_feedback, tracking) = match live {
-        Some((fb, tr)) => (fb, Some(tr)),
+    let (last_feedback, tracking, feedback_samples) = match live {
+        Some((fb, tr, n)) => (fb, Some(tr), n as u64),
         None => (
             row.last_feedback
                 .as_deref()
@@ -134,6 +185,7 @@ pub async fn view(state: &AppState, row: repo::ExecutionRow) -> ExecutionDto {
             row.tracking
                 .as_deref()
                 .and_then(|s| serde_json::from_str(s).ok()),
+            row.feedback_samples.max(0) as u64,
         ),
     };
     ExecutionDto {
@@ -149,10 +201,27 @@ pub async fn view(state: &AppState, row: repo::ExecutionRow) -> ExecutionDto {
         cancel_requested: row.cancel_requested,
         last_feedback,
         tracking,
+        feedback_samples,
         created_at: row.created_at,
         dispatched_at: row.dispatched_at,
         finished_at: row.finished_at,
     }
+}
+
+/// The measured state history of an execution: the live one (with what is not flushed yet)
+/// while it runs, else the stored one.
+pub async fn history(
+    state: &AppState,
+    row: &repo::ExecutionRow,
+    n_joints: usize,
+) -> Result<History, ApiError> {
+    if row.state == repo::RUNNING
+        && let Some(h) = state.bridges.history(&row.id)
+        && h.n_joints == n_joints
+    {
+        return Ok(h);
+    }
+    Ok(feedback::load(&state.db, &row.id, n_joints).await?)
 }
 
 async fn load(state: &AppState, id: &Uuid) -> Result<ExecutionDto, ApiError> {
@@ -548,4 +617,71 @@ async fn execution_events(
         }
     });
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
+}
+
+/// The measured state history of an execution (joint positions and velocities, progress and
+/// tracking error over time), oldest first, in pages.
+#[utoipa::path(get, path = "/v1/executions/{id}/feedback", tag = "executions",
+    params(("id" = Uuid, Path, description = "Execution id"), FeedbackQuery),
+    responses(
+        (status = 200, description = "A page of the history", body = FeedbackHistoryDto),
+        (status = 400, description = "Bad `since` or `limit`", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "Unknown execution", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn execution_feedback(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+    Query(q): Query<FeedbackQuery>,
+) -> Result<Json<FeedbackHistoryDto>, ApiError> {
+    const MAX_PAGE: u32 = 5000;
+    let limit = q.limit.unwrap_or(1000);
+    if !(1..=MAX_PAGE).contains(&limit) {
+        return Err(ApiError::invalid_parameter(
+            "limit",
+            format!("must be between 1 and {MAX_PAGE}, got {limit}"),
+        ));
+    }
+    if let Some(s) = q.since
+        && !s.is_finite()
+    {
+        return Err(ApiError::invalid_parameter(
+            "since",
+            format!("must be a finite number of seconds, got {s}"),
+        ));
+    }
+    let key = id.to_string();
+    let row = repo::get(&state.db, &key)
+        .await?
+        .ok_or_else(|| ApiError::not_found("execution", id))?;
+    let joint_names = repo::joint_names(&state.db, &key)
+        .await?
+        .ok_or_else(|| ApiError::not_found("execution", id))?;
+    let h = history(&state, &row, joint_names.len()).await?;
+    let from = q.since.map_or(0, |s| h.first_after(s));
+    let to = (from + limit as usize).min(h.len());
+    let samples: Vec<FeedbackSampleDto> = (from..to)
+        .map(|i| {
+            let s = h.sample(i);
+            FeedbackSampleDto {
+                t: s.t,
+                positions: s.positions.to_vec(),
+                velocities: s.velocities.to_vec(),
+                progress: s.progress,
+                tracking_error: s.tracking_error,
+            }
+        })
+        .collect();
+    let next_since = (to < h.len())
+        .then(|| samples.last().map(|s| s.t))
+        .flatten();
+    Ok(Json(FeedbackHistoryDto {
+        execution_id: key,
+        state: row.state,
+        joint_names,
+        total: h.len() as u64,
+        max_rate_hz: feedback::MAX_RATE_HZ,
+        max_samples: feedback::MAX_SAMPLES as u64,
+        samples,
+        next_since,
+    }))
 }

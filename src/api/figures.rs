@@ -453,7 +453,10 @@ async fn trajectory_plot(
     .await
 }
 
-/// Planned (dashed) vs measured joint positions over time.
+/// Planned (dashed) vs measured joint positions over time: the planned trajectory (open loop)
+/// and the execution's measured state history (`GET /v1/executions/{id}/feedback`). A
+/// closed-loop execution has no planned trajectory; its figure shows the measured positions only
+/// and says so in its title.
 #[utoipa::path(get, path = "/v1/executions/{id}/plot.svg", tag = "figures",
     params(("id" = String, Path, description = "Execution id")),
     responses(
@@ -478,30 +481,34 @@ async fn execution_plot(
         Some(ExecutionPayload::Model { params, .. }) => (params.joint_names.clone(), Vec::new()),
         None => return Err(ApiError::not_found("execution", &id)),
     };
-    let measured: Vec<ExecutionSample> = row
-        .last_feedback
-        .as_deref()
-        .and_then(|f| serde_json::from_str::<serde_json::Value>(f).ok())
-        .and_then(|f| {
-            Some(ExecutionSample {
-                t: f["t"].as_f64()?,
-                positions: f["positions"]
-                    .as_array()?
-                    .iter()
-                    .map(|v| v.as_f64())
-                    .collect::<Option<Vec<f64>>>()?,
-            })
-        })
-        .into_iter()
-        .collect();
-    let title = format!(
-        "execution {} ({}, {}, {})",
-        &id[..8.min(id.len())],
-        row.robot,
-        row.mode,
-        row.state
-    );
+    let history = super::executions::history(&state, &row, joint_names.len()).await?;
+    let short = &id[..8.min(id.len())];
+    let mode = row.mode.replace('_', " ");
+    let title = if planned.is_empty() {
+        // The title is the figure's legend for this: the series are all measured.
+        format!(
+            "execution {short} ({}): {mode}, measured only (no planned trajectory)",
+            row.state
+        )
+    } else if history.is_empty() {
+        format!(
+            "execution {short} ({}, {mode}, {}): planned only, nothing measured yet",
+            row.robot, row.state
+        )
+    } else {
+        format!(
+            "execution {short} ({}, {mode}, {}): planned (dashed) vs measured",
+            row.robot, row.state
+        )
+    };
     render(move || {
+        let measured: Vec<ExecutionSample> = history
+            .samples()
+            .map(|s| ExecutionSample {
+                t: s.t,
+                positions: s.positions.to_vec(),
+            })
+            .collect();
         Ok(figures::execution_figure(
             &title,
             &joint_names,

@@ -27,9 +27,10 @@ use super::protocol::{
 };
 use crate::api::{ApiError, AppState, Shutdown};
 use crate::store::executions as repo;
+use crate::store::feedback::{Chunk, History, Recorder};
 
-/// Feedback and tracking are written to SQLite at most this often per execution (the live view
-/// in memory is always current).
+/// Feedback, tracking and the new part of the feedback history are written to SQLite at most
+/// this often per execution (the live view in memory is always current).
 const FLUSH_EVERY: Duration = Duration::from_millis(250);
 /// Bad frames tolerated on one connection before it is closed.
 const MAX_ERRORS: u32 = 20;
@@ -106,6 +107,8 @@ struct Live {
     n_joints: usize,
     feedback: Option<Feedback>,
     tracking: TrackingSummary,
+    /// The decimated, bounded measured state history (`store::feedback`).
+    history: Recorder,
     last_flush: Instant,
     cancel_requested: bool,
 }
@@ -204,12 +207,17 @@ impl Hub {
         v
     }
 
-    /// The live feedback and tracking of a running execution.
-    pub fn live(&self, id: &str) -> Option<(Option<Feedback>, TrackingSummary)> {
+    /// The live feedback, tracking and kept history sample count of a running execution.
+    pub fn live(&self, id: &str) -> Option<(Option<Feedback>, TrackingSummary, usize)> {
         self.lock()
             .live
             .get(id)
-            .map(|l| (l.feedback.clone(), l.tracking.clone()))
+            .map(|l| (l.feedback.clone(), l.tracking.clone(), l.history.len()))
+    }
+
+    /// The measured state history of a running execution, including what is not flushed yet.
+    pub fn history(&self, id: &str) -> Option<History> {
+        self.lock().live.get(id).map(|l| l.history.history())
     }
 
     /// A receiver that changes whenever the execution's state or feedback does.
@@ -322,8 +330,16 @@ impl Hub {
                             .map(|w| format!(" named '{w}'"))
                             .unwrap_or_default()
                     );
-                    if repo::finish(&self.0.db, &row.id, repo::FAILED, Some(&reason), None, None)
-                        .await?
+                    if repo::finish(
+                        &self.0.db,
+                        &row.id,
+                        repo::FAILED,
+                        Some(&reason),
+                        None,
+                        None,
+                        None,
+                    )
+                    .await?
                     {
                         tracing::info!(execution = %row.id, "execution failed: no worker");
                         self.notify_final(&row.id);
@@ -364,6 +380,7 @@ impl Hub {
                         n_joints: payload.joint_names().len(),
                         feedback: None,
                         tracking: TrackingSummary::default(),
+                        history: Recorder::new(payload.joint_names().len()),
                         last_flush: Instant::now(),
                         cancel_requested: false,
                     },
@@ -404,6 +421,7 @@ impl Hub {
                 id,
                 repo::CANCELLED,
                 Some("cancelled before it was dispatched"),
+                None,
                 None,
                 None,
             )
@@ -538,7 +556,9 @@ impl Hub {
             (w.snapshot.name, held)
         };
         tracing::info!(worker = %name, reason = why, "bridge worker disconnected");
-        if let Some((id, live)) = held {
+        if let Some((id, mut live)) = held {
+            live.history.close();
+            let history = live.history.pending();
             let fb = live
                 .feedback
                 .as_ref()
@@ -552,6 +572,7 @@ impl Hub {
                 Some(&reason),
                 fb.as_deref(),
                 tr.as_deref(),
+                history.as_ref(),
             )
             .await
             {
@@ -632,6 +653,13 @@ impl Hub {
             }
             w.snapshot.positions.clone_from(&fb.positions);
             live.tracking.add(fb.tracking_error);
+            live.history.record(
+                fb.t,
+                fb.progress,
+                fb.tracking_error,
+                &fb.positions,
+                &fb.velocities,
+            );
             let id = fb.execution_id.clone();
             live.feedback = Some(fb);
             let flush = (live.last_flush.elapsed() >= FLUSH_EVERY).then(|| {
@@ -640,21 +668,34 @@ impl Hub {
                     id.clone(),
                     serde_json::to_string(&live.feedback).unwrap_or_default(),
                     serde_json::to_string(&live.tracking).unwrap_or_default(),
+                    live.history.pending(),
                 )
             });
             Self::touch(s, &id, false);
             flush
         };
-        if let Some((id, fb, tr)) = flush
-            && let Err(e) = repo::save_progress(&self.0.db, &id, &fb, &tr).await
-        {
-            tracing::warn!(execution = %id, error = %e, "cannot store feedback");
+        if let Some((id, fb, tr, chunk)) = flush {
+            match repo::save_progress(&self.0.db, &id, &fb, &tr, chunk.as_ref()).await {
+                Ok(true) => self.stored(&id, chunk.as_ref()),
+                Ok(false) => {}
+                // The chunk stays pending: the next flush (or the final one) writes it.
+                Err(e) => tracing::warn!(execution = %id, error = %e, "cannot store feedback"),
+            }
         }
         Ok(())
     }
 
+    /// A flushed history chunk is in the database; later flushes write only what follows it.
+    fn stored(&self, id: &str, chunk: Option<&Chunk>) {
+        if let Some(c) = chunk
+            && let Some(live) = self.lock().live.get_mut(id)
+        {
+            live.history.stored(c);
+        }
+    }
+
     async fn on_result(&self, conn: u64, r: ExecutionResult) -> Result<(), ErrorReply> {
-        let live = {
+        let mut live = {
             let mut s = self.lock();
             let Some(w) = s.workers.get_mut(&conn) else {
                 return Ok(());
@@ -668,6 +709,10 @@ impl Hub {
             }
             s.live.remove(&r.execution_id)
         };
+        let history = live.as_mut().and_then(|l| {
+            l.history.close();
+            l.history.pending()
+        });
         let cancel_requested = live.as_ref().is_some_and(|l| l.cancel_requested);
         let state = match r.outcome {
             Outcome::Succeeded => repo::SUCCEEDED,
@@ -690,6 +735,7 @@ impl Hub {
             reason,
             fb.as_deref(),
             tr.as_deref(),
+            history.as_ref(),
         )
         .await
         {

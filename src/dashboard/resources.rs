@@ -570,13 +570,25 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
                 esc(dto.assigned_worker.as_deref().unwrap_or("(not assigned)"))
             ),
             ("tracking error", tracking),
+            (
+                "measured history",
+                format!(
+                    "{} samples ({})",
+                    dto.feedback_samples,
+                    link(&format!("/v1/executions/{id}/feedback"), "JSON")
+                )
+            ),
             ("created", esc(&dto.created_at)),
             ("finished", esc(dto.finished_at.as_deref().unwrap_or(""))),
             ("API", link(&format!("/v1/executions/{id}"), "JSON")),
         ]),
         figure(
             &format!("/v1/executions/{id}/plot.svg"),
-            "Planned (dashed) vs measured joint positions",
+            if dto.mode == crate::bridge::Mode::ClosedLoop {
+                "Measured joint positions over time (closed loop: no planned trajectory)"
+            } else {
+                "Planned (dashed) vs measured joint positions over time"
+            },
             false,
             ""
         )

@@ -16,7 +16,7 @@ pub use scene::{
     posture_scene, render_scene,
 };
 pub use series::{
-    ExecutionSample, PcaPath, demonstration_figure, execution_figure, model_figure,
+    ExecutionSample, MAX_DRAWN, PcaPath, demonstration_figure, execution_figure, model_figure,
     trajectory_figure,
 };
 

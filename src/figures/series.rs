@@ -9,6 +9,24 @@ use crate::motion::TrajectoryPoint;
 
 type Area<'a> = DrawingArea<SVGBackend<'a>, Shift>;
 
+/// Most points drawn per line over time: a figure is 800 px wide, so more points only make the
+/// SVG bigger and slower (a 10-minute trajectory has 60 000).
+pub const MAX_DRAWN: usize = 1000;
+
+/// At most [`MAX_DRAWN`] items, evenly spaced, always including the first and the last.
+fn thinned<T>(items: &[T]) -> impl Iterator<Item = &T> {
+    let n = items.len();
+    let m = n.min(MAX_DRAWN);
+    // i (n-1) / (m-1) is strictly increasing in i when n >= m, and ends at n - 1.
+    (0..m).map(move |i| {
+        if m < 2 {
+            &items[i]
+        } else {
+            &items[i * (n - 1) / (m - 1)]
+        }
+    })
+}
+
 /// `lo..hi` padded by 5 % (and widened when flat, so a constant series still has an axis).
 fn padded(lo: f64, hi: f64) -> std::ops::Range<f64> {
     if !(lo.is_finite() && hi.is_finite()) || lo > hi {
@@ -201,7 +219,7 @@ pub fn trajectory_figure(
             name: name.clone(),
             color: PALETTE[j % PALETTE.len()],
             dashed: false,
-            points: points.iter().map(|p| (p.t, p.positions[j])).collect(),
+            points: thinned(points).map(|p| (p.t, p.positions[j])).collect(),
         })
         .collect();
     let mut svg = String::new();
@@ -229,7 +247,9 @@ pub struct ExecutionSample {
     pub positions: Vec<f64>,
 }
 
-/// Planned (dashed) vs measured (solid) joint positions over time, same colour per joint.
+/// Planned (dashed) vs measured (solid) joint positions over time, same colour per joint; with
+/// no planned points (closed loop) the measured ones alone. Each line draws at most
+/// [`MAX_DRAWN`] points.
 pub fn execution_figure(
     title: &str,
     joint_names: &[String],
@@ -262,7 +282,7 @@ pub fn execution_figure(
                 name: format!("{name} planned"),
                 color,
                 dashed: true,
-                points: planned.iter().map(|p| (p.t, p.positions[j])).collect(),
+                points: thinned(planned).map(|p| (p.t, p.positions[j])).collect(),
             });
         }
         if !measured.is_empty() {
@@ -270,7 +290,7 @@ pub fn execution_figure(
                 name: format!("{name} measured"),
                 color,
                 dashed: false,
-                points: measured.iter().map(|s| (s.t, s.positions[j])).collect(),
+                points: thinned(measured).map(|s| (s.t, s.positions[j])).collect(),
             });
         }
     }

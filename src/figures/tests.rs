@@ -344,6 +344,34 @@ fn execution_pairs_planned_and_measured_per_joint() {
 }
 
 #[test]
+fn a_closed_loop_execution_draws_measured_lines_only_and_long_ones_thinned() {
+    let names: Vec<String> = vec!["a".into(), "b".into(), "c".into()];
+    // a bounded history at its largest (4000 samples), and around the drawing limit
+    for (n, drawn) in [(4000, 1000), (999, 999), (1001, 1000)] {
+        let measured: Vec<ExecutionSample> = (0..n)
+            .map(|k| ExecutionSample {
+                t: k as f64 * 0.05,
+                positions: (0..3).map(|j| (k as f64 * 0.01 + j as f64).sin()).collect(),
+            })
+            .collect();
+        let fig = execution_figure("e", &names, &[], &measured).unwrap();
+        assert!(fig.series.iter().all(|s| s.name.ends_with(" measured")));
+        assert_eq!(fig.series.len(), names.len());
+        let lines = polylines(&fig.svg);
+        for name in &names {
+            let c = color_of(&fig, &format!("{name} measured"));
+            let k = lines.iter().filter(|(s, k)| *s == c && *k > 2).count();
+            assert_eq!(k, 1, "{name}: one measured line");
+            assert!(
+                lines.iter().any(|(s, k)| *s == c && *k == drawn),
+                "{name}: {n} samples drawn as {drawn} points"
+            );
+        }
+        assert!(drawn <= super::series::MAX_DRAWN);
+    }
+}
+
+#[test]
 fn model_has_bars_per_component_and_both_path_kinds() {
     let ev = [0.6, 0.2, 0.1];
     let paths = vec![

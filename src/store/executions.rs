@@ -1,11 +1,14 @@
 //! Executions and known bridge workers (migration 0007).
 //!
 //! The payload's trajectory points are stored as one numeric BLOB (`[n, 1 + 3 n_joints]`:
-//! `t`, positions, velocities, accelerations per row); the rest of the payload as JSON.
+//! `t`, positions, velocities, accelerations per row); the rest of the payload as JSON. The
+//! measured state history is in [`super::feedback`] (migration 0010), written in the same
+//! transactions as the progress flushes and the final state change here.
 
 use sqlx::SqlitePool;
 use uuid::Uuid;
 
+use super::feedback::{self, Chunk};
 use super::{blob, now};
 use crate::bridge::ExecutionPayload;
 use crate::motion::TrajectoryPoint;
@@ -41,13 +44,17 @@ pub struct ExecutionRow {
     pub created_at: String,
     pub dispatched_at: Option<String>,
     pub finished_at: Option<String>,
+    /// Samples in the stored feedback history.
+    pub feedback_samples: i64,
 }
 
 /// The columns of [`ExecutionRow`] (a macro so queries stay `&'static str` literals).
 macro_rules! columns {
     () => {
         "id, robot, mode, kind, source_id, worker, state, assigned_worker, reason, \
-         cancel_requested, last_feedback, tracking, created_at, dispatched_at, finished_at"
+         cancel_requested, last_feedback, tracking, created_at, dispatched_at, finished_at, \
+         (SELECT COALESCE(SUM(f.samples), 0) FROM execution_feedback f \
+          WHERE f.execution_id = executions.id) AS feedback_samples"
     };
 }
 
@@ -148,6 +155,7 @@ pub async fn insert(
         created_at: now(),
         dispatched_at: None,
         finished_at: None,
+        feedback_samples: 0,
     };
     sqlx::query(
         "INSERT INTO executions (id, robot, mode, kind, source_id, payload, points, worker, state, created_at) \
@@ -187,6 +195,16 @@ pub async fn payload(pool: &SqlitePool, id: &str) -> Result<Option<ExecutionPayl
             .fetch_optional(pool)
             .await?;
     row.map(|(json, points)| join_payload(&json, points.as_deref()))
+        .transpose()
+}
+
+/// The joint names of an execution's payload (without decoding its points).
+pub async fn joint_names(pool: &SqlitePool, id: &str) -> Result<Option<Vec<String>>, sqlx::Error> {
+    let row: Option<(String,)> = sqlx::query_as("SELECT payload FROM executions WHERE id = ?")
+        .bind(id)
+        .fetch_optional(pool)
+        .await?;
+    row.map(|(json,)| join_payload(&json, None).map(|p| p.joint_names().to_vec()))
         .transpose()
 }
 
@@ -249,26 +267,37 @@ pub async fn requeue(pool: &SqlitePool, id: &str) -> Result<(), sqlx::Error> {
     .map(|_| ())
 }
 
-/// Stores the latest feedback and tracking summary of a running execution.
+/// Stores the latest feedback, the tracking summary and the new part of the feedback history
+/// of a running execution, in one transaction; false (nothing written) if it is no longer
+/// running.
 pub async fn save_progress(
     pool: &SqlitePool,
     id: &str,
     last_feedback: &str,
     tracking: &str,
-) -> Result<(), sqlx::Error> {
-    sqlx::query(
+    history: Option<&Chunk>,
+) -> Result<bool, sqlx::Error> {
+    let mut tx = pool.begin().await?;
+    let r = sqlx::query(
         "UPDATE executions SET last_feedback = ?, tracking = ? WHERE id = ? AND state = 'running'",
     )
     .bind(last_feedback)
     .bind(tracking)
     .bind(id)
-    .execute(pool)
-    .await
-    .map(|_| ())
+    .execute(&mut *tx)
+    .await?;
+    if r.rows_affected() != 1 {
+        return Ok(false);
+    }
+    if let Some(c) = history {
+        feedback::write_chunk(&mut tx, id, c).await?;
+    }
+    tx.commit().await?;
+    Ok(true)
 }
 
-/// Moves a live execution to a final state (with the last feedback, when known); false if it
-/// was already final.
+/// Moves a live execution to a final state (with the last feedback and the rest of the
+/// feedback history, when known) in one transaction; false if it was already final.
 pub async fn finish(
     pool: &SqlitePool,
     id: &str,
@@ -276,8 +305,10 @@ pub async fn finish(
     reason: Option<&str>,
     last_feedback: Option<&str>,
     tracking: Option<&str>,
+    history: Option<&Chunk>,
 ) -> Result<bool, sqlx::Error> {
     debug_assert!(is_final(state));
+    let mut tx = pool.begin().await?;
     let r = sqlx::query(
         "UPDATE executions SET state = ?, reason = ?, finished_at = ?, \
          last_feedback = COALESCE(?, last_feedback), tracking = COALESCE(?, tracking) \
@@ -289,9 +320,16 @@ pub async fn finish(
     .bind(last_feedback)
     .bind(tracking)
     .bind(id)
-    .execute(pool)
+    .execute(&mut *tx)
     .await?;
-    Ok(r.rows_affected() == 1)
+    if r.rows_affected() != 1 {
+        return Ok(false);
+    }
+    if let Some(c) = history {
+        feedback::write_chunk(&mut tx, id, c).await?;
+    }
+    tx.commit().await?;
+    Ok(true)
 }
 
 pub async fn set_cancel_requested(pool: &SqlitePool, id: &str) -> Result<(), sqlx::Error> {
@@ -403,7 +441,7 @@ mod tests {
         let after = get(&pool, &row.id).await.unwrap().unwrap();
         assert_eq!(after.state, INTERRUPTED);
         assert!(
-            !finish(&pool, &row.id, FAILED, None, None, None)
+            !finish(&pool, &row.id, FAILED, None, None, None, None)
                 .await
                 .unwrap()
         );

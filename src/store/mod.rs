@@ -8,6 +8,7 @@
 pub mod blob;
 pub mod demonstrations;
 pub mod executions;
+pub mod feedback;
 pub mod grasps;
 pub mod jobs;
 pub mod mappings;

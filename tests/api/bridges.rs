@@ -202,6 +202,46 @@ fn floats(v: &Value) -> Vec<f64> {
         .collect()
 }
 
+/// The `t` of each sample of a feedback history page.
+fn times(samples: &[Value]) -> Vec<f64> {
+    samples.iter().map(|s| s["t"].as_f64().unwrap()).collect()
+}
+
+fn strictly_increasing(ts: &[f64]) -> bool {
+    ts.windows(2).all(|w| w[1] > w[0])
+}
+
+/// Polylines of the SVG with exactly `points` points (a measured series is one polyline with a
+/// point per sample; legend swatches have 2, dashes of planned lines are short pieces).
+fn polylines_with(svg: &str, points: usize) -> usize {
+    let doc = roxmltree::Document::parse(svg).expect("well-formed SVG");
+    assert_eq!(doc.root_element().tag_name().name(), "svg");
+    doc.descendants()
+        .filter(|n| n.has_tag_name("polyline"))
+        .filter(|n| {
+            n.attribute("points")
+                .is_some_and(|p| p.split_whitespace().count() == points)
+        })
+        .count()
+}
+
+impl BridgeApp {
+    async fn raw(&self, path: &str) -> reqwest::Response {
+        self.client
+            .get(format!("{}{path}", self.base))
+            .send()
+            .await
+            .unwrap()
+    }
+
+    async fn svg(&self, path: &str) -> String {
+        let res = self.raw(path).await;
+        assert_eq!(res.status(), 200, "GET {path}");
+        assert_eq!(res.headers()["content-type"], "image/svg+xml");
+        res.text().await.unwrap()
+    }
+}
+
 #[tokio::test]
 async fn open_loop_execution_succeeds_with_bounded_tracking_error_and_streams_events() {
     let app = spawn(|_| {}).await;
@@ -274,6 +314,103 @@ async fn open_loop_execution_succeeds_with_bounded_tracking_error_and_streams_ev
     assert_eq!(back["assigned_worker"], "sim-a");
     let list = app.get("/v1/executions?state=succeeded").await;
     assert_eq!(list["items"].as_array().unwrap().len(), 2);
+    w.task.abort();
+}
+
+#[tokio::test]
+async fn an_open_loop_execution_keeps_a_decimated_measured_history_that_its_figure_draws() {
+    let app = spawn(|_| {}).await;
+    let mut w = Worker::start(app.worker("sim-h"));
+    w.until(10, |e| *e == WorkerEvent::Connected).await;
+    let (a, b) = (home(), target());
+    let id = app.execute(&inline(&a, &b, 2.0)).await;
+    let done = app
+        .wait(&id, 20, |e| {
+            e["state"] != "queued" && e["state"] != "running"
+        })
+        .await;
+    assert_eq!(done["state"], "succeeded", "{done}");
+
+    let h = app.get(&format!("/v1/executions/{id}/feedback")).await;
+    assert_eq!(h["execution_id"], id.as_str());
+    assert_eq!(h["state"], "succeeded");
+    assert_eq!(h["joint_names"], json!(names()));
+    let samples = h["samples"].as_array().unwrap();
+    let n = samples.len();
+    assert_eq!(h["total"], n);
+    assert_eq!(done["feedback_samples"], n);
+    assert!(h["next_since"].is_null(), "one page: {h}");
+    // 2 s of motion (plus settling) from feedback at 50 Hz, kept at no more than 20 Hz
+    let ts = times(samples);
+    assert!(strictly_increasing(&ts), "{ts:?}");
+    let span = ts[n - 1] - ts[0];
+    assert!(n >= 35 && span >= 1.9, "{n} samples over {span} s");
+    assert!(
+        n as f64 <= span * h["max_rate_hz"].as_f64().unwrap() + 2.0,
+        "{n} samples over {span} s: not decimated"
+    );
+    let sys = system();
+    let (lo, hi) = (sys.model.lower_limits(), sys.model.upper_limits());
+    for s in samples {
+        let q = floats(&s["positions"]);
+        assert_eq!(q.len(), names().len());
+        assert_eq!(floats(&s["velocities"]).len(), names().len());
+        for (j, x) in q.iter().enumerate() {
+            assert!(*x >= lo[j] - 1e-9 && *x <= hi[j] + 1e-9, "joint {j}: {x}");
+        }
+        assert!(s["tracking_error"].as_f64().unwrap() < 0.05);
+    }
+    assert!(max_abs_diff(&floats(&samples[0]["positions"]), &a) < 0.02);
+    // it ends with the last state the worker reported: at the goal
+    assert_eq!(samples[n - 1]["t"], done["last_feedback"]["t"]);
+    let last = floats(&samples[n - 1]["positions"]);
+    assert!(max_abs_diff(&last, &b) <= 0.011, "{last:?}");
+
+    // pages by `since`
+    let page = app
+        .get(&format!(
+            "/v1/executions/{id}/feedback?since={}&limit=5",
+            ts[9]
+        ))
+        .await;
+    assert_eq!(
+        times(page["samples"].as_array().unwrap()),
+        ts[10..15].to_vec()
+    );
+    assert_eq!(page["next_since"].as_f64(), Some(ts[14]));
+    assert_eq!(page["total"], n);
+    let tail = app
+        .get(&format!("/v1/executions/{id}/feedback?since={}", ts[n - 2]))
+        .await;
+    assert_eq!(tail["samples"].as_array().unwrap().len(), 1);
+    assert!(tail["next_since"].is_null());
+    for (query, param) in [
+        ("limit=0", "limit"),
+        ("limit=5001", "limit"),
+        ("since=NaN", "since"),
+    ] {
+        let p = assert_problem(
+            app.raw(&format!("/v1/executions/{id}/feedback?{query}"))
+                .await,
+            400,
+            "invalid-parameter",
+        )
+        .await;
+        assert_eq!(p["errors"][0]["path"], param, "{query}: {p}");
+    }
+    assert_problem(
+        app.raw(&format!("/v1/executions/{}/feedback", uuid::Uuid::new_v4()))
+            .await,
+        404,
+        "not-found",
+    )
+    .await;
+
+    // the figure: one measured line per joint, a point per sample, beside the dashed plan
+    let svg = app.svg(&format!("/v1/executions/{id}/plot.svg")).await;
+    assert!(n < reachgrasp::figures::MAX_DRAWN);
+    assert_eq!(polylines_with(&svg, n), names().len(), "measured lines");
+    assert!(svg.contains("planned (dashed) vs measured"));
     w.task.abort();
 }
 
@@ -406,6 +543,22 @@ async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
         matches!(kicked, WorkerEvent::Finished { kicks, outcome: reachgrasp::bridge::protocol::Outcome::Succeeded, .. } if kicks >= 1),
         "the motion was perturbed: {kicked:?}"
     );
+    // the measured history converges too; with no planned trajectory the figure shows it alone
+    let h = app.get(&format!("/v1/executions/{id}/feedback")).await;
+    let samples = h["samples"].as_array().unwrap();
+    let n = samples.len();
+    assert!(n >= 5 && strictly_increasing(&times(samples)), "{h}");
+    assert_eq!(done["feedback_samples"], n);
+    let last = floats(&samples[n - 1]["positions"]);
+    assert!(max_abs_diff(&last, &goal) <= 0.011, "{last:?}");
+    let svg = app.svg(&format!("/v1/executions/{id}/plot.svg")).await;
+    assert!(
+        svg.contains("measured only (no planned trajectory)"),
+        "title"
+    );
+    if n <= reachgrasp::figures::MAX_DRAWN {
+        assert_eq!(polylines_with(&svg, n), names().len(), "measured lines");
+    }
     w.task.abort();
 }
 
@@ -426,6 +579,17 @@ async fn a_worker_killed_mid_execution_leaves_it_interrupted_with_its_last_feedb
     let fb = &done["last_feedback"];
     assert!(fb["t"].as_f64().unwrap() > 0.5, "{fb}");
     assert!(fb["progress"].as_f64().unwrap() < 1.0);
+    // it keeps its measured history, up to the last state reported before the disconnect
+    let h = app.get(&format!("/v1/executions/{id}/feedback")).await;
+    let samples = h["samples"].as_array().unwrap();
+    assert!(
+        samples.len() >= 10,
+        "{} samples over > 0.5 s",
+        samples.len()
+    );
+    assert!(strictly_increasing(&times(samples)));
+    assert_eq!(samples.last().unwrap()["t"], fb["t"]);
+    assert_eq!(done["feedback_samples"], samples.len());
     let bridges = app.get("/v1/bridges").await;
     assert_eq!(bridges["items"][0]["status"], "disconnected");
     assert_eq!(bridges["items"][0]["connected"], false);
@@ -1106,6 +1270,19 @@ async fn a_service_restart_keeps_queued_executions_and_the_worker_reconnects_to_
         interrupted["last_feedback"]["t"].as_f64().unwrap() > 0.5,
         "the last flushed feedback is kept: {interrupted}"
     );
+    // and the measured history flushed before the crash (every 250 ms)
+    let h = get(format!("{base}/v1/executions/{long}/feedback"))
+        .await
+        .unwrap();
+    let samples = h["samples"].as_array().unwrap();
+    let ts = times(samples);
+    assert!(samples.len() >= 5 && strictly_increasing(&ts), "{h}");
+    let last_t = *ts.last().unwrap();
+    assert!(
+        last_t > 0.25 && last_t <= interrupted["last_feedback"]["t"].as_f64().unwrap(),
+        "flushed up to {last_t} s: {interrupted}"
+    );
+    assert_eq!(interrupted["feedback_samples"], samples.len());
     let mut last = Value::Null;
     for _ in 0..600 {
         last = get(format!("{base}/v1/executions/{queued}")).await.unwrap();
