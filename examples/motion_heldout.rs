@@ -6,6 +6,9 @@
 //! (a) the NF model, (b) the straight joint line, (c) the straight line in PCA space (`k → ∞`),
 //! and `a / b`.
 //!
+//! The NF model is trained with its goal-conditioned residual profile
+//! ([`reachgrasp::motion::ResidualProfile`]); `NO_PROFILE=1` trains the plain NF path.
+//!
 //! `cargo run --release --example motion_heldout -- [subjects] [trials]` (defaults 2 and 5).
 
 use std::path::Path;
@@ -19,7 +22,7 @@ use reachgrasp::mapping::{
     BatchItem, MappingModel, RegistrationSpec, SolverOptions, Weights, map_batch,
 };
 use reachgrasp::motion::mapped::{DEFAULT_ACCELERATION_LIMIT, system_groups, system_limits};
-use reachgrasp::motion::{JointTrajectory, TrainOptions};
+use reachgrasp::motion::{DEFAULT_PROFILE_RIDGE, JointTrajectory, TrainOptions};
 
 const SYSTEMS: [&str; 6] = [
     "wam_t42",
@@ -35,6 +38,12 @@ fn main() {
         .skip(1)
         .map(|a| a.parse().expect("subjects and trials are counts"))
         .collect();
+    // `NO_PROFILE=1`: the plain NF path (no residual profile), the previous table.
+    let profile = if std::env::var_os("NO_PROFILE").is_some() {
+        None
+    } else {
+        Some(DEFAULT_PROFILE_RIDGE)
+    };
     let cfg = StudyConfig {
         subjects: args.first().copied().unwrap_or(2),
         trials: args.get(1).copied().unwrap_or(5),
@@ -93,6 +102,7 @@ fn main() {
         let opts = TrainOptions {
             groups: system_groups(&sys),
             cap_spline_intervals: true,
+            profile_ridge: profile,
             ..TrainOptions::default()
         };
         let summary =

@@ -288,6 +288,137 @@ fn nf_model_beats_both_baselines_on_held_out_positions() {
     }
 }
 
+/// The humanlikeness check on real mapped data: a small synthetic human study (2
+/// subjects × 5 object positions × 2 trials) mapped onto the PA10 + T42 (eq. 1-7), trained on
+/// four object positions and tested on the fifth, every fold. The full six-system table is
+/// `cargo run --release --example motion_heldout`.
+#[test]
+fn nf_model_beats_both_baselines_on_held_out_mapped_demonstrations() {
+    use crate::human::{StudyConfig, generate_study, ingest};
+    use crate::kinematics::System;
+    use crate::mapping::{
+        BatchItem, MappingModel, RegistrationSpec, SolverOptions, Weights, map_batch,
+    };
+    let cfg = StudyConfig {
+        subjects: 2,
+        trials: 2,
+        ..StudyConfig::default()
+    };
+    let humans: Vec<_> = generate_study(&cfg)
+        .unwrap()
+        .iter()
+        .map(|d| ingest(d).unwrap())
+        .collect();
+    let sys = System::from_file(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems/pa10_t42.toml"),
+    )
+    .unwrap();
+    let mm = MappingModel::from_system(&sys).unwrap();
+    let spec = RegistrationSpec::default();
+    let items: Vec<BatchItem<'_>> = humans
+        .iter()
+        .map(|d| BatchItem {
+            frames: &d.frames,
+            registration: &spec,
+        })
+        .collect();
+    let demos: Vec<JointTrajectory> = map_batch(
+        &mm,
+        &mm.anchor(),
+        &items,
+        Weights::default(),
+        SolverOptions::default(),
+        2,
+        &|_, _| {},
+        &std::sync::atomic::AtomicBool::new(false),
+    )
+    .unwrap()
+    .iter()
+    .map(|m| JointTrajectory::from(m.as_ref().unwrap()))
+    .collect();
+    let limits = mapped::system_limits(&sys, mapped::DEFAULT_ACCELERATION_LIMIT);
+    let (mut nf, mut jl, mut pl, mut used) = (0.0, 0.0, 0.0, 0);
+    for held in 0..5u32 {
+        let opts = TrainOptions {
+            groups: mapped::system_groups(&sys),
+            cap_spline_intervals: true,
+            held_out: (0..demos.len())
+                .filter(|&i| humans[i].labels.position_index == held)
+                .collect(),
+            profile_ridge: Some(DEFAULT_PROFILE_RIDGE),
+            ..TrainOptions::default()
+        };
+        let (model, report) = train(&demos, &limits, &opts).unwrap();
+        assert!(model.manifolds.iter().all(|m| m.profile.is_some()));
+        let h = report.held_out.unwrap();
+        println!(
+            "held-out position {held}: NF {:.4}, joint line {:.4}, PCA line {:.4}, ratio {:.3}, refused {}/{}",
+            h.nf, h.joint_line, h.pca_line, h.ratio_to_joint_line, h.refused, h.demonstrations
+        );
+        let n = (h.demonstrations - h.refused) as f64;
+        nf += h.nf * n;
+        jl += h.joint_line * n;
+        pl += h.pca_line * n;
+        used += h.demonstrations - h.refused;
+    }
+    println!(
+        "all folds: NF / joint line {:.3}, {used} demonstrations",
+        nf / jl
+    );
+    assert!(
+        used >= 10,
+        "only {used} held-out demonstrations were planned"
+    );
+    assert!(
+        nf < jl && nf < pl,
+        "NF {nf} vs joint line {jl}, PCA line {pl}"
+    );
+}
+
+#[test]
+fn residual_profile_keeps_exact_endpoints_and_can_be_left_out() {
+    let data = small_study(8);
+    let without = options(&data, None);
+    let with = TrainOptions {
+        profile_ridge: Some(DEFAULT_PROFILE_RIDGE),
+        ..without.clone()
+    };
+    let (m1, _) = train(&data.demos, &data.limits, &with).unwrap();
+    let (m0, _) = train(&data.demos, &data.limits, &without).unwrap();
+    assert!(m1.manifolds.iter().all(|m| m.profile.is_some()));
+    assert!(m0.manifolds.iter().all(|m| m.profile.is_none()));
+    let n = m1.n_joints;
+    let start = data.demos[0].frame(0, n).to_vec();
+    let goal = data.demos[20]
+        .frame(data.demos[20].frames() - 1, n)
+        .to_vec();
+    let o = TrajectoryOptions::default();
+    let p1 = m1.path_positions(&start, &goal, &o).unwrap();
+    let p0 = m0.path_positions(&start, &goal, &o).unwrap();
+    let len = p1.len() / n;
+    for (a, b) in p1[..n].iter().zip(&start) {
+        assert!((a - b).abs() < 1e-12);
+    }
+    for (a, b) in p1[(len - 1) * n..].iter().zip(&goal) {
+        assert!((a - b).abs() < 1e-12);
+    }
+    // the profile changes the way there, not the ends
+    let mid = (len / 2) * n;
+    let moved: f64 = (0..n).map(|j| (p1[mid + j] - p0[mid + j]).abs()).sum();
+    assert!(moved > 1e-6, "the profile should shape the path");
+    let bad = TrainOptions {
+        profile_ridge: Some(-1.0),
+        ..with
+    };
+    assert!(matches!(
+        train(&data.demos, &data.limits, &bad),
+        Err(MotionError::InvalidOption {
+            field: "profile_ridge",
+            ..
+        })
+    ));
+}
+
 #[test]
 fn bad_input_is_refused_with_the_offending_field() {
     let data = small_study(7);
