@@ -24,9 +24,9 @@ use crate::jobs::{JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::{Data, JointVector, KinematicsError, System, forward_kinematics};
 use crate::motion::mapped::{DEFAULT_ACCELERATION_LIMIT, system_groups, system_limits};
 use crate::motion::{
-    Certificate, Components, ControlParams, HeldOutReport, JointTrajectory, KChoice, MAX_DIM,
-    MotionError, MotionModel, TensorBSpline, TrainOptions, TrainReport, Trajectory,
-    TrajectoryOptions, TrajectoryPoint, train,
+    Certificate, Components, ControlParams, DEFAULT_PROFILE_RIDGE, HeldOutReport, JointTrajectory,
+    KChoice, MAX_DIM, MotionError, MotionModel, TensorBSpline, TrainOptions, TrainReport,
+    Trajectory, TrajectoryOptions, TrajectoryPoint, train,
 };
 use crate::store::{grasps as grasp_repo, mappings as mapping_repo, models as repo, trajectories};
 
@@ -102,6 +102,15 @@ pub struct CreateModel {
     /// Evaluate humanlikeness on held-out object positions (train on the others, one fold per
     /// position; default true).
     pub held_out: Option<bool>,
+    /// Learn the goal-conditioned residual profile that shapes each path between its exact start
+    /// and goal like the demonstrations (default true). The NF flow strictly approaches its goal
+    /// and its field does not depend on the goal, so on its own it cannot follow a hand that opens
+    /// before it closes or a reach whose shape changes with the object's position; the profile
+    /// carries that part. Flow, certificate and closed-loop law are the same either way.
+    pub residual_profile: Option<bool>,
+    /// Ridge of the residual profile's fit (default 0.1, per demonstration and rad² of
+    /// start-goal difference); must be positive.
+    pub profile_ridge: Option<f64>,
     /// Joint acceleration limit, rad/s² (default 5; URDF has none).
     pub acceleration_limit: Option<f64>,
     pub control: Option<ControlGains>,
@@ -160,6 +169,9 @@ pub struct ManifoldDto {
     pub spline_intervals: usize,
     /// Mean cosine between the flow and the demonstrated velocity (training data).
     pub train_alignment: f64,
+    /// Ridge of the learned residual profile that shapes this group's paths; absent when the
+    /// model was trained without one (`residual_profile: false`).
+    pub residual_profile_ridge: Option<f64>,
     pub certificate: CertificateDto,
     pub goal_region: GoalRegionDto,
 }
@@ -724,6 +736,19 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, A
             format!("must be a positive number, got {acceleration}"),
         ));
     }
+    let profile_ridge = body.profile_ridge.unwrap_or(DEFAULT_PROFILE_RIDGE);
+    if !(profile_ridge > 0.0 && profile_ridge.is_finite()) {
+        errors.push(FieldError::new(
+            "$.profile_ridge",
+            format!("must be a positive number, got {profile_ridge}"),
+        ));
+    }
+    if body.residual_profile == Some(false) && body.profile_ridge.is_some() {
+        errors.push(FieldError::new(
+            "$.profile_ridge",
+            "given with residual_profile false",
+        ));
+    }
     let gains = body.control.unwrap_or_default();
     if !(gains.rate > 0.0 && gains.rate.is_finite()) {
         errors.push(FieldError::new(
@@ -750,6 +775,10 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, A
             cap_spline_intervals: body.spline_intervals.is_none(),
             regularisation,
             k,
+            profile_ridge: body
+                .residual_profile
+                .unwrap_or(true)
+                .then_some(profile_ridge),
             ..TrainOptions::default()
         },
         acceleration,
@@ -796,6 +825,7 @@ fn model_report(
                 spline_points: fit.spline_points,
                 spline_intervals: m.nf.spline.intervals(),
                 train_alignment: fit.train_alignment,
+                residual_profile_ridge: m.profile.as_ref().map(|p| p.ridge),
                 certificate: certificate_dto(group_name(ng, g), &m.certificate),
                 goal_region: GoalRegionDto {
                     group: group_name(ng, g),

@@ -288,12 +288,14 @@ async fn setup(app: &TestApp) -> Study {
     }
 }
 
-async fn train_model(app: &TestApp, study: &Study) -> Value {
+/// Trains a model on the study's mapping; `residual_profile` false gives the plain NF path.
+async fn train_model(app: &TestApp, study: &Study, residual_profile: bool) -> Value {
     let res = app
         .post_json(
             "/v1/models",
             &json!({"robot": ROBOT, "mappings": [study.mapping], "variance_threshold": 0.97,
-                    "spline_intervals": 6, "regularisation": 3.0, "k": "auto"}),
+                    "spline_intervals": 6, "regularisation": 3.0, "k": "auto",
+                    "residual_profile": residual_profile}),
         )
         .await;
     assert_eq!(res.status(), 202);
@@ -325,7 +327,9 @@ async fn trajectory_count(app: &TestApp) -> i64 {
 async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() {
     let app = app().await;
     let study = setup(&app).await;
-    let model = train_model(&app, &study).await;
+    // the plain NF path: its learned duration is feasible as it stands (asserted below); the
+    // residual profile (default) is covered by its own test
+    let model = train_model(&app, &study, false).await;
     let id = model["id"].as_str().unwrap().to_owned();
     assert_eq!(model["status"], "succeeded");
     assert_eq!(model["robot"], ROBOT);
@@ -523,6 +527,101 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
     assert_problem(app.get("/v1/models/nope/params").await, 404, "not-found").await;
 }
 
+/// The default model carries the learned residual profile: it shapes the path between the same
+/// exact ends (the plain model's path differs from it), stays within the joint limits, and at
+/// the learned (human) duration its more humanlike shape needs more than the default 5 rad/s²,
+/// so the trajectory is lengthened until it respects the limits, and says so.
+#[tokio::test]
+async fn the_default_model_shapes_paths_with_its_residual_profile() {
+    let app = app().await;
+    let study = setup(&app).await;
+    let res = app
+        .post_json(
+            "/v1/models",
+            &json!({"robot": ROBOT, "mappings": [study.mapping], "variance_threshold": 0.97}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+    let href = res.headers()["content-location"]
+        .to_str()
+        .unwrap()
+        .to_owned();
+    let job: Value = res.json().await.unwrap();
+    let done = app
+        .wait_job(job["id"].as_str().unwrap(), |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let shaped: Value = app.get(&href).await.json().await.unwrap();
+    for m in shaped["report"]["manifolds"].as_array().unwrap() {
+        assert_eq!(m["residual_profile_ridge"], 0.1, "{m}");
+    }
+    let plain = train_model(&app, &study, false).await;
+    for m in plain["report"]["manifolds"].as_array().unwrap() {
+        assert!(m["residual_profile_ridge"].is_null(), "{m}");
+    }
+    let (start, goal) = study.ends[3].clone();
+    let names = &study.joint_names;
+    let path = |model: &Value| {
+        json!({"model": model["id"], "start": named(names, &start),
+               "goal": named(names, &goal), "duration": 2.5, "rate": 20})
+    };
+    let mut points = Vec::new();
+    for model in [&shaped, &plain] {
+        let res = app.post_json("/v1/trajectories", &path(model)).await;
+        assert_eq!(res.status(), 201);
+        let t: Value = res.json().await.unwrap();
+        assert_eq!(t["report"]["converged"], true);
+        let p = t["points"].as_array().unwrap().clone();
+        assert_eq!(p[0]["positions"], json!(start));
+        assert_eq!(p[p.len() - 1]["positions"], json!(goal));
+        for pt in &p {
+            for (j, v) in pt["positions"].as_array().unwrap().iter().enumerate() {
+                let v = v.as_f64().unwrap();
+                assert!(v >= study.lower[j] && v <= study.upper[j]);
+            }
+        }
+        points.push(p);
+    }
+    assert_eq!(points[0].len(), points[1].len());
+    let largest_difference = points[0]
+        .iter()
+        .zip(&points[1])
+        .flat_map(|(a, b)| {
+            let (a, b) = (
+                a["positions"].as_array().unwrap(),
+                b["positions"].as_array().unwrap(),
+            );
+            a.iter()
+                .zip(b)
+                .map(|(x, y)| (x.as_f64().unwrap() - y.as_f64().unwrap()).abs())
+                .collect::<Vec<_>>()
+        })
+        .fold(0.0, f64::max);
+    assert!(largest_difference > 1e-2, "{largest_difference}");
+
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": shaped["id"], "start": named(names, &start),
+                    "goal": named(names, &goal), "duration": "auto"}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let auto: Value = res.json().await.unwrap();
+    let r = &auto["report"];
+    assert_eq!(r["stretched"], true, "{}", r["note"]);
+    assert!(
+        r["note"].as_str().unwrap().contains("was lengthened"),
+        "{}",
+        r["note"]
+    );
+    assert!(r["duration"].as_f64().unwrap() > r["learned_duration"].as_f64().unwrap());
+    assert!(r["max_acceleration_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
+    assert!(r["max_velocity_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
+}
+
 #[tokio::test]
 async fn bad_training_requests_are_refused_and_nothing_is_stored() {
     let app = app().await;
@@ -581,6 +680,11 @@ async fn bad_training_requests_are_refused_and_nothing_is_stored() {
         (with(json!({"regularisation": -1.0})), "$.regularisation"),
         (with(json!({"k": "fast"})), "$.k"),
         (with(json!({"k": 0.5})), "$.k"),
+        (with(json!({"profile_ridge": -1.0})), "$.profile_ridge"),
+        (
+            with(json!({"residual_profile": false, "profile_ridge": 0.1})),
+            "$.profile_ridge",
+        ),
         (
             with(json!({"acceleration_limit": 0.0})),
             "$.acceleration_limit",
@@ -607,7 +711,7 @@ async fn bad_training_requests_are_refused_and_nothing_is_stored() {
 async fn bad_trajectory_and_control_requests_are_refused_and_nothing_is_stored() {
     let app = app().await;
     let study = setup(&app).await;
-    let model = train_model(&app, &study).await;
+    let model = train_model(&app, &study, true).await;
     let id = model["id"].as_str().unwrap().to_owned();
     let names = &study.joint_names;
     let (start, goal) = study.ends[2].clone();
