@@ -910,6 +910,15 @@ fn solver_settings() -> Settings {
 }
 
 fn run_start(sys: &HandArm, req: &GraspRequest, start: usize) -> StartOutcome {
+    run_start_with(sys, req, start, solver_settings())
+}
+
+fn run_start_with(
+    sys: &HandArm,
+    req: &GraspRequest,
+    start: usize,
+    settings: Settings,
+) -> StartOutcome {
     let eval = std::cell::RefCell::new(Eval::new(sys, req));
     let (n, n_eq, n_ineq) = {
         let e = eval.borrow();
@@ -935,7 +944,7 @@ fn run_start(sys: &HandArm, req: &GraspRequest, start: usize) -> StartOutcome {
         |x: &[f64], r: &mut [f64]| eval.borrow_mut().residuals(x, r),
         |x: &[f64], d: &[f64], out: &mut [f64]| eval.borrow_mut().jacobian_t(x, d, out),
     ));
-    let mut solver = Solver::new(n, n_eq + n_ineq, solver_settings());
+    let mut solver = Solver::new(n, n_eq + n_ineq, settings);
     let report = solver
         .solve(&problem, &mut u)
         .expect("problem is well-formed");
