@@ -396,81 +396,108 @@ fn claim_b_force_and_velocity_optima_put_different_ellipsoids_along_d() {
     assert!(angle_deg(&vel_z.arm_ellipsoids.velocity_major(), &z) < 10.0);
 }
 
-/// Claim (b) on the shipped arms: for the WAM and the PA10 (with the T42 hand), grasping the
-/// seeded ball at a documented reachable placement, force- and velocity-optimal results along
-/// the same direction `d` differ as theory says, for every direction tried: the force optimum
-/// has the larger force ratio α along `d` and the velocity optimum the larger velocity ratio β.
-/// The major-axis alignment of the paper's figures is checked per kind: each kind's optimum
-/// puts its own ellipsoid's major axis within 20° of `d` for at least one of the directions.
-/// (Measured: on the WAM the force axis comes within 15° along x and the velocity axis within
-/// 3° along y; on the PA10 both come within 18° along x (17.8° and 15.3°) and the velocity axis
-/// within 3° along y. No single direction gets both within 10° at this placement — maximising a
-/// ratio along `d` need not turn the ellipsoid's axis onto `d`; the printout gives every angle.)
+/// Claim (b) on the shipped arms (Fig. 4: WAM + iHY grasping the seeded ball; also WAM + T42,
+/// PA10 + T42, PA10 + iHY), for d = x, y and z, with the ball on the z = 0 table at (0.5, 0)
+/// (the seeded placement) and on a 0.2 m table at (0.55, 0).
+///
+/// What holds, and is asserted:
+/// - for every d and both placements, the force optimum has the larger force ratio α along d and
+///   the velocity optimum the larger velocity ratio β ("the corresponding transmission ratio is
+///   maximized");
+/// - velocity along y (tangential to the base axis, where the first joint moves the hand): the
+///   velocity optimum's velocity-ellipsoid major axis is within 10° of d on every system at both
+///   placements (measured 0.0°-6.9°);
+/// - force along x (radial, where the arm can approach its stretched singularity): the force
+///   optimum's force-ellipsoid major axis is within 10° of d on every system on the raised table
+///   (measured 2.3°-7.0°; 14.5°-20.7° on the seeded z = 0 table, where the ball sits 0.35 m
+///   below the shoulder).
+///
+/// What the issue states — both kinds within 10° along the *same* d — holds for no
+/// d ∈ {x, y, z} on these arms at these placements, and is not asserted. Over 48 other ball
+/// placements (x 0.35-0.65 m, y 0-0.45 m, table 0-0.6 m; 12 starts) it held for one d at one
+/// placement on WAM + T42, at none on WAM + iHY and at two on PA10 + T42, always along y with the
+/// ball close to the base. The optima are not time-capped: every start converges
+/// in ~10 ms, far inside its 150 ms cap, and 48 starts, a 1 s cap or w_Q = 0 change the optimal
+/// ratios by under 4 % and bring no same-d pair within 10° (`survey_claim_b_alignment`).
+/// Maximising a ratio along d need not turn the ellipsoid's axis onto d. The first joint alone
+/// moves the flange along y by its distance from the base axis (≈ 0.5 m/rad here), which bounds
+/// the force ratio along y and keeps the force ellipsoid's major axis where the arm can approach
+/// a singularity (the shoulder-wrist line, 33°-82° off y); the radial velocity ratio along x
+/// (β ≤ 0.39 on the WAM) stays below that tangential mobility, so the WAM's velocity major axis
+/// stays 69°-79° off x. Along z no optimum comes within 25° (27°-90°). Where the top two
+/// semi-axes are close the major axis is ill-defined and moves with the start set (PA10 + T42,
+/// velocity along y: 2.8° with these 12 starts, 12.8° with 48 at a 0.1 % larger β). The
+/// printout gives every angle and ratio.
 #[test]
 fn claim_b_holds_on_the_wam_and_the_pa10() {
     use crate::grasp::objects::seeded_object;
     let dir_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
-    let h = std::f64::consts::FRAC_1_SQRT_2;
-    let candidates = [
-        [1.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0],
-        [0.0, 0.0, 1.0],
-        [h, 0.0, h],
-        [0.0, h, h],
-    ];
-    for name in ["wam_t42", "pa10_t42"] {
+    let ellipsoid_matrix = |e: &Ellipsoids| {
+        let mut m = Matrix3::zeros();
+        for k in 0..3 {
+            let a = Vector3::from(e.axes[k]);
+            m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+        }
+        m
+    };
+    for name in ["wam_ihy", "wam_t42", "pa10_t42", "pa10_ihy"] {
         let s =
             crate::kinematics::System::from_file(&dir_path.join(format!("{name}.toml"))).unwrap();
         let sys = HandArm::from_system(&s).unwrap();
-        let mut best = (f64::INFINITY, f64::INFINITY);
-        for d in candidates {
-            let d = Vector3::from(d);
-            let solve = |kind| {
-                let obj = Object::new(seeded_object("ball", 0.5, 0.0, 0.0).unwrap()).unwrap();
-                let mut req =
-                    GraspRequest::new(obj, vec![dir(d, kind)], QualityMeasure::CentroidDistance);
-                req.weights.q = 0.1;
-                req.starts = 8;
-                let r = plan_grasp(&sys, &req).unwrap();
-                assert!(r.feasible, "{name} {kind:?}: {:?}", r.reason);
-                r
-            };
-            let force = solve(Transmission::Force);
-            let vel = solve(Transmission::Velocity);
-            let af = angle_deg(&force.arm_ellipsoids.force_major(), &d);
-            let av = angle_deg(&vel.arm_ellipsoids.velocity_major(), &d);
-            let m = |r: &GraspResult| {
-                let e = &r.arm_ellipsoids;
-                let mut m = Matrix3::zeros();
-                for k in 0..3 {
-                    let a = Vector3::from(e.axes[k]);
-                    m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+        for (x, table, raised) in [(0.5, 0.0, false), (0.55, 0.2, true)] {
+            for (dn, d) in [
+                ("x", Vector3::x()),
+                ("y", Vector3::y()),
+                ("z", Vector3::z()),
+            ] {
+                let solve = |kind| {
+                    let obj = Object::new(seeded_object("ball", x, 0.0, table).unwrap()).unwrap();
+                    let mut req = GraspRequest::new(
+                        obj,
+                        vec![dir(d, kind)],
+                        QualityMeasure::CentroidDistance,
+                    );
+                    req.weights.q = 0.1;
+                    req.starts = 12;
+                    let r = plan_grasp(&sys, &req).unwrap();
+                    assert!(r.feasible, "{name} {kind:?} along {dn}: {:?}", r.reason);
+                    r
+                };
+                let force = solve(Transmission::Force);
+                let vel = solve(Transmission::Velocity);
+                let (mf, mv) = (
+                    ellipsoid_matrix(&force.arm_ellipsoids),
+                    ellipsoid_matrix(&vel.arm_ellipsoids),
+                );
+                let ratio = |m: &Matrix3<f64>, kind| indexes::transmission_ratio(m, &d, kind);
+                let (ff, vf) = (
+                    ratio(&mf, Transmission::Force),
+                    ratio(&mv, Transmission::Force),
+                );
+                let (vv, fv) = (
+                    ratio(&mv, Transmission::Velocity),
+                    ratio(&mf, Transmission::Velocity),
+                );
+                // The reported ellipsoids are the ones behind the reported ratios.
+                assert!((force.terms.arm_ratios[0] - ff).abs() < 1e-9 * ff);
+                assert!((vel.terms.arm_ratios[0] - vv).abs() < 1e-9 * vv);
+                let af = angle_deg(&force.arm_ellipsoids.force_major(), &d);
+                let av = angle_deg(&vel.arm_ellipsoids.velocity_major(), &d);
+                let at = format!("{name} ball at ({x}, 0) on a {table} m table, d = {dn}");
+                println!(
+                    "{at}: force optimum α {ff:.3} (velocity optimum {vf:.3}), force axis {af:.1}°; \
+                     velocity optimum β {vv:.3} (force optimum {fv:.3}), velocity axis {av:.1}°"
+                );
+                assert!(ff > vf, "{at}: α {ff} vs {vf}");
+                assert!(vv > fv, "{at}: β {vv} vs {fv}");
+                if dn == "y" {
+                    assert!(av < 10.0, "{at}: velocity axis {av}°");
                 }
-                m
-            };
-            let ratio = |r: &GraspResult, kind| indexes::transmission_ratio(&m(r), &d, kind);
-            let (ff, vf) = (
-                ratio(&force, Transmission::Force),
-                ratio(&vel, Transmission::Force),
-            );
-            let (vv, fv) = (
-                ratio(&vel, Transmission::Velocity),
-                ratio(&force, Transmission::Velocity),
-            );
-            println!(
-                "{name} d={:?}: α {ff:.3} (velocity optimum {vf:.3}), force axis {af:.1}°; \
-                 β {vv:.3} (force optimum {fv:.3}), velocity axis {av:.1}°",
-                d.as_slice()
-            );
-            assert!(ff > vf, "{name} {d:?}: α {ff} vs {vf}");
-            assert!(vv > fv, "{name} {d:?}: β {vv} vs {fv}");
-            best = (best.0.min(af), best.1.min(av));
+                if dn == "x" && raised {
+                    assert!(af < 10.0, "{at}: force axis {af}°");
+                }
+            }
         }
-        println!(
-            "{name}: best force-axis alignment {:.1}°, best velocity-axis alignment {:.1}°",
-            best.0, best.1
-        );
-        assert!(best.0 < 20.0 && best.1 < 20.0, "{name}: {best:?}");
     }
 }
 
@@ -695,5 +722,146 @@ fn survey_real_systems() {
             times[times.len() / 2],
             times[times.len() - 1]
         );
+    }
+}
+
+/// Not a claim: the survey behind `claim_b_holds_on_the_wam_and_the_pa10`. For each system,
+/// ball placement, direction and kind it runs every start on its own and prints the lowest-cost
+/// feasible start's angle between d and its own ellipsoid's major axis, its ratio, the smallest
+/// angle over the feasible starts, and the other ellipsoid's angle and ratio. Knobs (environment):
+/// `CB_SYSTEMS=wam_t42,wam_ihy,pa10_t42`, `CB_PLACES=x:y:table,...` (default `0.5:0:0`),
+/// `CB_DIRS=x,y,z` (or `a/b/c`), `CB_KINDS=force,velocity`, `CB_STARTS=12`, `CB_CAP_MS=150`
+/// (per-start wall cap), `CB_Q=0.1` (w_Q), `CB_GC=1` (GC instead of TC, hand ellipsoids: Fig. 6),
+/// `CB_VERBOSE=1` (every start). E.g. `CB_STARTS=48 cargo test --lib survey_claim_b -- --ignored
+/// --nocapture`.
+#[test]
+#[ignore]
+fn survey_claim_b_alignment() {
+    use crate::grasp::objects::seeded_object;
+    let env = |k: &str, d: &str| std::env::var(k).unwrap_or_else(|_| d.to_string());
+    let systems = env("CB_SYSTEMS", "wam_t42,wam_ihy,pa10_t42");
+    let starts: usize = env("CB_STARTS", "12").parse().unwrap();
+    let cap_ms: u64 = env("CB_CAP_MS", "150").parse().unwrap();
+    let wq: f64 = env("CB_Q", "0.1").parse().unwrap();
+    let places = env("CB_PLACES", "0.5:0.0:0.0");
+    let dirs_s = env("CB_DIRS", "x,y,z");
+    let kinds_s = env("CB_KINDS", "force,velocity");
+    let verbose = std::env::var_os("CB_VERBOSE").is_some();
+    let dir_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    for name in systems.split(',') {
+        let s =
+            crate::kinematics::System::from_file(&dir_path.join(format!("{name}.toml"))).unwrap();
+        let sys = HandArm::from_system(&s).unwrap();
+        for place in places.split(',') {
+            let p: Vec<f64> = place.split(':').map(|v| v.parse().unwrap()).collect();
+            let mut line = format!("{name} ball at ({}, {}) table {}:", p[0], p[1], p[2]);
+            for dn in dirs_s.split(',') {
+                let d = match dn {
+                    "x" => Vector3::x(),
+                    "y" => Vector3::y(),
+                    "z" => Vector3::z(),
+                    _ => {
+                        let v: Vec<f64> = dn.split('/').map(|v| v.parse().unwrap()).collect();
+                        Vector3::new(v[0], v[1], v[2]).normalize()
+                    }
+                };
+                for kn in kinds_s.split(',') {
+                    let kind = if kn == "force" {
+                        Transmission::Force
+                    } else {
+                        Transmission::Velocity
+                    };
+                    let obj =
+                        Object::new(seeded_object("ball", p[0], p[1], p[2]).unwrap()).unwrap();
+                    let mut req = GraspRequest::new(
+                        obj,
+                        vec![dir(d, kind)],
+                        QualityMeasure::CentroidDistance,
+                    );
+                    req.weights.q = wq;
+                    let hand = std::env::var_os("CB_GC").is_some();
+                    if hand {
+                        req.weights.tc = 0.0;
+                        req.weights.gc = 1.0;
+                    }
+                    let mut settings = solver_settings();
+                    settings.max_duration = Some(Duration::from_millis(cap_ms));
+                    let mut rows = Vec::new();
+                    for k in 0..starts {
+                        let o = run_start_with(&sys, &req, k, settings.clone());
+                        let r = describe(&sys, &req, &o.u, None);
+                        let e = if hand {
+                            &r.hand_ellipsoids
+                        } else {
+                            &r.arm_ellipsoids
+                        };
+                        let own_ratio = if hand {
+                            r.terms.hand_ratios[0]
+                        } else {
+                            r.terms.arm_ratios[0]
+                        };
+                        let axis = match kind {
+                            Transmission::Force => e.force_major(),
+                            Transmission::Velocity => e.velocity_major(),
+                        };
+                        let ang = angle_deg(&axis, &d);
+                        let comps: Vec<f64> = (0..3)
+                            .map(|k| Vector3::from(e.axes[k]).dot(&d).abs())
+                            .collect();
+                        if verbose {
+                            println!(
+                                "  {name} {dn} {kn} start {k}: feas {} {:?} it {} {:.0} ms cost {:.4} ratio {:.3} angle {ang:.1} vel semi-axes {:.3?} |d.axis| {comps:.2?} q_arm {:?}",
+                                o.feasible,
+                                o.report.status,
+                                o.report.iterations,
+                                o.report.time.as_secs_f64() * 1e3,
+                                o.report.cost,
+                                r.terms.arm_ratios[0],
+                                e.velocity_semi_axes,
+                                r.q_arm
+                                    .iter()
+                                    .map(|j| (j.value * 100.0).round() / 100.0)
+                                    .collect::<Vec<_>>()
+                            );
+                        }
+                        let (other_axis, other_kind) = match kind {
+                            Transmission::Force => (e.velocity_major(), Transmission::Velocity),
+                            Transmission::Velocity => (e.force_major(), Transmission::Force),
+                        };
+                        let mut m = Matrix3::zeros();
+                        for k in 0..3 {
+                            let a = Vector3::from(e.axes[k]);
+                            m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+                        }
+                        let other_ratio = indexes::transmission_ratio(&m, &d, other_kind);
+                        rows.push((
+                            o.feasible,
+                            o.report.cost,
+                            ang,
+                            own_ratio,
+                            angle_deg(&other_axis, &d),
+                            other_ratio,
+                        ));
+                    }
+                    let feas: Vec<_> = rows.iter().filter(|r| r.0).collect();
+                    let best = feas.iter().min_by(|a, b| a.1.total_cmp(&b.1));
+                    let min_ang = feas.iter().map(|r| r.2).fold(f64::INFINITY, f64::min);
+                    match best {
+                        Some(b) => {
+                            line += &format!(
+                                " {dn}/{kn} {:.1}° (r {:.3}, min {min_ang:.1}°, {}/{starts}; other axis {:.1}°, other ratio {:.3})",
+                                b.2,
+                                b.3,
+                                feas.len(),
+                                b.4,
+                                b.5
+                            )
+                        }
+                        None => line += &format!(" {dn}/{kn} infeasible"),
+                    }
+                }
+            }
+            println!("{line}");
+        }
     }
 }
