@@ -808,6 +808,22 @@ fn survey_claim_b_alignment() {
                         let comps: Vec<f64> = (0..3)
                             .map(|k| Vector3::from(e.axes[k]).dot(&d).abs())
                             .collect();
+                        if verbose && hand {
+                            let pts: Vec<Vector3<f64>> =
+                                r.contacts.iter().map(|c| Vector3::from(c.point)).collect();
+                            let mut closest = f64::INFINITY;
+                            for i in 0..pts.len() {
+                                for j in i + 1..pts.len() {
+                                    closest = closest.min((pts[i] - pts[j]).norm());
+                                }
+                            }
+                            println!(
+                                "  {name} {dn} {kn} start {k}: hand ratio {own_ratio:.3}, contact polygon area {:.2e} m², closest contact pair {:.1} mm, hand semi-axes {:.3?}",
+                                r.terms.q_agp,
+                                closest * 1e3,
+                                e.velocity_semi_axes
+                            );
+                        }
                         if verbose {
                             println!(
                                 "  {name} {dn} {kn} start {k}: feas {} {:?} it {} {:.0} ms cost {:.4} ratio {:.3} angle {ang:.1} vel semi-axes {:.3?} |d.axis| {comps:.2?} q_arm {:?}",
