@@ -251,6 +251,66 @@ fn cost_gradient_and_constraint_jacobian_match_central_differences() {
     }
 }
 
+/// The finger-finger rows on a three-finger hand (WAM + iHY: three pairs), at hand
+/// configurations from open to closed, where some pairs come close: analytic `Jᵀ e_r` against
+/// central differences of each row.
+#[test]
+fn finger_separation_rows_match_central_differences() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    let s = crate::kinematics::System::from_file(&dir.join("wam_ihy.toml")).unwrap();
+    let sys = HandArm::from_system(&s).unwrap();
+    assert_eq!(sys.fingers.len(), 3);
+    let obj =
+        Object::new(crate::grasp::objects::seeded_object("ball", 0.5, 0.0, 0.0).unwrap()).unwrap();
+    let req = GraspRequest::new(obj, vec![], QualityMeasure::CentroidDistance);
+    let mut e = Eval::new(&sys, &req);
+    let n = e.n();
+    let nr = e.n_eq() + e.n_ineq();
+    let k0 = e.pair_row();
+    assert_eq!(nr - k0, 3);
+    let (lo, hi) = bounds(&sys);
+    let h = 1e-6;
+    let mut closest = f64::INFINITY;
+    for t in [0.2, 0.5, 0.8, 0.95] {
+        let u: Vec<f64> = (0..n)
+            .map(|k| {
+                let (l, u) = (lo[k].max(-2.0), hi[k].min(2.0));
+                l + (u - l) * if k < sys.arm_joints.len() { 0.4 } else { t }
+            })
+            .collect();
+        let (mut r0, mut rp, mut rm) = (vec![0.0; nr], vec![0.0; nr], vec![0.0; nr]);
+        e.residuals(&u, &mut r0);
+        for row in k0..nr {
+            closest = closest.min(FINGER_CLEARANCE - r0[row]);
+            let mut d = vec![0.0; nr];
+            d[row] = 1.0;
+            let mut jt = vec![0.0; n];
+            e.jacobian_t(&u, &d, &mut jt);
+            assert!(
+                jt.iter().any(|v| v.abs() > 1e-3),
+                "row {row} has no gradient"
+            );
+            for k in 0..n {
+                let (mut up, mut um) = (u.clone(), u.clone());
+                up[k] += h;
+                um[k] -= h;
+                e.residuals(&up, &mut rp);
+                e.residuals(&um, &mut rm);
+                let fd = (rp[row] - rm[row]) / (2.0 * h);
+                assert!(
+                    (jt[k] - fd).abs() < 1e-6,
+                    "t {t} pair row {row} u[{k}]: {} vs {fd}",
+                    jt[k]
+                );
+            }
+        }
+    }
+    println!(
+        "closest contact-sphere gap over the configurations: {:.1} mm",
+        closest * 1e3
+    );
+}
+
 #[test]
 fn allocation_free_hand_object_jacobian_equals_the_pseudo_inverse_form() {
     let sys = test_system();
@@ -406,7 +466,17 @@ fn claim_b_force_and_velocity_optima_put_different_ellipsoids_along_d() {
 ///   maximized");
 /// - velocity along y (tangential to the base axis, where the first joint moves the hand): the
 ///   velocity optimum's velocity-ellipsoid major axis is within 10° of d on every system at both
-///   placements (measured 0.0°-6.9°);
+///   placements (measured 0.5°-7.2°), except where its two largest semi-axes are within 5 % and
+///   the major axis is ill-defined; there d lies in their plane (> 80° off the minor axis).
+///   Since the finger-finger clearance rows (which change the starts' paths), that is WAM + T42
+///   (13.3°, semi-axes 0.758/0.743) and PA10 + T42 (11.2°, 0.826/0.808), both on the z = 0 table;
+/// - the comparative reading, along x and y on every system and placement: the force optimum's
+///   force axis is closer to d than the velocity optimum's force axis, and the velocity
+///   optimum's velocity axis closer to d than the force optimum's velocity axis. Along z it fails
+///   for the force axes once (WAM + iHY raised: 85.9° vs 84.6°) and for the velocity axes five
+///   times out of eight (WAM + iHY 52.4° vs 50.5° and 89.5° vs 65.3°, WAM + T42 53.8° vs 49.5°
+///   and 89.7° vs 68.6°, PA10 + iHY raised 84.5° vs 83.5°): no optimum gets its velocity axis
+///   near z (52°-90°), so the smaller angle is noise between two misaligned axes;
 /// - force along x (radial, where the arm can approach its stretched singularity): the force
 ///   optimum's force-ellipsoid major axis is within 10° of d on every system on the raised table
 ///   (measured 2.3°-7.0°; 14.5°-20.7° on the seeded z = 0 table, where the ball sits 0.35 m
@@ -426,8 +496,8 @@ fn claim_b_force_and_velocity_optima_put_different_ellipsoids_along_d() {
 /// (β ≤ 0.39 on the WAM) stays below that tangential mobility, so the WAM's velocity major axis
 /// stays 69°-79° off x. Along z no optimum comes within 25° (27°-90°). Where the top two
 /// semi-axes are close the major axis is ill-defined and moves with the start set (PA10 + T42,
-/// velocity along y: 2.8° with these 12 starts, 12.8° with 48 at a 0.1 % larger β). The
-/// printout gives every angle and ratio.
+/// velocity along y: 2.8° with these 12 starts, 12.8° with 48 at a 0.1 % larger β, before the
+/// clearance rows; 11.2° with 12 after). The printout gives every angle and ratio.
 #[test]
 fn claim_b_holds_on_the_wam_and_the_pa10() {
     use crate::grasp::objects::seeded_object;
@@ -483,15 +553,32 @@ fn claim_b_holds_on_the_wam_and_the_pa10() {
                 assert!((vel.terms.arm_ratios[0] - vv).abs() < 1e-9 * vv);
                 let af = angle_deg(&force.arm_ellipsoids.force_major(), &d);
                 let av = angle_deg(&vel.arm_ellipsoids.velocity_major(), &d);
+                // The same axes of the other optimum: the comparative reading of claim (b).
+                let af_of_v = angle_deg(&vel.arm_ellipsoids.force_major(), &d);
+                let av_of_f = angle_deg(&force.arm_ellipsoids.velocity_major(), &d);
                 let at = format!("{name} ball at ({x}, 0) on a {table} m table, d = {dn}");
                 println!(
-                    "{at}: force optimum α {ff:.3} (velocity optimum {vf:.3}), force axis {af:.1}°; \
-                     velocity optimum β {vv:.3} (force optimum {fv:.3}), velocity axis {av:.1}°"
+                    "{at}: force optimum α {ff:.3} (velocity optimum {vf:.3}), force axis {af:.1}° \
+                     (velocity optimum's {af_of_v:.1}°); velocity optimum β {vv:.3} (force optimum \
+                     {fv:.3}), velocity axis {av:.1}° (force optimum's {av_of_f:.1}°)"
                 );
                 assert!(ff > vf, "{at}: α {ff} vs {vf}");
                 assert!(vv > fv, "{at}: β {vv} vs {fv}");
                 if dn == "y" {
-                    assert!(av < 10.0, "{at}: velocity axis {av}°");
+                    // Where the two largest velocity semi-axes are within 5 %, the major axis
+                    // is ill-defined (it swings within their plane with the start set); there
+                    // the claim is that d lies in that plane, i.e. off the minor axis.
+                    let e = &vel.arm_ellipsoids;
+                    let s = &e.velocity_semi_axes;
+                    let off_minor = angle_deg(&Vector3::from(e.axes[2]), &d);
+                    assert!(
+                        av < 10.0 || (s[1] > 0.95 * s[0] && off_minor > 80.0),
+                        "{at}: velocity axis {av}°, semi-axes {s:?}, {off_minor}° off the minor"
+                    );
+                }
+                if dn != "z" {
+                    assert!(af < af_of_v, "{at}: force axes {af}° vs {af_of_v}°");
+                    assert!(av < av_of_f, "{at}: velocity axes {av}° vs {av_of_f}°");
                 }
                 if dn == "x" && raised {
                     assert!(af < 10.0, "{at}: force axis {af}°");
@@ -499,6 +586,129 @@ fn claim_b_holds_on_the_wam_and_the_pa10() {
             }
         }
     }
+}
+
+/// Fig. 6: the iHY hand on the WAM grasps the seeded ball optimising the grasp compatibility
+/// index (GC, hand-object Jacobian `H = (Gᵀ)⁺ J_h`, eq. 17-19; TC off, w_Q = 0.1, 12 starts)
+/// for force and for velocity transmission along y and along z.
+///
+/// Measured after the finger-finger rows (before them the velocity optima put two fingertips
+/// 0.0-0.2 mm apart, polygon area ~1e-7 m², and reached 17-135 m/s per rad/s):
+///
+/// | d | optimum  | α along d | β along d | force axis | velocity axis | sphere gap | velocity semi-axes (m/s per rad/s) |
+/// |---|----------|-----------|-----------|------------|---------------|------------|-------------------|
+/// | y | force    | 30.09     | 0.019     | 74.4°      | 66.1°         | 38.9 mm    | 0.071 0.018 0.014 |
+/// | y | velocity | 1.06      | 0.940     | 90.0°      | 0.6°          | 1.00 mm    | 0.944 0.121 0.028 |
+/// | z | force    | 35.55     | 0.028     | 3.0°       | 89.0°         | 48.5 mm    | 0.055 0.041 0.028 |
+/// | z | velocity | 0.92      | 1.079     | 90.0°      | 1.2°          | 1.00 mm    | 1.088 0.167 0.038 |
+///
+/// Asserted: the ratio ordering for both d; each velocity optimum's velocity axis within 10° of
+/// d; the force optimum's force axis within 10° along z; for both d each optimum's own axis
+/// closer to d than the other optimum's; contact spheres ≥ 0.5 mm apart; velocity semi-axes
+/// below 2 m/s per rad/s (an order of magnitude under the artefact).
+///
+/// Not asserted, because it does not hold: along y the force optimum's force axis is 74.4° off
+/// d. Its two largest force semi-axes (1/0.018, 1/0.014) are within 30 % and the lowest-cost
+/// start is not the best-aligned: another start reaches α 105 with the axis 0.2° off y, but
+/// with the fingers bunched (polygon 7.9e-5 m² against 1.3e-3 m²), which the Q_DC term
+/// penalises. Also not a grasp property to celebrate: every velocity optimum drives two
+/// fingertips together until the new clearance row is active (gap 1.00 mm, the bound) — GC's
+/// velocity ratio grows as the contacts cluster, so the row, not the index, sets where it stops;
+/// the semi-axes of ~1 m/s per rad/s are still ~10× a fingertip's own speed.
+#[test]
+fn fig6_hand_force_and_velocity_optima_along_y_and_z() {
+    use crate::grasp::objects::seeded_object;
+    let dir_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    let s = crate::kinematics::System::from_file(&dir_path.join("wam_ihy.toml")).unwrap();
+    let sys = HandArm::from_system(&s).unwrap();
+    let m = |e: &Ellipsoids| {
+        let mut m = Matrix3::zeros();
+        for k in 0..3 {
+            let a = Vector3::from(e.axes[k]);
+            m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+        }
+        m
+    };
+    let mut fails = Vec::new();
+    for (dn, d) in [("y", Vector3::y()), ("z", Vector3::z())] {
+        let solve = |kind| {
+            let obj = Object::new(seeded_object("ball", 0.5, 0.0, 0.0).unwrap()).unwrap();
+            let mut req =
+                GraspRequest::new(obj, vec![dir(d, kind)], QualityMeasure::CentroidDistance);
+            req.weights = Weights {
+                tc: 0.0,
+                gc: 1.0,
+                q: 0.1,
+                d: 0.0,
+            };
+            // plan_grasp's selection (lowest-cost feasible of starts 0..12) without its
+            // per-start wall cap: GC's gradient costs 2n FK passes, so under load capped starts
+            // end at different iterates and the force axes moved by 5°-50° between runs.
+            let mut settings = solver_settings();
+            settings.max_duration = None;
+            let best = (0..12)
+                .map(|k| run_start_with(&sys, &req, k, settings.clone()))
+                .filter(|o| o.feasible)
+                .min_by(|a, b| a.score.total_cmp(&b.score))
+                .unwrap_or_else(|| panic!("{kind:?} along {dn}: no feasible start"));
+            describe(&sys, &req, &best.u, Some(best.report))
+        };
+        let force = solve(Transmission::Force);
+        let vel = solve(Transmission::Velocity);
+        let (ef, ev) = (&force.hand_ellipsoids, &vel.hand_ellipsoids);
+        let ratio = |e: &Ellipsoids, kind| indexes::transmission_ratio(&m(e), &d, kind);
+        let (ff, vf) = (
+            ratio(ef, Transmission::Force),
+            ratio(ev, Transmission::Force),
+        );
+        let (vv, fv) = (
+            ratio(ev, Transmission::Velocity),
+            ratio(ef, Transmission::Velocity),
+        );
+        assert!((force.terms.hand_ratios[0] - ff).abs() < 1e-9 * ff);
+        assert!((vel.terms.hand_ratios[0] - vv).abs() < 1e-9 * vv);
+        let af = angle_deg(&ef.force_major(), &d);
+        let af_of_v = angle_deg(&ev.force_major(), &d);
+        let av = angle_deg(&ev.velocity_major(), &d);
+        let av_of_f = angle_deg(&ef.velocity_major(), &d);
+        let (sf, sv) = (
+            force.residuals.min_finger_separation,
+            vel.residuals.min_finger_separation,
+        );
+        println!(
+            "d = {dn}: force optimum α {ff:.2} (velocity optimum {vf:.2}), force axis {af:.1}° \
+             (velocity optimum's {af_of_v:.1}°), sphere gap {:.2} mm, semi-axes {:.3?}; \
+             velocity optimum β {vv:.3} (force optimum {fv:.3}), velocity axis {av:.1}° \
+             (force optimum's {av_of_f:.1}°), sphere gap {:.2} mm, semi-axes {:.3?}",
+            sf * 1e3,
+            ef.velocity_semi_axes,
+            sv * 1e3,
+            ev.velocity_semi_axes
+        );
+        let mut check = |ok: bool, what: String| {
+            if !ok {
+                fails.push(format!("d = {dn}: {what}"));
+            }
+        };
+        check(ff > vf, format!("α {ff} vs {vf}"));
+        check(vv > fv, format!("β {vv} vs {fv}"));
+        check(av < 10.0, format!("velocity axis {av}°"));
+        if dn == "z" {
+            check(af < 10.0, format!("force axis {af}°"));
+        }
+        check(af < af_of_v, format!("force axes {af}° vs {af_of_v}°"));
+        check(av < av_of_f, format!("velocity axes {av}° vs {av_of_f}°"));
+        for (r, k) in [(&force, "force"), (&vel, "velocity")] {
+            let gap = r.residuals.min_finger_separation;
+            check(
+                gap >= FINGER_CLEARANCE - PENETRATION_TOLERANCE,
+                format!("{k} gap {gap}"),
+            );
+            let top = r.hand_ellipsoids.velocity_semi_axes[0];
+            check(top < 2.0, format!("{k} velocity semi-axis {top}"));
+        }
+    }
+    assert!(fails.is_empty(), "{fails:#?}");
 }
 
 /// Fig. 5: the Q_DC-optimal grasp of a cylinder has a smaller centroid distance than random
