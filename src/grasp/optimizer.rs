@@ -6,7 +6,12 @@
 //! dimensionless by the object's bounding radius ρ (`Q_DC/ρ`, or `−Q_AGP/ρ²` since the area is
 //! maximised). Constraints: joint limits (25) as bounds; fingertip contact spheres tangent to
 //! the surface (27) as equalities `sd(p_i) − r_i = 0`; spread ordering (28) and link spheres
-//! outside the object and above the support plane (29) as inequalities.
+//! outside the object and above the support plane (29) as inequalities; and fingertip contact
+//! spheres of different fingers disjoint, `r_i + r_j + δ − ‖c_i − c_j‖ ≤ 0`. The paper has no
+//! such row, but without it nothing keeps two fingertips apart: under GC the optimiser put two
+//! of them on the same spot, where the grasp matrix turns rank-deficient, its pseudo-inverse
+//! blows up and the hand's "velocity ratio" reaches 20-135 m/s per rad/s — an artefact of the
+//! numerics, not a grasp.
 //!
 //! In the cost the quality measures are evaluated on the contact-sphere centres, i.e. on the
 //! object's surface offset by the sphere radius, where (27) keeps them; this keeps their
@@ -34,6 +39,9 @@ use super::system::HandArm;
 pub const SURFACE_TOLERANCE: f64 = 1e-3;
 /// Largest accepted penetration of a link sphere into the object or support plane (m).
 pub const PENETRATION_TOLERANCE: f64 = 5e-4;
+/// Clearance `δ` the optimiser keeps between the contact spheres of two fingers (m). A feasible
+/// grasp may eat up to [`PENETRATION_TOLERANCE`] of it, so contact spheres never overlap.
+pub const FINGER_CLEARANCE: f64 = 1e-3;
 
 /// The grasp quality measure of eq. 20-21.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -227,6 +235,9 @@ pub struct Residuals {
     pub max_spread_violation: f64,
     /// Largest coupling error `|q_i − k_i q_driver − offset|` over mimic joints (eq. 26).
     pub max_coupling_error: f64,
+    /// Smallest gap `‖c_i − c_j‖ − r_i − r_j` between the contact spheres of two different
+    /// fingers, m (≥ 0: disjoint; the optimiser keeps 1 mm). 1 for a one-finger hand.
+    pub min_finger_separation: f64,
 }
 
 /// The solver report of the returned start, in plain units.
@@ -325,6 +336,8 @@ struct Eval<'a> {
     rho: f64,
     n_spread: usize,
     plane: bool,
+    /// Finger pairs `(i, j)`, `i < j`, whose contact spheres must stay disjoint.
+    pairs: Vec<(usize, usize)>,
 }
 
 impl<'a> Eval<'a> {
@@ -388,6 +401,9 @@ impl<'a> Eval<'a> {
             rho: req.object.bounding_radius(),
             n_spread: sys.spread_pairs.len(),
             plane: req.object.support().is_some(),
+            pairs: (0..m)
+                .flat_map(|i| (i + 1..m).map(move |j| (i, j)))
+                .collect(),
         }
     }
 
@@ -401,7 +417,12 @@ impl<'a> Eval<'a> {
 
     fn n_ineq(&self) -> usize {
         let s = self.sys.link_spheres.len();
-        self.n_spread + s + if self.plane { s } else { 0 }
+        self.n_spread + s + if self.plane { s } else { 0 } + self.pairs.len()
+    }
+
+    /// Index of the first finger-pair row in the residual vector.
+    fn pair_row(&self) -> usize {
+        self.n_eq() + self.n_ineq() - self.pairs.len()
     }
 
     fn set_q(&mut self, u: &[f64]) {
@@ -621,6 +642,12 @@ impl<'a> Eval<'a> {
                 k += 1;
             }
         }
+        for &(i, j) in &self.pairs {
+            let (fi, fj) = (&self.sys.fingers[i], &self.sys.fingers[j]);
+            r[k] =
+                fi.radius + fj.radius + FINGER_CLEARANCE - (self.tip_p[i] - self.tip_p[j]).norm();
+            k += 1;
+        }
     }
 
     fn jacobian_t(&mut self, u: &[f64], d: &[f64], out: &mut [f64]) {
@@ -659,6 +686,20 @@ impl<'a> Eval<'a> {
                     &mut self.grad_q,
                 );
             }
+        }
+        // ∂(−‖c_i − c_j‖)/∂q = −eᵀ (J_i − J_j), e the unit vector from c_j to c_i; at
+        // coincident centres the row has no gradient and contributes none.
+        let k0 = self.pair_row();
+        for (p, &(i, j)) in self.pairs.iter().enumerate() {
+            let dp = d[k0 + p];
+            if dp == 0.0 {
+                continue;
+            }
+            let Some(e) = (self.tip_p[i] - self.tip_p[j]).try_normalize(1e-12) else {
+                continue;
+            };
+            add_point_gradient(&mut self.grad_q, &self.tip_j[i], &(e * -dp));
+            add_point_gradient(&mut self.grad_q, &self.tip_j[j], &(e * dp));
         }
         for (k, &i) in self.sel.iter().enumerate() {
             out[k] = self.grad_q[i];
@@ -910,6 +951,15 @@ fn solver_settings() -> Settings {
 }
 
 fn run_start(sys: &HandArm, req: &GraspRequest, start: usize) -> StartOutcome {
+    run_start_with(sys, req, start, solver_settings())
+}
+
+fn run_start_with(
+    sys: &HandArm,
+    req: &GraspRequest,
+    start: usize,
+    settings: Settings,
+) -> StartOutcome {
     let eval = std::cell::RefCell::new(Eval::new(sys, req));
     let (n, n_eq, n_ineq) = {
         let e = eval.borrow();
@@ -935,27 +985,28 @@ fn run_start(sys: &HandArm, req: &GraspRequest, start: usize) -> StartOutcome {
         |x: &[f64], r: &mut [f64]| eval.borrow_mut().residuals(x, r),
         |x: &[f64], d: &[f64], out: &mut [f64]| eval.borrow_mut().jacobian_t(x, d, out),
     ));
-    let mut solver = Solver::new(n, n_eq + n_ineq, solver_settings());
+    let mut solver = Solver::new(n, n_eq + n_ineq, settings);
     let report = solver
         .solve(&problem, &mut u)
         .expect("problem is well-formed");
     let mut r = vec![0.0; n_eq + n_ineq];
     eval.borrow_mut().residuals(&u, &mut r);
+    let pair_row = eval.borrow().pair_row();
+    let max_of = |rows: &[f64]| rows.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     let surface = r[..n_eq].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
-    let pen = r[n_eq + sys.spread_pairs.len()..]
-        .iter()
-        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
-    let spread = r[n_eq..n_eq + sys.spread_pairs.len()]
-        .iter()
-        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
+    let pen = max_of(&r[n_eq + sys.spread_pairs.len()..pair_row]);
+    let spread = max_of(&r[n_eq..n_eq + sys.spread_pairs.len()]);
+    // Rows are `r_i + r_j + δ − ‖c_i − c_j‖`: up to the penetration tolerance of δ may go.
+    let overlap = max_of(&r[pair_row..]);
     let feasible = report.status != SolveStatus::NumericalFailure
         && surface <= SURFACE_TOLERANCE
         && pen <= PENETRATION_TOLERANCE
+        && overlap <= PENETRATION_TOLERANCE
         && spread <= 1e-9;
     let score = if feasible {
         report.cost
     } else {
-        surface + pen.max(0.0) + spread.max(0.0)
+        surface + pen.max(0.0) + spread.max(0.0) + overlap.max(0.0)
     };
     StartOutcome {
         start,
@@ -1058,6 +1109,14 @@ fn explain(sys: &HandArm, req: &GraspRequest, r: &GraspResult) -> String {
             "a hand link penetrates the object by {:.1} mm in every start found",
             res.max_object_penetration * 1e3
         )
+    } else if res.min_finger_separation < FINGER_CLEARANCE - PENETRATION_TOLERANCE {
+        format!(
+            "the contact spheres of two fingertips are {:.2} mm apart (at least {:.1} mm needed) \
+             in every start found: the hand cannot close on the object without its fingers \
+             colliding",
+            res.min_finger_separation * 1e3,
+            (FINGER_CLEARANCE - PENETRATION_TOLERANCE) * 1e3
+        )
     } else if res.max_support_penetration > PENETRATION_TOLERANCE {
         format!(
             "the hand or wrist penetrates the support surface by {:.1} mm: the object sits too low \
@@ -1128,7 +1187,13 @@ pub(crate) fn describe(
     let obj_pen = r[n_eq + ns..n_eq + ns + s]
         .iter()
         .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
-    let plane_pen = r[n_eq + ns + s..]
+    let pair_row = e.pair_row();
+    let min_sep = r[pair_row..]
+        .iter()
+        .map(|v| FINGER_CLEARANCE - v)
+        .fold(f64::INFINITY, f64::min)
+        .min(1.0);
+    let plane_pen = r[n_eq + ns + s..pair_row]
         .iter()
         .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     let (lo, hi) = bounds(sys);
@@ -1193,6 +1258,7 @@ pub(crate) fn describe(
                 .fold(f64::NEG_INFINITY, |m, &v| m.max(v))
                 .max(-10.0),
             max_coupling_error: coupling,
+            min_finger_separation: min_sep,
         },
         arm_ellipsoids: Ellipsoids::of(&m_arm),
         hand_ellipsoids: Ellipsoids::of(&m_hand),

@@ -251,6 +251,66 @@ fn cost_gradient_and_constraint_jacobian_match_central_differences() {
     }
 }
 
+/// The finger-finger rows on a three-finger hand (WAM + iHY: three pairs), at hand
+/// configurations from open to closed, where some pairs come close: analytic `Jᵀ e_r` against
+/// central differences of each row.
+#[test]
+fn finger_separation_rows_match_central_differences() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    let s = crate::kinematics::System::from_file(&dir.join("wam_ihy.toml")).unwrap();
+    let sys = HandArm::from_system(&s).unwrap();
+    assert_eq!(sys.fingers.len(), 3);
+    let obj =
+        Object::new(crate::grasp::objects::seeded_object("ball", 0.5, 0.0, 0.0).unwrap()).unwrap();
+    let req = GraspRequest::new(obj, vec![], QualityMeasure::CentroidDistance);
+    let mut e = Eval::new(&sys, &req);
+    let n = e.n();
+    let nr = e.n_eq() + e.n_ineq();
+    let k0 = e.pair_row();
+    assert_eq!(nr - k0, 3);
+    let (lo, hi) = bounds(&sys);
+    let h = 1e-6;
+    let mut closest = f64::INFINITY;
+    for t in [0.2, 0.5, 0.8, 0.95] {
+        let u: Vec<f64> = (0..n)
+            .map(|k| {
+                let (l, u) = (lo[k].max(-2.0), hi[k].min(2.0));
+                l + (u - l) * if k < sys.arm_joints.len() { 0.4 } else { t }
+            })
+            .collect();
+        let (mut r0, mut rp, mut rm) = (vec![0.0; nr], vec![0.0; nr], vec![0.0; nr]);
+        e.residuals(&u, &mut r0);
+        for row in k0..nr {
+            closest = closest.min(FINGER_CLEARANCE - r0[row]);
+            let mut d = vec![0.0; nr];
+            d[row] = 1.0;
+            let mut jt = vec![0.0; n];
+            e.jacobian_t(&u, &d, &mut jt);
+            assert!(
+                jt.iter().any(|v| v.abs() > 1e-3),
+                "row {row} has no gradient"
+            );
+            for k in 0..n {
+                let (mut up, mut um) = (u.clone(), u.clone());
+                up[k] += h;
+                um[k] -= h;
+                e.residuals(&up, &mut rp);
+                e.residuals(&um, &mut rm);
+                let fd = (rp[row] - rm[row]) / (2.0 * h);
+                assert!(
+                    (jt[k] - fd).abs() < 1e-6,
+                    "t {t} pair row {row} u[{k}]: {} vs {fd}",
+                    jt[k]
+                );
+            }
+        }
+    }
+    println!(
+        "closest contact-sphere gap over the configurations: {:.1} mm",
+        closest * 1e3
+    );
+}
+
 #[test]
 fn allocation_free_hand_object_jacobian_equals_the_pseudo_inverse_form() {
     let sys = test_system();
@@ -396,82 +456,259 @@ fn claim_b_force_and_velocity_optima_put_different_ellipsoids_along_d() {
     assert!(angle_deg(&vel_z.arm_ellipsoids.velocity_major(), &z) < 10.0);
 }
 
-/// Claim (b) on the shipped arms: for the WAM and the PA10 (with the T42 hand), grasping the
-/// seeded ball at a documented reachable placement, force- and velocity-optimal results along
-/// the same direction `d` differ as theory says, for every direction tried: the force optimum
-/// has the larger force ratio α along `d` and the velocity optimum the larger velocity ratio β.
-/// The major-axis alignment of the paper's figures is checked per kind: each kind's optimum
-/// puts its own ellipsoid's major axis within 20° of `d` for at least one of the directions.
-/// (Measured: on the WAM the force axis comes within 15° along x and the velocity axis within
-/// 3° along y; on the PA10 both come within 18° along x (17.8° and 15.3°) and the velocity axis
-/// within 3° along y. No single direction gets both within 10° at this placement — maximising a
-/// ratio along `d` need not turn the ellipsoid's axis onto `d`; the printout gives every angle.)
+/// Claim (b) on the shipped arms (Fig. 4: WAM + iHY grasping the seeded ball; also WAM + T42,
+/// PA10 + T42, PA10 + iHY), for d = x, y and z, with the ball on the z = 0 table at (0.5, 0)
+/// (the seeded placement) and on a 0.2 m table at (0.55, 0).
+///
+/// What holds, and is asserted:
+/// - for every d and both placements, the force optimum has the larger force ratio α along d and
+///   the velocity optimum the larger velocity ratio β ("the corresponding transmission ratio is
+///   maximized");
+/// - velocity along y (tangential to the base axis, where the first joint moves the hand): the
+///   velocity optimum's velocity-ellipsoid major axis is within 10° of d on every system at both
+///   placements (measured 0.5°-7.2°), except where its two largest semi-axes are within 5 % and
+///   the major axis is ill-defined; there d lies in their plane (> 80° off the minor axis).
+///   Since the finger-finger clearance rows (which change the starts' paths), that is WAM + T42
+///   (13.3°, semi-axes 0.758/0.743) and PA10 + T42 (11.2°, 0.826/0.808), both on the z = 0 table;
+/// - the comparative reading, along x and y on every system and placement: the force optimum's
+///   force axis is closer to d than the velocity optimum's force axis, and the velocity
+///   optimum's velocity axis closer to d than the force optimum's velocity axis. Along z it fails
+///   for the force axes once (WAM + iHY raised: 85.9° vs 84.6°) and for the velocity axes five
+///   times out of eight (WAM + iHY 52.4° vs 50.5° and 89.5° vs 65.3°, WAM + T42 53.8° vs 49.5°
+///   and 89.7° vs 68.6°, PA10 + iHY raised 84.5° vs 83.5°): no optimum gets its velocity axis
+///   near z (52°-90°), so the smaller angle is noise between two misaligned axes;
+/// - force along x (radial, where the arm can approach its stretched singularity): the force
+///   optimum's force-ellipsoid major axis is within 10° of d on every system on the raised table
+///   (measured 2.3°-7.0°; 14.5°-20.7° on the seeded z = 0 table, where the ball sits 0.35 m
+///   below the shoulder).
+///
+/// What the issue states — both kinds within 10° along the *same* d — holds for no
+/// d ∈ {x, y, z} on these arms at these placements, and is not asserted. Over 48 other ball
+/// placements (x 0.35-0.65 m, y 0-0.45 m, table 0-0.6 m; 12 starts) it held for one d at one
+/// placement on WAM + T42, at none on WAM + iHY and at two on PA10 + T42, always along y with the
+/// ball close to the base. The optima are not time-capped: every start converges
+/// in ~10 ms, far inside its 150 ms cap, and 48 starts, a 1 s cap or w_Q = 0 change the optimal
+/// ratios by under 4 % and bring no same-d pair within 10° (`survey_claim_b_alignment`).
+/// Maximising a ratio along d need not turn the ellipsoid's axis onto d. The first joint alone
+/// moves the flange along y by its distance from the base axis (≈ 0.5 m/rad here), which bounds
+/// the force ratio along y and keeps the force ellipsoid's major axis where the arm can approach
+/// a singularity (the shoulder-wrist line, 33°-82° off y); the radial velocity ratio along x
+/// (β ≤ 0.39 on the WAM) stays below that tangential mobility, so the WAM's velocity major axis
+/// stays 69°-79° off x. Along z no optimum comes within 25° (27°-90°). Where the top two
+/// semi-axes are close the major axis is ill-defined and moves with the start set (PA10 + T42,
+/// velocity along y: 2.8° with these 12 starts, 12.8° with 48 at a 0.1 % larger β, before the
+/// clearance rows; 11.2° with 12 after). The printout gives every angle and ratio.
 #[test]
 fn claim_b_holds_on_the_wam_and_the_pa10() {
     use crate::grasp::objects::seeded_object;
     let dir_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
-    let h = std::f64::consts::FRAC_1_SQRT_2;
-    let candidates = [
-        [1.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0],
-        [0.0, 0.0, 1.0],
-        [h, 0.0, h],
-        [0.0, h, h],
-    ];
-    for name in ["wam_t42", "pa10_t42"] {
+    let ellipsoid_matrix = |e: &Ellipsoids| {
+        let mut m = Matrix3::zeros();
+        for k in 0..3 {
+            let a = Vector3::from(e.axes[k]);
+            m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+        }
+        m
+    };
+    for name in ["wam_ihy", "wam_t42", "pa10_t42", "pa10_ihy"] {
         let s =
             crate::kinematics::System::from_file(&dir_path.join(format!("{name}.toml"))).unwrap();
         let sys = HandArm::from_system(&s).unwrap();
-        let mut best = (f64::INFINITY, f64::INFINITY);
-        for d in candidates {
-            let d = Vector3::from(d);
-            let solve = |kind| {
-                let obj = Object::new(seeded_object("ball", 0.5, 0.0, 0.0).unwrap()).unwrap();
-                let mut req =
-                    GraspRequest::new(obj, vec![dir(d, kind)], QualityMeasure::CentroidDistance);
-                req.weights.q = 0.1;
-                req.starts = 8;
-                let r = plan_grasp(&sys, &req).unwrap();
-                assert!(r.feasible, "{name} {kind:?}: {:?}", r.reason);
-                r
-            };
-            let force = solve(Transmission::Force);
-            let vel = solve(Transmission::Velocity);
-            let af = angle_deg(&force.arm_ellipsoids.force_major(), &d);
-            let av = angle_deg(&vel.arm_ellipsoids.velocity_major(), &d);
-            let m = |r: &GraspResult| {
-                let e = &r.arm_ellipsoids;
-                let mut m = Matrix3::zeros();
-                for k in 0..3 {
-                    let a = Vector3::from(e.axes[k]);
-                    m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+        for (x, table, raised) in [(0.5, 0.0, false), (0.55, 0.2, true)] {
+            for (dn, d) in [
+                ("x", Vector3::x()),
+                ("y", Vector3::y()),
+                ("z", Vector3::z()),
+            ] {
+                let solve = |kind| {
+                    let obj = Object::new(seeded_object("ball", x, 0.0, table).unwrap()).unwrap();
+                    let mut req = GraspRequest::new(
+                        obj,
+                        vec![dir(d, kind)],
+                        QualityMeasure::CentroidDistance,
+                    );
+                    req.weights.q = 0.1;
+                    req.starts = 12;
+                    let r = plan_grasp(&sys, &req).unwrap();
+                    assert!(r.feasible, "{name} {kind:?} along {dn}: {:?}", r.reason);
+                    r
+                };
+                let force = solve(Transmission::Force);
+                let vel = solve(Transmission::Velocity);
+                let (mf, mv) = (
+                    ellipsoid_matrix(&force.arm_ellipsoids),
+                    ellipsoid_matrix(&vel.arm_ellipsoids),
+                );
+                let ratio = |m: &Matrix3<f64>, kind| indexes::transmission_ratio(m, &d, kind);
+                let (ff, vf) = (
+                    ratio(&mf, Transmission::Force),
+                    ratio(&mv, Transmission::Force),
+                );
+                let (vv, fv) = (
+                    ratio(&mv, Transmission::Velocity),
+                    ratio(&mf, Transmission::Velocity),
+                );
+                // The reported ellipsoids are the ones behind the reported ratios.
+                assert!((force.terms.arm_ratios[0] - ff).abs() < 1e-9 * ff);
+                assert!((vel.terms.arm_ratios[0] - vv).abs() < 1e-9 * vv);
+                let af = angle_deg(&force.arm_ellipsoids.force_major(), &d);
+                let av = angle_deg(&vel.arm_ellipsoids.velocity_major(), &d);
+                // The same axes of the other optimum: the comparative reading of claim (b).
+                let af_of_v = angle_deg(&vel.arm_ellipsoids.force_major(), &d);
+                let av_of_f = angle_deg(&force.arm_ellipsoids.velocity_major(), &d);
+                let at = format!("{name} ball at ({x}, 0) on a {table} m table, d = {dn}");
+                println!(
+                    "{at}: force optimum α {ff:.3} (velocity optimum {vf:.3}), force axis {af:.1}° \
+                     (velocity optimum's {af_of_v:.1}°); velocity optimum β {vv:.3} (force optimum \
+                     {fv:.3}), velocity axis {av:.1}° (force optimum's {av_of_f:.1}°)"
+                );
+                assert!(ff > vf, "{at}: α {ff} vs {vf}");
+                assert!(vv > fv, "{at}: β {vv} vs {fv}");
+                if dn == "y" {
+                    // Where the two largest velocity semi-axes are within 5 %, the major axis
+                    // is ill-defined (it swings within their plane with the start set); there
+                    // the claim is that d lies in that plane, i.e. off the minor axis.
+                    let e = &vel.arm_ellipsoids;
+                    let s = &e.velocity_semi_axes;
+                    let off_minor = angle_deg(&Vector3::from(e.axes[2]), &d);
+                    assert!(
+                        av < 10.0 || (s[1] > 0.95 * s[0] && off_minor > 80.0),
+                        "{at}: velocity axis {av}°, semi-axes {s:?}, {off_minor}° off the minor"
+                    );
                 }
-                m
-            };
-            let ratio = |r: &GraspResult, kind| indexes::transmission_ratio(&m(r), &d, kind);
-            let (ff, vf) = (
-                ratio(&force, Transmission::Force),
-                ratio(&vel, Transmission::Force),
-            );
-            let (vv, fv) = (
-                ratio(&vel, Transmission::Velocity),
-                ratio(&force, Transmission::Velocity),
-            );
-            println!(
-                "{name} d={:?}: α {ff:.3} (velocity optimum {vf:.3}), force axis {af:.1}°; \
-                 β {vv:.3} (force optimum {fv:.3}), velocity axis {av:.1}°",
-                d.as_slice()
-            );
-            assert!(ff > vf, "{name} {d:?}: α {ff} vs {vf}");
-            assert!(vv > fv, "{name} {d:?}: β {vv} vs {fv}");
-            best = (best.0.min(af), best.1.min(av));
+                if dn != "z" {
+                    assert!(af < af_of_v, "{at}: force axes {af}° vs {af_of_v}°");
+                    assert!(av < av_of_f, "{at}: velocity axes {av}° vs {av_of_f}°");
+                }
+                if dn == "x" && raised {
+                    assert!(af < 10.0, "{at}: force axis {af}°");
+                }
+            }
         }
-        println!(
-            "{name}: best force-axis alignment {:.1}°, best velocity-axis alignment {:.1}°",
-            best.0, best.1
-        );
-        assert!(best.0 < 20.0 && best.1 < 20.0, "{name}: {best:?}");
     }
+}
+
+/// Fig. 6: the iHY hand on the WAM grasps the seeded ball optimising the grasp compatibility
+/// index (GC, hand-object Jacobian `H = (Gᵀ)⁺ J_h`, eq. 17-19; TC off, w_Q = 0.1, 12 starts)
+/// for force and for velocity transmission along y and along z.
+///
+/// Measured after the finger-finger rows (before them the velocity optima put two fingertips
+/// 0.0-0.2 mm apart, polygon area ~1e-7 m², and reached 17-135 m/s per rad/s):
+///
+/// | d | optimum  | α along d | β along d | force axis | velocity axis | sphere gap | velocity semi-axes (m/s per rad/s) |
+/// |---|----------|-----------|-----------|------------|---------------|------------|-------------------|
+/// | y | force    | 30.09     | 0.019     | 74.4°      | 66.1°         | 38.9 mm    | 0.071 0.018 0.014 |
+/// | y | velocity | 1.06      | 0.940     | 90.0°      | 0.6°          | 1.00 mm    | 0.944 0.121 0.028 |
+/// | z | force    | 35.55     | 0.028     | 3.0°       | 89.0°         | 48.5 mm    | 0.055 0.041 0.028 |
+/// | z | velocity | 0.92      | 1.079     | 90.0°      | 1.2°          | 1.00 mm    | 1.088 0.167 0.038 |
+///
+/// Asserted: the ratio ordering for both d; each velocity optimum's velocity axis within 10° of
+/// d; the force optimum's force axis within 10° along z; for both d each optimum's own axis
+/// closer to d than the other optimum's; contact spheres ≥ 0.5 mm apart; velocity semi-axes
+/// below 2 m/s per rad/s (an order of magnitude under the artefact).
+///
+/// Not asserted, because it does not hold: along y the force optimum's force axis is 74.4° off
+/// d. Its two largest force semi-axes (1/0.018, 1/0.014) are within 30 % and the lowest-cost
+/// start is not the best-aligned: another start reaches α 105 with the axis 0.2° off y, but
+/// with the fingers bunched (polygon 7.9e-5 m² against 1.3e-3 m²), which the Q_DC term
+/// penalises. Also not a grasp property to celebrate: every velocity optimum drives two
+/// fingertips together until the new clearance row is active (gap 1.00 mm, the bound) — GC's
+/// velocity ratio grows as the contacts cluster, so the row, not the index, sets where it stops;
+/// the semi-axes of ~1 m/s per rad/s are still ~10× a fingertip's own speed.
+#[test]
+fn fig6_hand_force_and_velocity_optima_along_y_and_z() {
+    use crate::grasp::objects::seeded_object;
+    let dir_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    let s = crate::kinematics::System::from_file(&dir_path.join("wam_ihy.toml")).unwrap();
+    let sys = HandArm::from_system(&s).unwrap();
+    let m = |e: &Ellipsoids| {
+        let mut m = Matrix3::zeros();
+        for k in 0..3 {
+            let a = Vector3::from(e.axes[k]);
+            m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+        }
+        m
+    };
+    let mut fails = Vec::new();
+    for (dn, d) in [("y", Vector3::y()), ("z", Vector3::z())] {
+        let solve = |kind| {
+            let obj = Object::new(seeded_object("ball", 0.5, 0.0, 0.0).unwrap()).unwrap();
+            let mut req =
+                GraspRequest::new(obj, vec![dir(d, kind)], QualityMeasure::CentroidDistance);
+            req.weights = Weights {
+                tc: 0.0,
+                gc: 1.0,
+                q: 0.1,
+                d: 0.0,
+            };
+            // plan_grasp's selection (lowest-cost feasible of starts 0..12) without its
+            // per-start wall cap: GC's gradient costs 2n FK passes, so under load capped starts
+            // end at different iterates and the force axes moved by 5°-50° between runs.
+            let mut settings = solver_settings();
+            settings.max_duration = None;
+            let best = (0..12)
+                .map(|k| run_start_with(&sys, &req, k, settings.clone()))
+                .filter(|o| o.feasible)
+                .min_by(|a, b| a.score.total_cmp(&b.score))
+                .unwrap_or_else(|| panic!("{kind:?} along {dn}: no feasible start"));
+            describe(&sys, &req, &best.u, Some(best.report))
+        };
+        let force = solve(Transmission::Force);
+        let vel = solve(Transmission::Velocity);
+        let (ef, ev) = (&force.hand_ellipsoids, &vel.hand_ellipsoids);
+        let ratio = |e: &Ellipsoids, kind| indexes::transmission_ratio(&m(e), &d, kind);
+        let (ff, vf) = (
+            ratio(ef, Transmission::Force),
+            ratio(ev, Transmission::Force),
+        );
+        let (vv, fv) = (
+            ratio(ev, Transmission::Velocity),
+            ratio(ef, Transmission::Velocity),
+        );
+        assert!((force.terms.hand_ratios[0] - ff).abs() < 1e-9 * ff);
+        assert!((vel.terms.hand_ratios[0] - vv).abs() < 1e-9 * vv);
+        let af = angle_deg(&ef.force_major(), &d);
+        let af_of_v = angle_deg(&ev.force_major(), &d);
+        let av = angle_deg(&ev.velocity_major(), &d);
+        let av_of_f = angle_deg(&ef.velocity_major(), &d);
+        let (sf, sv) = (
+            force.residuals.min_finger_separation,
+            vel.residuals.min_finger_separation,
+        );
+        println!(
+            "d = {dn}: force optimum α {ff:.2} (velocity optimum {vf:.2}), force axis {af:.1}° \
+             (velocity optimum's {af_of_v:.1}°), sphere gap {:.2} mm, semi-axes {:.3?}; \
+             velocity optimum β {vv:.3} (force optimum {fv:.3}), velocity axis {av:.1}° \
+             (force optimum's {av_of_f:.1}°), sphere gap {:.2} mm, semi-axes {:.3?}",
+            sf * 1e3,
+            ef.velocity_semi_axes,
+            sv * 1e3,
+            ev.velocity_semi_axes
+        );
+        let mut check = |ok: bool, what: String| {
+            if !ok {
+                fails.push(format!("d = {dn}: {what}"));
+            }
+        };
+        check(ff > vf, format!("α {ff} vs {vf}"));
+        check(vv > fv, format!("β {vv} vs {fv}"));
+        check(av < 10.0, format!("velocity axis {av}°"));
+        if dn == "z" {
+            check(af < 10.0, format!("force axis {af}°"));
+        }
+        check(af < af_of_v, format!("force axes {af}° vs {af_of_v}°"));
+        check(av < av_of_f, format!("velocity axes {av}° vs {av_of_f}°"));
+        for (r, k) in [(&force, "force"), (&vel, "velocity")] {
+            let gap = r.residuals.min_finger_separation;
+            check(
+                gap >= FINGER_CLEARANCE - PENETRATION_TOLERANCE,
+                format!("{k} gap {gap}"),
+            );
+            let top = r.hand_ellipsoids.velocity_semi_axes[0];
+            check(top < 2.0, format!("{k} velocity semi-axis {top}"));
+        }
+    }
+    assert!(fails.is_empty(), "{fails:#?}");
 }
 
 /// Fig. 5: the Q_DC-optimal grasp of a cylinder has a smaller centroid distance than random
@@ -695,5 +932,162 @@ fn survey_real_systems() {
             times[times.len() / 2],
             times[times.len() - 1]
         );
+    }
+}
+
+/// Not a claim: the survey behind `claim_b_holds_on_the_wam_and_the_pa10`. For each system,
+/// ball placement, direction and kind it runs every start on its own and prints the lowest-cost
+/// feasible start's angle between d and its own ellipsoid's major axis, its ratio, the smallest
+/// angle over the feasible starts, and the other ellipsoid's angle and ratio. Knobs (environment):
+/// `CB_SYSTEMS=wam_t42,wam_ihy,pa10_t42`, `CB_PLACES=x:y:table,...` (default `0.5:0:0`),
+/// `CB_DIRS=x,y,z` (or `a/b/c`), `CB_KINDS=force,velocity`, `CB_STARTS=12`, `CB_CAP_MS=150`
+/// (per-start wall cap), `CB_Q=0.1` (w_Q), `CB_GC=1` (GC instead of TC, hand ellipsoids: Fig. 6),
+/// `CB_VERBOSE=1` (every start). E.g. `CB_STARTS=48 cargo test --lib survey_claim_b -- --ignored
+/// --nocapture`.
+#[test]
+#[ignore]
+fn survey_claim_b_alignment() {
+    use crate::grasp::objects::seeded_object;
+    let env = |k: &str, d: &str| std::env::var(k).unwrap_or_else(|_| d.to_string());
+    let systems = env("CB_SYSTEMS", "wam_t42,wam_ihy,pa10_t42");
+    let starts: usize = env("CB_STARTS", "12").parse().unwrap();
+    let cap_ms: u64 = env("CB_CAP_MS", "150").parse().unwrap();
+    let wq: f64 = env("CB_Q", "0.1").parse().unwrap();
+    let places = env("CB_PLACES", "0.5:0.0:0.0");
+    let dirs_s = env("CB_DIRS", "x,y,z");
+    let kinds_s = env("CB_KINDS", "force,velocity");
+    let verbose = std::env::var_os("CB_VERBOSE").is_some();
+    let dir_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    for name in systems.split(',') {
+        let s =
+            crate::kinematics::System::from_file(&dir_path.join(format!("{name}.toml"))).unwrap();
+        let sys = HandArm::from_system(&s).unwrap();
+        for place in places.split(',') {
+            let p: Vec<f64> = place.split(':').map(|v| v.parse().unwrap()).collect();
+            let mut line = format!("{name} ball at ({}, {}) table {}:", p[0], p[1], p[2]);
+            for dn in dirs_s.split(',') {
+                let d = match dn {
+                    "x" => Vector3::x(),
+                    "y" => Vector3::y(),
+                    "z" => Vector3::z(),
+                    _ => {
+                        let v: Vec<f64> = dn.split('/').map(|v| v.parse().unwrap()).collect();
+                        Vector3::new(v[0], v[1], v[2]).normalize()
+                    }
+                };
+                for kn in kinds_s.split(',') {
+                    let kind = if kn == "force" {
+                        Transmission::Force
+                    } else {
+                        Transmission::Velocity
+                    };
+                    let obj =
+                        Object::new(seeded_object("ball", p[0], p[1], p[2]).unwrap()).unwrap();
+                    let mut req = GraspRequest::new(
+                        obj,
+                        vec![dir(d, kind)],
+                        QualityMeasure::CentroidDistance,
+                    );
+                    req.weights.q = wq;
+                    let hand = std::env::var_os("CB_GC").is_some();
+                    if hand {
+                        req.weights.tc = 0.0;
+                        req.weights.gc = 1.0;
+                    }
+                    let mut settings = solver_settings();
+                    settings.max_duration = Some(Duration::from_millis(cap_ms));
+                    let mut rows = Vec::new();
+                    for k in 0..starts {
+                        let o = run_start_with(&sys, &req, k, settings.clone());
+                        let r = describe(&sys, &req, &o.u, None);
+                        let e = if hand {
+                            &r.hand_ellipsoids
+                        } else {
+                            &r.arm_ellipsoids
+                        };
+                        let own_ratio = if hand {
+                            r.terms.hand_ratios[0]
+                        } else {
+                            r.terms.arm_ratios[0]
+                        };
+                        let axis = match kind {
+                            Transmission::Force => e.force_major(),
+                            Transmission::Velocity => e.velocity_major(),
+                        };
+                        let ang = angle_deg(&axis, &d);
+                        let comps: Vec<f64> = (0..3)
+                            .map(|k| Vector3::from(e.axes[k]).dot(&d).abs())
+                            .collect();
+                        if verbose && hand {
+                            let pts: Vec<Vector3<f64>> =
+                                r.contacts.iter().map(|c| Vector3::from(c.point)).collect();
+                            let mut closest = f64::INFINITY;
+                            for i in 0..pts.len() {
+                                for j in i + 1..pts.len() {
+                                    closest = closest.min((pts[i] - pts[j]).norm());
+                                }
+                            }
+                            println!(
+                                "  {name} {dn} {kn} start {k}: hand ratio {own_ratio:.3}, contact polygon area {:.2e} m², closest contact pair {:.1} mm, hand semi-axes {:.3?}",
+                                r.terms.q_agp,
+                                closest * 1e3,
+                                e.velocity_semi_axes
+                            );
+                        }
+                        if verbose {
+                            println!(
+                                "  {name} {dn} {kn} start {k}: feas {} {:?} it {} {:.0} ms cost {:.4} ratio {:.3} angle {ang:.1} vel semi-axes {:.3?} |d.axis| {comps:.2?} q_arm {:?}",
+                                o.feasible,
+                                o.report.status,
+                                o.report.iterations,
+                                o.report.time.as_secs_f64() * 1e3,
+                                o.report.cost,
+                                r.terms.arm_ratios[0],
+                                e.velocity_semi_axes,
+                                r.q_arm
+                                    .iter()
+                                    .map(|j| (j.value * 100.0).round() / 100.0)
+                                    .collect::<Vec<_>>()
+                            );
+                        }
+                        let (other_axis, other_kind) = match kind {
+                            Transmission::Force => (e.velocity_major(), Transmission::Velocity),
+                            Transmission::Velocity => (e.force_major(), Transmission::Force),
+                        };
+                        let mut m = Matrix3::zeros();
+                        for k in 0..3 {
+                            let a = Vector3::from(e.axes[k]);
+                            m += a * a.transpose() * e.velocity_semi_axes[k].powi(2);
+                        }
+                        let other_ratio = indexes::transmission_ratio(&m, &d, other_kind);
+                        rows.push((
+                            o.feasible,
+                            o.report.cost,
+                            ang,
+                            own_ratio,
+                            angle_deg(&other_axis, &d),
+                            other_ratio,
+                        ));
+                    }
+                    let feas: Vec<_> = rows.iter().filter(|r| r.0).collect();
+                    let best = feas.iter().min_by(|a, b| a.1.total_cmp(&b.1));
+                    let min_ang = feas.iter().map(|r| r.2).fold(f64::INFINITY, f64::min);
+                    match best {
+                        Some(b) => {
+                            line += &format!(
+                                " {dn}/{kn} {:.1}° (r {:.3}, min {min_ang:.1}°, {}/{starts}; other axis {:.1}°, other ratio {:.3})",
+                                b.2,
+                                b.3,
+                                feas.len(),
+                                b.4,
+                                b.5
+                            )
+                        }
+                        None => line += &format!(" {dn}/{kn} infeasible"),
+                    }
+                }
+            }
+            println!("{line}");
+        }
     }
 }
