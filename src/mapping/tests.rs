@@ -398,15 +398,13 @@ fn probe_first_frame_reference() {
             ratios[ratios.len() - 1],
             demos.len()
         );
-        let names = &with[0].joint_names;
-        for j in 0..with[0].nq() {
+        for (j, name) in with[0].joint_names.iter().enumerate() {
             let v: Vec<f64> = with.iter().map(|t| t.frame(0)[j]).collect();
             let r = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
                 - v.iter().cloned().fold(f64::INFINITY, f64::min);
             if r > 0.1 {
                 println!(
-                    "   {} range {r:.3}: {:?}",
-                    names[j],
+                    "   {name} range {r:.3}: {:?}",
                     v.iter()
                         .map(|x| (x * 100.0).round() / 100.0)
                         .collect::<Vec<_>>()
