@@ -3,7 +3,8 @@
 //!
 //! Everything the request names is checked before the job exists (robot, every demonstration,
 //! the registration of every demonstration's arm, weights, rate), so bad input is a 4xx with
-//! nothing stored. The job maps the demonstrations across all cores ([`map_batch`]) and stores
+//! nothing stored. The job maps the demonstrations across all cores ([`map_batch`]: every first
+//! frame solved from the first demonstration's, so one rest pose gives one posture) and stores
 //! every result in the transaction that marks it succeeded; a failure or cancellation stores no
 //! trajectory. [`map_offline`] is the same computation for `reachgrasp map`.
 

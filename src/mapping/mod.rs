@@ -14,7 +14,10 @@
 //!
 //! Typical use: `MappingModel::from_system(&system)`, `anchor()`, then one [`Mapper`] per worker
 //! (`Mapper::map(frames, &RegistrationSpec::default(), &anchor)`), or [`map_batch`] for many
-//! demonstrations across threads.
+//! demonstrations across threads. A batch is mapped consistently: every demonstration's first
+//! frame is solved locally from one reference posture ([`batch_reference`],
+//! [`Mapper::map_from`]), so the same rest pose maps to the same robot posture in every
+//! demonstration; a demonstration mapped alone starts from its own multi-start solution.
 
 pub mod goals;
 pub mod objective;
@@ -29,9 +32,10 @@ pub use objective::{
     Evaluator, FrameGoals, MappingModel, Objective, Term, Weights, quaternion_distance,
 };
 pub use registration::{ArmPoints, BodyAxes, Registration, RegistrationSpec, RobotAnchor, Scale};
-pub use solve::{FrameMetrics, Mapper, SolverOptions};
+pub use solve::{FIRST_FRAME_FALLBACK, FrameMetrics, Mapper, SolverOptions, StartReference};
 pub use trajectory::{
-    BatchItem, Cancelled, MappedTrajectory, map_batch, registration_for, resample_frames,
+    BatchItem, Cancelled, MappedTrajectory, batch_reference, map_batch, registration_for,
+    resample_frames,
 };
 
 /// Everything that can go wrong in the mapping layer; the API turns it into 4xx problem+json.

@@ -14,6 +14,17 @@ use super::goals::MAX_FINGERS;
 use super::objective::{Evaluator, FrameGoals, MappingModel, Objective, Term, Weights};
 use crate::optim::{BoxReport, BoxSolver, PairOrder};
 
+/// Default of [`SolverOptions::first_frame_fallback`] (measured: see `probe_first_frame_reference`).
+pub const FIRST_FRAME_FALLBACK: f64 = 2.0;
+
+/// The first-frame posture a batch's demonstrations start from: the multi-start solution of the
+/// first demonstration's first frame, and its objective.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StartReference {
+    pub q: Vec<f64>,
+    pub objective: f64,
+}
+
 /// Solver settings of a mapping run.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SolverOptions {
@@ -32,6 +43,11 @@ pub struct SolverOptions {
     pub first_frame_starts: usize,
     /// Seed of the first-frame random starts.
     pub seed: u64,
+    /// A batch's first frames are solved locally from one reference posture
+    /// ([`Mapper::solve_first_from`]); the multi-start runs instead only if that local solve's
+    /// objective exceeds this factor times the reference frame's, and its result replaces the
+    /// local one only if the local objective also exceeds this factor times the multi-start's.
+    pub first_frame_fallback: f64,
     /// Joint step bound per frame as a multiple of `velocity limit · Δt`.
     pub step_scale: f64,
     /// Joint speed used for the step bound when a joint has no positive finite velocity limit.
@@ -47,6 +63,7 @@ impl Default for SolverOptions {
             first_frame_max_iterations: 1000,
             first_frame_starts: 8,
             seed: 0x5eed,
+            first_frame_fallback: FIRST_FRAME_FALLBACK,
             step_scale: 2.0,
             fallback_speed: 3.0,
         }
@@ -71,6 +88,9 @@ impl SolverOptions {
         }
         if self.first_frame_starts == 0 {
             return bad("first_frame_starts", 0.0);
+        }
+        if !(self.first_frame_fallback.is_finite() && self.first_frame_fallback >= 1.0) {
+            return bad("first_frame_fallback", self.first_frame_fallback);
         }
         if !(self.step_scale.is_finite() && self.step_scale > 0.0) {
             return bad("step_scale", self.step_scale);
@@ -115,6 +135,7 @@ pub struct Mapper {
     pub(super) q: Vec<f64>,
     pub(super) orders: Vec<PairOrder>,
     pub(super) best: Vec<f64>,
+    pub(super) local: Vec<f64>,
 }
 
 impl Mapper {
@@ -143,6 +164,7 @@ impl Mapper {
             step: vec![0.0; nq],
             q: vec![0.0; nq],
             best: vec![0.0; nq],
+            local: vec![0.0; nq],
         })
     }
 
@@ -206,6 +228,46 @@ impl Mapper {
         let (_, _, converged) = best.expect("first_frame_starts ≥ 1 is validated");
         self.q.copy_from_slice(&self.best);
         self.metrics(goals, t, total_iter, converged)
+    }
+
+    /// First frame of one demonstration of a batch: a local solve inside the joint limits from
+    /// the batch's reference posture, so near-identical rest poses map to near-identical robot
+    /// postures instead of to whichever IK branch the multi-start happens to find. Falls back to
+    /// [`Self::solve_first`] only when the local solve is much worse (see
+    /// [`SolverOptions::first_frame_fallback`]); `iterations` counts both solves then.
+    pub fn solve_first_from(
+        &mut self,
+        goals: &FrameGoals,
+        t: f64,
+        reference: &StartReference,
+    ) -> FrameMetrics {
+        let mm = &self.eval.mm;
+        self.lo.copy_from_slice(&mm.lower);
+        self.hi.copy_from_slice(&mm.upper);
+        self.q.copy_from_slice(&reference.q);
+        let report = self.solve_in_box(
+            goals,
+            self.options.first_frame_max_iterations,
+            self.options.first_frame_tolerance,
+        );
+        let local = self.metrics(goals, t, report.iterations, report.converged);
+        let factor = self.options.first_frame_fallback;
+        // A reference objective of exactly 0 would make any residual "much worse"; the floor is
+        // far below any real frame's objective (fingertip errors of ~1e-5 m).
+        if local.objective <= factor * reference.objective.max(1e-10) {
+            return local;
+        }
+        self.local.copy_from_slice(&self.q);
+        let mut multi = self.solve_first(goals, t);
+        if local.objective > factor * multi.objective {
+            multi.iterations += local.iterations;
+            return multi;
+        }
+        self.q.copy_from_slice(&self.local);
+        FrameMetrics {
+            iterations: local.iterations + multi.iterations,
+            ..local
+        }
     }
 
     /// A later frame: warm start from the previous solution inside the step-bounded box.

@@ -220,9 +220,18 @@ fn batch_mapping_matches_sequential_mapping_and_reports_progress() {
     )
     .unwrap();
     assert_eq!(calls.load(Ordering::Relaxed), 3);
+    // The batch starts every demonstration from one reference posture; sequential mapping given
+    // that same reference (taken from the first demonstration, on a fresh mapper) is the batch.
+    let reference = batch_reference(
+        &mut mapper(&sys, Weights::default()),
+        &anchor,
+        &items,
+        &cancel,
+    )
+    .expect("the first demonstration is valid");
     for (d, r) in demos.iter().zip(out) {
         let seq = mapper(&sys, Weights::default())
-            .map(d, &spec, &anchor)
+            .map_from(d, &spec, &anchor, &reference)
             .unwrap();
         assert_eq!(
             r.unwrap(),
@@ -249,6 +258,160 @@ fn batch_mapping_matches_sequential_mapping_and_reports_progress() {
             total: 3
         }
     );
+}
+
+/// Largest range (max − min over demonstrations) of any joint's first-frame value.
+fn first_frame_spread(trajs: &[MappedTrajectory]) -> f64 {
+    let nq = trajs[0].nq();
+    (0..nq)
+        .map(|j| {
+            let v = trajs.iter().map(|t| t.frame(0)[j]);
+            v.clone().fold(f64::NEG_INFINITY, f64::max) - v.fold(f64::INFINITY, f64::min)
+        })
+        .fold(0.0, f64::max)
+}
+
+fn batch(sys: &System, demos: &[Vec<HumanFrame>], options: SolverOptions) -> Vec<MappedTrajectory> {
+    let mm = MappingModel::from_system(sys).unwrap();
+    let spec = RegistrationSpec::default();
+    let items: Vec<BatchItem> = demos
+        .iter()
+        .map(|d| BatchItem {
+            frames: d,
+            registration: &spec,
+        })
+        .collect();
+    map_batch(
+        &mm,
+        &mm.anchor(),
+        &items,
+        Weights::default(),
+        options,
+        2,
+        &|_, _| {},
+        &AtomicBool::new(false),
+    )
+    .unwrap()
+    .into_iter()
+    .map(Result::unwrap)
+    .collect()
+}
+
+/// Humanlike across a batch: the synthetic subjects start every trial from near-identical rest
+/// poses, so one batch maps them to near-identical robot postures instead of to different IK
+/// branches. Mapped alone, the first frames of these 10 demonstrations spread over several rad.
+#[test]
+fn a_batch_maps_near_identical_rest_poses_to_near_identical_first_postures() {
+    let demos = demos(10, 1);
+    for name in SYSTEMS.iter().copied().filter(|&n| n != "wam_ihy") {
+        let sys = system(name);
+        let mm = MappingModel::from_system(&sys).unwrap();
+        let spec = RegistrationSpec::default();
+        let alone: Vec<MappedTrajectory> = demos
+            .iter()
+            .map(|d| {
+                mapper(&sys, Weights::default())
+                    .map(d, &spec, &mm.anchor())
+                    .unwrap()
+            })
+            .collect();
+        let trajs = batch(&sys, &demos, SolverOptions::default());
+        let (spread, spread_alone) = (first_frame_spread(&trajs), first_frame_spread(&alone));
+        println!("{name}: first-frame spread {spread:.3} rad in a batch, {spread_alone:.3} alone");
+        assert!(
+            spread < FIRST_FRAME_SPREAD_BOUND,
+            "{name}: spread {spread} rad"
+        );
+        // wam_ob4f has a single branch here: both spreads are the same to 1e-3 rad.
+        assert!(
+            spread <= spread_alone + 0.01,
+            "{name}: {spread} vs {spread_alone}"
+        );
+        let f = |t: &[MappedTrajectory]| {
+            let mut v: Vec<f64> = t.iter().map(|t| t.metrics[0].objective).collect();
+            v.sort_by(f64::total_cmp);
+            (
+                v[v.len() / 2],
+                v[v.len() - 1],
+                t.iter().filter(|t| !t.metrics[0].converged).count(),
+            )
+        };
+        let ((med, max, unconv), (med_a, max_a, unconv_a)) = (f(&trajs), f(&alone));
+        println!(
+            "   F median / max / unconverged: batch {med:.3e} / {max:.3e} / {unconv}, alone {med_a:.3e} / {max_a:.3e} / {unconv_a}"
+        );
+        // Consistency costs (next to) no accuracy: the local optima are as good as the global
+        // ones. (The `converged` flag at the 1e-7 first-frame tolerance differs by a frame or
+        // two either way, so it is printed, not compared.)
+        assert!(med <= 1.05 * med_a && max <= 1.05 * max_a, "{name}");
+    }
+}
+
+/// Measured 0.23-0.52 rad on `demos(10, 1)` (5 subjects × 2 positions; the rest poses differ by
+/// subject, so a few tenths remain). wam_ihy is left out: across subjects its batch still splits
+/// into two wrist branches (joint5 ≈ −1.2 vs −3.7 rad, spread 2.7 rad; see the probe below).
+const FIRST_FRAME_SPREAD_BOUND: f64 = 0.6;
+
+/// Tuning probe (not a check): per system, the first-frame spread mapped alone vs in a batch,
+/// and the ratio of the local (from the reference) to the multi-start first-frame objective.
+#[test]
+#[ignore]
+fn probe_first_frame_reference() {
+    let demos = demos(25, 1);
+    for name in SYSTEMS {
+        let sys = system(name);
+        let mm = MappingModel::from_system(&sys).unwrap();
+        let anchor = mm.anchor();
+        let spec = RegistrationSpec::default();
+        let alone: Vec<MappedTrajectory> = demos
+            .iter()
+            .map(|d| {
+                mapper(&sys, Weights::default())
+                    .map(d, &spec, &anchor)
+                    .unwrap()
+            })
+            .collect();
+        let never = SolverOptions {
+            first_frame_fallback: 1e300,
+            ..SolverOptions::default()
+        };
+        let local = batch(&sys, &demos, never);
+        let with = batch(&sys, &demos, SolverOptions::default());
+        let mut ratios: Vec<f64> = local
+            .iter()
+            .zip(&alone)
+            .map(|(l, a)| l.metrics[0].objective / a.metrics[0].objective)
+            .collect();
+        ratios.sort_by(f64::total_cmp);
+        let fell_back = with
+            .iter()
+            .zip(&local)
+            .filter(|(w, l)| w.frame(0) != l.frame(0))
+            .count();
+        println!(
+            "{name}: spread alone {:.3}, batch (no fallback) {:.3}, batch {:.3}; local/multi F ratio min {:.3} median {:.3} max {:.3}; fell back {fell_back}/{}",
+            first_frame_spread(&alone),
+            first_frame_spread(&local),
+            first_frame_spread(&with),
+            ratios[0],
+            ratios[ratios.len() / 2],
+            ratios[ratios.len() - 1],
+            demos.len()
+        );
+        for (j, name) in with[0].joint_names.iter().enumerate() {
+            let v: Vec<f64> = with.iter().map(|t| t.frame(0)[j]).collect();
+            let r = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+                - v.iter().cloned().fold(f64::INFINITY, f64::min);
+            if r > 0.1 {
+                println!(
+                    "   {name} range {r:.3}: {:?}",
+                    v.iter()
+                        .map(|x| (x * 100.0).round() / 100.0)
+                        .collect::<Vec<_>>()
+                );
+            }
+        }
+    }
 }
 
 #[test]

@@ -7,7 +7,7 @@ use super::MappingError;
 use super::goals::finger_goals;
 use super::objective::{FrameGoals, MappingModel, Weights};
 use super::registration::{ArmPoints, Registration, RegistrationSpec, RobotAnchor};
-use super::solve::{FrameMetrics, Mapper, SolverOptions};
+use super::solve::{FrameMetrics, Mapper, SolverOptions, StartReference};
 use crate::human::HumanFrame;
 
 /// A demonstration mapped onto the robot.
@@ -55,23 +55,64 @@ impl Mapper {
         out.elbow = reg.point(&frame.elbow);
     }
 
-    /// Maps a whole demonstration.
+    /// Maps a whole demonstration on its own: its first frame is solved by the multi-start.
     pub fn map(
         &mut self,
         frames: &[HumanFrame],
         spec: &RegistrationSpec,
         robot: &RobotAnchor,
     ) -> Result<MappedTrajectory, MappingError> {
-        self.map_cancellable(frames, spec, robot, &AtomicBool::new(false))
+        self.map_cancellable(frames, spec, robot, None, &AtomicBool::new(false))
             .expect("never cancelled")
     }
 
-    /// [`Self::map`], polling `cancel` between frames (`None` once cancelled).
+    /// Maps a demonstration of a batch: its first frame is solved from the batch's reference
+    /// posture ([`Self::solve_first_from`]). This is what [`map_batch`] does per demonstration.
+    pub fn map_from(
+        &mut self,
+        frames: &[HumanFrame],
+        spec: &RegistrationSpec,
+        robot: &RobotAnchor,
+        reference: &StartReference,
+    ) -> Result<MappedTrajectory, MappingError> {
+        self.map_cancellable(
+            frames,
+            spec,
+            robot,
+            Some(reference),
+            &AtomicBool::new(false),
+        )
+        .expect("never cancelled")
+    }
+
+    /// The reference first-frame posture of a batch led by this demonstration: the multi-start
+    /// solution of its first frame (the same frame [`Self::map`] would start with).
+    pub fn start_reference(
+        &mut self,
+        frames: &[HumanFrame],
+        spec: &RegistrationSpec,
+        robot: &RobotAnchor,
+    ) -> Result<StartReference, MappingError> {
+        let reg = registration_for(frames, spec, robot)?;
+        let first = frames.first().ok_or(MappingError::EmptyDemonstration)?;
+        check_frame(0, first)?;
+        let mut goals = FrameGoals::default();
+        self.goals(first, &reg, &mut goals);
+        let m = self.solve_first(&goals, first.t);
+        Ok(StartReference {
+            q: self.q.clone(),
+            objective: m.objective,
+        })
+    }
+
+    /// [`Self::map`] (`reference: None`) or [`Self::map_from`], polling `cancel` between frames
+    /// (`None` once cancelled).
     pub fn map_cancellable(
         &mut self,
         frames: &[HumanFrame],
         spec: &RegistrationSpec,
         robot: &RobotAnchor,
+        reference: Option<&StartReference>,
         cancel: &AtomicBool,
     ) -> Option<Result<MappedTrajectory, MappingError>> {
         let reg = match registration_for(frames, spec, robot) {
@@ -103,10 +144,12 @@ impl Mapper {
                 }));
             }
             self.goals(frame, &reg, &mut goals);
-            let metrics = if k == 0 {
-                self.solve_first(&goals, frame.t)
-            } else {
+            let metrics = if k > 0 {
                 self.solve_next(&goals, frame.t, frame.t - frames[k - 1].t)
+            } else if let Some(r) = reference {
+                self.solve_first_from(&goals, frame.t, r)
+            } else {
+                self.solve_first(&goals, frame.t)
             };
             out.times.push(frame.t);
             out.positions.extend_from_slice(&self.q);
@@ -202,6 +245,25 @@ pub fn resample_frames(frames: &[HumanFrame], rate_hz: f64) -> Vec<HumanFrame> {
         .collect()
 }
 
+/// The reference first-frame posture of a batch: [`Mapper::start_reference`] of the first
+/// demonstration whose registration and first frame are valid (`None` if there is none, or once
+/// `cancel` is set; the demonstrations then fail or are cancelled on their own).
+pub fn batch_reference(
+    mapper: &mut Mapper,
+    robot: &RobotAnchor,
+    items: &[BatchItem<'_>],
+    cancel: &AtomicBool,
+) -> Option<StartReference> {
+    items.iter().find_map(|item| {
+        if cancel.load(Ordering::Relaxed) {
+            return None;
+        }
+        mapper
+            .start_reference(item.frames, item.registration, robot)
+            .ok()
+    })
+}
+
 /// One demonstration of a batch.
 #[derive(Clone, Copy, Debug)]
 pub struct BatchItem<'a> {
@@ -220,6 +282,11 @@ pub struct Cancelled {
 /// Maps many demonstrations across `threads` workers (each with its own [`Mapper`]), in input
 /// order. `progress(done, total)` is called after each demonstration; `cancel` is polled between
 /// demonstrations and between frames of one.
+///
+/// The batch is mapped consistently: first, on the calling thread, one reference posture
+/// ([`batch_reference`]: the multi-start solution of the first valid demonstration's first
+/// frame); then every demonstration, in parallel, starts from it ([`Mapper::map_from`]). So the
+/// result of each demonstration depends on the batch's first valid one, never on scheduling.
 #[allow(clippy::too_many_arguments)]
 pub fn map_batch(
     mm: &MappingModel,
@@ -232,6 +299,12 @@ pub fn map_batch(
     cancel: &AtomicBool,
 ) -> Result<Vec<Result<MappedTrajectory, MappingError>>, Cancelled> {
     let total = items.len();
+    let reference = match Mapper::new(mm.clone(), weights, options) {
+        Ok(mut m) => batch_reference(&mut m, robot, items, cancel),
+        // Reported per item by the workers below.
+        Err(_) => None,
+    };
+    let reference = reference.as_ref();
     let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
     let threads = threads.clamp(1, total.max(1));
@@ -268,6 +341,7 @@ pub fn map_batch(
                                 item.frames,
                                 item.registration,
                                 robot,
+                                reference,
                                 cancel,
                             );
                             match r {
