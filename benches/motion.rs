@@ -1,12 +1,15 @@
 //! Motion model benchmarks: training on the default-size synthetic study (250 demonstrations of
 //! 100 frames, arm 7 + hand 4 joints; target ≤ 2 s), one trajectory (≤ 2 ms) and one
-//! evaluation of the closed-loop law (≤ 5 µs).
+//! evaluation of the closed-loop law (≤ 5 µs). Trained as `POST /v1/models` trains by default,
+//! with the residual profile; `train_250_demos_plain_nf` is the same without it.
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use reachgrasp::motion::synthetic::{SyntheticStudy, curved_study};
-use reachgrasp::motion::{Components, TrainOptions, TrajectoryOptions, train};
+use reachgrasp::motion::{
+    Components, DEFAULT_PROFILE_RIDGE, TrainOptions, TrajectoryOptions, train,
+};
 
 fn bench(c: &mut Criterion) {
     let data = curved_study(&SyntheticStudy {
@@ -18,12 +21,20 @@ fn bench(c: &mut Criterion) {
     let opts = TrainOptions {
         groups: data.groups.clone(),
         components: Components::VarianceThreshold(0.97),
+        profile_ridge: Some(DEFAULT_PROFILE_RIDGE),
         ..TrainOptions::default()
+    };
+    let plain = TrainOptions {
+        profile_ridge: None,
+        ..opts.clone()
     };
     let mut group = c.benchmark_group("motion");
     group.sample_size(10);
     group.bench_function("train_250_demos", |b| {
         b.iter(|| train(black_box(&data.demos), &data.limits, &opts).unwrap())
+    });
+    group.bench_function("train_250_demos_plain_nf", |b| {
+        b.iter(|| train(black_box(&data.demos), &data.limits, &plain).unwrap())
     });
     group.finish();
 
