@@ -445,30 +445,7 @@ fn arc_fractions(points: &[f64], d: usize, out: &mut Vec<f64>) -> f64 {
 
 /// Resample a polyline (`len × d`) at `count` points equally spaced in arc length.
 fn resample(points: &[f64], d: usize, count: usize, out: &mut Vec<f64>) {
-    let mut frac = Vec::new();
-    let total = arc_fractions(points, d, &mut frac);
-    out.clear();
-    let len = frac.len();
-    let mut seg = 0;
-    for m in 0..count {
-        let s = m as f64 / (count - 1) as f64;
-        if total <= 0.0 || len == 1 {
-            out.extend_from_slice(&points[..d]);
-            continue;
-        }
-        while seg + 2 < len && frac[seg + 1] < s {
-            seg += 1;
-        }
-        let (a, b) = (frac[seg], frac[seg + 1]);
-        let t = if b > a {
-            ((s - a) / (b - a)).clamp(0.0, 1.0)
-        } else {
-            1.0
-        };
-        for k in 0..d {
-            out.push(points[seg * d + k] * (1.0 - t) + points[(seg + 1) * d + k] * t);
-        }
-    }
+    resample_along(points, d, points, d, count, out);
 }
 
 /// Mean joint-space deviation between two paths (`len × n` polylines) after resampling both
