@@ -286,7 +286,19 @@ pub async fn save_progress(
     .bind(id)
     .execute(&mut *tx)
     .await?;
-    if r.rows_affected() != 1 {
+    append_history_and_commit(tx, r.rows_affected(), id, history).await
+}
+
+/// The common end of [`save_progress`] and [`finish`]: when their state update touched the
+/// execution's row, append the history chunk and commit; otherwise drop the transaction (nothing
+/// written) and answer false.
+async fn append_history_and_commit(
+    mut tx: sqlx::Transaction<'_, sqlx::Sqlite>,
+    rows_affected: u64,
+    id: &str,
+    history: Option<&Chunk>,
+) -> Result<bool, sqlx::Error> {
+    if rows_affected != 1 {
         return Ok(false);
     }
     if let Some(c) = history {
@@ -322,14 +334,7 @@ pub async fn finish(
     .bind(id)
     .execute(&mut *tx)
     .await?;
-    if r.rows_affected() != 1 {
-        return Ok(false);
-    }
-    if let Some(c) = history {
-        feedback::write_chunk(&mut tx, id, c).await?;
-    }
-    tx.commit().await?;
-    Ok(true)
+    append_history_and_commit(tx, r.rows_affected(), id, history).await
 }
 
 pub async fn set_cancel_requested(pool: &SqlitePool, id: &str) -> Result<(), sqlx::Error> {
