@@ -223,32 +223,43 @@ fn cost_gradient_and_constraint_jacobian_match_central_differences() {
             );
         }
         let nr = e.n_eq() + e.n_ineq();
-        let mut r0 = vec![0.0; nr];
-        let mut rp = vec![0.0; nr];
-        let mut rm = vec![0.0; nr];
-        e.residuals(&u, &mut r0);
         // J^T e_r for every residual r, against differences of that residual.
         for row in 0..nr {
-            let mut d = vec![0.0; nr];
-            d[row] = 1.0;
-            let mut jt = vec![0.0; n];
-            e.jacobian_t(&u, &d, &mut jt);
-            for k in 0..n {
-                let mut up = u.clone();
-                let mut um = u.clone();
-                up[k] += h;
-                um[k] -= h;
-                e.residuals(&up, &mut rp);
-                e.residuals(&um, &mut rm);
-                let fd = (rp[row] - rm[row]) / (2.0 * h);
-                assert!(
-                    (jt[k] - fd).abs() < 1e-5,
-                    "residual {row} u[{k}]: {} vs {fd}",
-                    jt[k]
-                );
-            }
+            assert_row_matches_central_differences(&mut e, &u, row, h, 1e-5, "residual");
         }
     }
+}
+
+/// `Jᵀ e_row` of residual `row` at `u` against central differences of that residual (step `h`,
+/// absolute tolerance `tol`); returns the analytic column for further checks.
+fn assert_row_matches_central_differences(
+    e: &mut Eval<'_>,
+    u: &[f64],
+    row: usize,
+    h: f64,
+    tol: f64,
+    what: &str,
+) -> Vec<f64> {
+    let (n, nr) = (e.n(), e.n_eq() + e.n_ineq());
+    let (mut rp, mut rm) = (vec![0.0; nr], vec![0.0; nr]);
+    let mut d = vec![0.0; nr];
+    d[row] = 1.0;
+    let mut jt = vec![0.0; n];
+    e.jacobian_t(u, &d, &mut jt);
+    for k in 0..n {
+        let (mut up, mut um) = (u.to_vec(), u.to_vec());
+        up[k] += h;
+        um[k] -= h;
+        e.residuals(&up, &mut rp);
+        e.residuals(&um, &mut rm);
+        let fd = (rp[row] - rm[row]) / (2.0 * h);
+        assert!(
+            (jt[k] - fd).abs() < tol,
+            "{what} {row} u[{k}]: {} vs {fd}",
+            jt[k]
+        );
+    }
+    jt
 }
 
 /// The finger-finger rows on a three-finger hand (WAM + iHY: three pairs), at hand
@@ -278,31 +289,16 @@ fn finger_separation_rows_match_central_differences() {
                 l + (u - l) * if k < sys.arm_joints.len() { 0.4 } else { t }
             })
             .collect();
-        let (mut r0, mut rp, mut rm) = (vec![0.0; nr], vec![0.0; nr], vec![0.0; nr]);
+        let mut r0 = vec![0.0; nr];
         e.residuals(&u, &mut r0);
-        for row in k0..nr {
-            closest = closest.min(FINGER_CLEARANCE - r0[row]);
-            let mut d = vec![0.0; nr];
-            d[row] = 1.0;
-            let mut jt = vec![0.0; n];
-            e.jacobian_t(&u, &d, &mut jt);
+        for (row, r) in r0.iter().enumerate().skip(k0) {
+            closest = closest.min(FINGER_CLEARANCE - r);
+            let what = format!("t {t} pair row");
+            let jt = assert_row_matches_central_differences(&mut e, &u, row, h, 1e-6, &what);
             assert!(
                 jt.iter().any(|v| v.abs() > 1e-3),
                 "row {row} has no gradient"
             );
-            for k in 0..n {
-                let (mut up, mut um) = (u.clone(), u.clone());
-                up[k] += h;
-                um[k] -= h;
-                e.residuals(&up, &mut rp);
-                e.residuals(&um, &mut rm);
-                let fd = (rp[row] - rm[row]) / (2.0 * h);
-                assert!(
-                    (jt[k] - fd).abs() < 1e-6,
-                    "t {t} pair row {row} u[{k}]: {} vs {fd}",
-                    jt[k]
-                );
-            }
         }
     }
     println!(

@@ -290,14 +290,18 @@ async fn setup(app: &TestApp) -> Study {
 
 /// Trains a model on the study's mapping; `residual_profile` false gives the plain NF path.
 async fn train_model(app: &TestApp, study: &Study, residual_profile: bool) -> Value {
-    let res = app
-        .post_json(
-            "/v1/models",
-            &json!({"robot": ROBOT, "mappings": [study.mapping], "variance_threshold": 0.97,
-                    "spline_intervals": 6, "regularisation": 3.0, "k": "auto",
-                    "residual_profile": residual_profile}),
-        )
-        .await;
+    submit_model(
+        app,
+        &json!({"robot": ROBOT, "mappings": [study.mapping], "variance_threshold": 0.97,
+                "spline_intervals": 6, "regularisation": 3.0, "k": "auto",
+                "residual_profile": residual_profile}),
+    )
+    .await
+}
+
+/// Submits a training request, waits for its job to succeed and returns the model.
+async fn submit_model(app: &TestApp, body: &Value) -> Value {
+    let res = app.post_json("/v1/models", body).await;
     assert_eq!(res.status(), 202);
     let model_href = res.headers()["content-location"]
         .to_str()
@@ -535,25 +539,12 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
 async fn the_default_model_shapes_paths_with_its_residual_profile() {
     let app = app().await;
     let study = setup(&app).await;
-    let res = app
-        .post_json(
-            "/v1/models",
-            &json!({"robot": ROBOT, "mappings": [study.mapping], "variance_threshold": 0.97}),
-        )
-        .await;
-    assert_eq!(res.status(), 202);
-    let href = res.headers()["content-location"]
-        .to_str()
-        .unwrap()
-        .to_owned();
-    let job: Value = res.json().await.unwrap();
-    let done = app
-        .wait_job(job["id"].as_str().unwrap(), |j| {
-            j["status"] != "queued" && j["status"] != "running"
-        })
-        .await;
-    assert_eq!(done["status"], "succeeded", "{done}");
-    let shaped: Value = app.get(&href).await.json().await.unwrap();
+    // no residual_profile field: the default
+    let shaped = submit_model(
+        &app,
+        &json!({"robot": ROBOT, "mappings": [study.mapping], "variance_threshold": 0.97}),
+    )
+    .await;
     for m in shaped["report"]["manifolds"].as_array().unwrap() {
         assert_eq!(m["residual_profile_ridge"], 0.1, "{m}");
     }
