@@ -22,7 +22,7 @@ use reachgrasp::mapping::{
     BatchItem, MappingModel, RegistrationSpec, SolverOptions, Weights, map_batch,
 };
 use reachgrasp::motion::mapped::{DEFAULT_ACCELERATION_LIMIT, system_groups, system_limits};
-use reachgrasp::motion::{DEFAULT_PROFILE_RIDGE, JointTrajectory, TrainOptions};
+use reachgrasp::motion::{DEFAULT_PROFILE_RIDGE, JointTrajectory, ProfileInputs, TrainOptions};
 
 const SYSTEMS: [&str; 6] = [
     "wam_t42",
@@ -42,11 +42,18 @@ fn main() {
     let profile = if std::env::var_os("NO_PROFILE").is_some() {
         None
     } else {
-        Some(DEFAULT_PROFILE_RIDGE)
+        Some(env_or("PROFILE_RIDGE", DEFAULT_PROFILE_RIDGE))
     };
+    let profile_inputs: ProfileInputs = std::env::var("PROFILE_INPUTS")
+        .map(|v| serde_json::from_value(serde_json::Value::String(v)).expect("profile inputs"))
+        .unwrap_or_default();
+    let defaults = TrainOptions::default();
+    let goal_margin = env_or("GOAL_MARGIN", defaults.goal_margin);
+    let workspace_margin = env_or("WORKSPACE_MARGIN", defaults.workspace_margin);
     let cfg = StudyConfig {
         subjects: args.first().copied().unwrap_or(2),
         trials: args.get(1).copied().unwrap_or(5),
+        seed: env_or("SEED", 1.0) as u64,
         ..StudyConfig::default()
     };
     let t0 = Instant::now();
@@ -103,6 +110,9 @@ fn main() {
             groups: system_groups(&sys),
             cap_spline_intervals: true,
             profile_ridge: profile,
+            profile_inputs,
+            goal_margin,
+            workspace_margin,
             ..TrainOptions::default()
         };
         let summary =
@@ -144,4 +154,9 @@ fn main() {
             ),
         }
     }
+}
+
+/// A number from the environment, or `default`.
+fn env_or(name: &str, default: f64) -> f64 {
+    std::env::var(name).map_or(default, |v| v.parse().expect("a number"))
 }

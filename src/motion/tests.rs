@@ -365,14 +365,17 @@ fn nf_model_beats_both_baselines_on_held_out_mapped_demonstrations() {
         "all folds: NF / joint line {:.3}, {used} demonstrations",
         nf / jl
     );
+    // 20 of 20 planned and 0.624 when written (all folds; the full study's table is in
+    // `examples/motion_heldout.rs`): the goal of 0.7 holds here with a margin.
     assert!(
-        used >= 10,
+        used >= 18,
         "only {used} held-out demonstrations were planned"
     );
     assert!(
         nf < jl && nf < pl,
         "NF {nf} vs joint line {jl}, PCA line {pl}"
     );
+    assert!(nf / jl <= 0.7, "NF / joint line {:.3}", nf / jl);
 }
 
 #[test]
@@ -560,4 +563,42 @@ fn capped_spline_intervals_fit_the_budget_where_the_requested_ones_would_not() {
         assert!(TensorBSpline::coefficient_count(4, i + 1) > MAX_SPLINE_COEFFICIENTS);
         assert!(m.certificate.holds);
     }
+}
+
+#[test]
+fn a_profile_stored_before_profile_inputs_existed_reads_as_group_delta() {
+    let data = small_study(9);
+    let opts = TrainOptions {
+        profile_ridge: Some(DEFAULT_PROFILE_RIDGE),
+        profile_inputs: ProfileInputs::GroupDelta,
+        ..options(&data, None)
+    };
+    let (model, _) = train(&data.demos, &data.limits, &opts).unwrap();
+    let mut stored = serde_json::to_value(&model).unwrap();
+    for m in stored["manifolds"].as_array_mut().unwrap() {
+        let p = m["profile"].as_object_mut().unwrap();
+        assert_eq!(p.remove("inputs"), Some(serde_json::json!("group_delta")));
+    }
+    let old: MotionModel = serde_json::from_value(stored).unwrap();
+    assert_eq!(old, model);
+    // and the default is a different feature set, which changes the path
+    let (all_ends, _) = train(
+        &data.demos,
+        &data.limits,
+        &TrainOptions {
+            profile_inputs: ProfileInputs::default(),
+            ..opts
+        },
+    )
+    .unwrap();
+    let n = model.n_joints;
+    let start = data.demos[0].frame(0, n).to_vec();
+    let goal = data.demos[20]
+        .frame(data.demos[20].frames() - 1, n)
+        .to_vec();
+    let o = TrajectoryOptions::default();
+    let a = model.path_positions(&start, &goal, &o).unwrap();
+    let b = all_ends.path_positions(&start, &goal, &o).unwrap();
+    assert_eq!(ProfileInputs::default(), ProfileInputs::AllEnds);
+    assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 1e-9));
 }
