@@ -172,6 +172,10 @@ pub struct ManifoldDto {
     /// Ridge of the learned residual profile that shapes this group's paths; absent when the
     /// model was trained without one (`residual_profile: false`).
     pub residual_profile_ridge: Option<f64>,
+    /// What the residual profile is linear in: `all_ends` (start and goal of all joints, what
+    /// the service trains) or `group_delta` (goal − start of the group's joints: models trained
+    /// before the choice existed); absent without a profile.
+    pub residual_profile_inputs: Option<String>,
     pub certificate: CertificateDto,
     pub goal_region: GoalRegionDto,
 }
@@ -826,6 +830,11 @@ fn model_report(
                 spline_intervals: m.nf.spline.intervals(),
                 train_alignment: fit.train_alignment,
                 residual_profile_ridge: m.profile.as_ref().map(|p| p.ridge),
+                residual_profile_inputs: m.profile.as_ref().and_then(|p| {
+                    serde_json::to_value(p.inputs)
+                        .ok()
+                        .and_then(|v| v.as_str().map(str::to_owned))
+                }),
                 certificate: certificate_dto(group_name(ng, g), &m.certificate),
                 goal_region: GoalRegionDto {
                     group: group_name(ng, g),

@@ -547,10 +547,12 @@ async fn the_default_model_shapes_paths_with_its_residual_profile() {
     .await;
     for m in shaped["report"]["manifolds"].as_array().unwrap() {
         assert_eq!(m["residual_profile_ridge"], 0.1, "{m}");
+        assert_eq!(m["residual_profile_inputs"], "all_ends", "{m}");
     }
     let plain = train_model(&app, &study, false).await;
     for m in plain["report"]["manifolds"].as_array().unwrap() {
         assert!(m["residual_profile_ridge"].is_null(), "{m}");
+        assert!(m["residual_profile_inputs"].is_null(), "{m}");
     }
     let (start, goal) = study.ends[3].clone();
     let names = &study.joint_names;
