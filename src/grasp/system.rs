@@ -71,6 +71,19 @@ pub struct LinkSphere {
     pub center: Vector3<f64>,
     /// Radius.
     pub radius: f64,
+    /// The finger the link belongs to (`None`: the palm, the wrist, or links several fingers
+    /// share).
+    pub finger: Option<usize>,
+}
+
+/// A link sphere of one finger and a sphere of another finger, kept disjoint by the grasp
+/// optimiser (fingers must not pass through each other).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkPair {
+    /// Two link spheres (indices into [`HandArm::link_spheres`]).
+    Links(usize, usize),
+    /// A link sphere and another finger's contact sphere (finger index).
+    Tip(usize, usize),
 }
 
 /// The arm-hand system as the grasp optimiser sees it.
@@ -96,6 +109,12 @@ pub struct HandArm {
     pub elbow: Option<FrameId>,
     /// Link spheres kept out of the object and above the support plane (eq. 29).
     pub link_spheres: Vec<LinkSphere>,
+    /// Spheres of different fingers kept apart (besides the contact spheres, which the
+    /// optimiser keeps apart pairwise).
+    pub link_pairs: Vec<LinkPair>,
+    /// Every separable pair of spheres of different fingers, first links included: the grasp
+    /// starts' preshape avoids crossing fingers by these.
+    pub crossing_pairs: Vec<LinkPair>,
 }
 
 /// Sample a collision shape by spheres: balls as themselves, capsules and cylinders along
@@ -163,7 +182,66 @@ fn spheres_of(
     }
 }
 
+/// Gap between the two spheres of a link pair at the posture in `data` (m; < 0: overlap).
+fn pair_gap(h: &HandArm, spheres: &[LinkSphere], data: &Data, p: LinkPair) -> f64 {
+    let at = |s: &LinkSphere| data.frame(s.frame) * Point3::from(s.center);
+    let (a, c, r) = match p {
+        LinkPair::Links(a, b) => (a, at(&spheres[b]), spheres[b].radius),
+        LinkPair::Tip(a, f) => {
+            let fi = &h.fingers[f];
+            (
+                a,
+                data.frame(fi.tip) * Point3::from(fi.tip_offset),
+                fi.radius,
+            )
+        }
+    };
+    (at(&spheres[a]) - c).norm() - spheres[a].radius - r
+}
+
+/// The finger a link frame belongs to: walking from `frame` towards the root, the first frame
+/// on exactly one finger's chain names it; a frame on several chains (palm, wrist) first, or on
+/// none, belongs to no finger.
+fn finger_of(model: &Model, frame: FrameId, chains: &[Vec<FrameId>]) -> Option<usize> {
+    let mut fr = Some(frame);
+    while let Some(f) = fr {
+        let mut on = chains.iter().enumerate().filter(|(_, c)| c.contains(&f));
+        match (on.next(), on.next()) {
+            (Some((i, _)), None) => return Some(i),
+            (Some(_), Some(_)) => return None,
+            _ => fr = model.frame_parent(f),
+        }
+    }
+    None
+}
+
+/// How many moving joints of its own finger carry `frame` (1: the finger's first link, which
+/// sits on the palm).
+fn finger_depth(model: &Model, frame: FrameId, chains: &[Vec<FrameId>]) -> usize {
+    let mut depth = 0;
+    let mut fr = Some(frame);
+    while let Some(f) = fr {
+        if chains.iter().filter(|c| c.contains(&f)).count() >= 2 {
+            break;
+        }
+        if model.joint_of_frame(f).is_some_and(|j| !j.kind.is_fixed()) {
+            depth += 1;
+        }
+        fr = model.frame_parent(f);
+    }
+    depth
+}
+
 impl HandArm {
+    /// Smallest gap over the crossing pairs at the posture in `data` (forward kinematics done;
+    /// m, < 0: overlap; infinite without pairs).
+    pub fn min_crossing_gap(&self, data: &Data) -> f64 {
+        self.crossing_pairs
+            .iter()
+            .map(|&p| pair_gap(self, &self.link_spheres, data, p))
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// Collect the link spheres of eq. 29 from the model's collision shapes: every link moved by
     /// a hand joint, plus links moved by any of the last `wrist_joints` arm joints (the parts
     /// that come near the object and the table). Spheres on a fingertip link that overlap its
@@ -204,6 +282,20 @@ impl HandArm {
                 body
             })
             .collect();
+        // Each finger's kinematic chain: its tip frame and every ancestor.
+        let chains: Vec<Vec<FrameId>> = self
+            .fingers
+            .iter()
+            .map(|f| {
+                let mut chain = vec![f.tip];
+                let mut fr = f.tip;
+                while let Some(p) = model.frame_parent(fr) {
+                    chain.push(p);
+                    fr = p;
+                }
+                chain
+            })
+            .collect();
         let mut data = Data::new(model);
         forward_kinematics(model, &mut data, &model.neutral());
         let mut spheres = Vec::new();
@@ -233,11 +325,65 @@ impl HandArm {
                         frame: c.frame,
                         center,
                         radius,
+                        finger: finger_of(model, c.frame, &chains),
                     });
                 }
             }
         }
+        // Pairs of spheres on different fingers. A pair that overlaps in every posture of a
+        // sweep from the open to the closed hand (all hand joints at the same fraction of their
+        // range) is part of the hand's design: no posture could separate it. The optimiser's rows
+        // also leave out a finger's first link (the one on the palm): the bundled OB4F's thumb
+        // and middle finger bases are 10 mm apart and their first two links' spheres 16 mm
+        // across, so with them no ball grasp was found; the starts' preshape still uses them to
+        // tell crossed fingers.
+        let depth: Vec<usize> = spheres
+            .iter()
+            .map(|s| finger_depth(model, s.frame, &chains))
+            .collect();
+        let mut candidates = Vec::new();
+        for (a, sa) in spheres.iter().enumerate() {
+            let Some(fa) = sa.finger else { continue };
+            for (b, sb) in spheres.iter().enumerate().skip(a + 1) {
+                if sb.finger.is_some_and(|fb| fb != fa) {
+                    candidates.push(LinkPair::Links(a, b));
+                }
+            }
+            for f in 0..self.fingers.len() {
+                if f != fa {
+                    candidates.push(LinkPair::Tip(a, f));
+                }
+            }
+        }
+        let mut separable = vec![false; candidates.len()];
+        let (lo, hi) = (model.lower_limits(), model.upper_limits());
+        let mut q = model.neutral();
+        for frac in [0.0, 0.25, 0.5, 0.75, 1.0] {
+            for &h in &self.hand_joints {
+                if lo[h].is_finite() && hi[h].is_finite() {
+                    q[h] = lo[h] + frac * (hi[h] - lo[h]);
+                }
+            }
+            forward_kinematics(model, &mut data, &q);
+            for (ok, &p) in separable.iter_mut().zip(&candidates) {
+                *ok |= pair_gap(self, &spheres, &data, p) > super::optimizer::FINGER_CLEARANCE;
+            }
+        }
+        let crossing: Vec<LinkPair> = candidates
+            .into_iter()
+            .zip(separable)
+            .filter_map(|(p, ok)| ok.then_some(p))
+            .collect();
+        self.link_pairs = crossing
+            .iter()
+            .copied()
+            .filter(|p| match *p {
+                LinkPair::Links(a, b) => depth[a].min(depth[b]) > 1,
+                LinkPair::Tip(a, _) => depth[a] > 1,
+            })
+            .collect();
         self.link_spheres = spheres;
+        self.crossing_pairs = crossing;
     }
 
     /// The grasp view of a kinematic [`System`]: the wrist frame is the grasp frame, the first
@@ -279,6 +425,8 @@ impl HandArm {
                 .collect(),
             elbow: sys.elbow_frames.first().copied(),
             link_spheres: Vec::new(),
+            link_pairs: Vec::new(),
+            crossing_pairs: Vec::new(),
         };
         h.collect_link_spheres(3);
         h.validate()?;

@@ -217,10 +217,19 @@ async fn setup(app: &TestApp) -> Study {
             fin[k] += last[k] / data.demos.len() as f64;
         }
     }
+    // The demonstrations end around the grasp, pulled 5 % of the range inside the limits where
+    // the grasp sits on one (a T42 finger left straight): mapped around a limit, that joint
+    // would not move at all.
+    let centre: Vec<f64> = (0..n)
+        .map(|j| {
+            let m = 0.05 * (upper[j] - lower[j]);
+            grasp_q[&names[j]].clamp(lower[j] + m, upper[j] - m)
+        })
+        .collect();
     let scale: Vec<f64> = (0..n)
         .map(|k| {
             let j = order[k];
-            let g = grasp_q[&names[j]];
+            let g = centre[j];
             let up = if hi[k] > fin[k] {
                 (upper[j] - g) / (hi[k] - fin[k])
             } else {
@@ -246,7 +255,7 @@ async fn setup(app: &TestApp) -> Study {
         {
             for k in 0..n {
                 let j = order[k];
-                out[j] = grasp_q[&names[j]] + scale[k] * (row[k] - fin[k]);
+                out[j] = centre[j] + scale[k] * (row[k] - fin[k]);
             }
         }
         ends.push((
@@ -345,7 +354,10 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
     assert_eq!(manifolds[0]["group"], "arm");
     assert_eq!(manifolds[1]["group"], "hand");
     for m in manifolds {
-        assert!(m["cumulative_explained_variance"].as_f64().unwrap() >= 0.97);
+        assert!(
+            m["cumulative_explained_variance"].as_f64().unwrap() >= 0.97,
+            "{m}"
+        );
         let c = &m["certificate"];
         assert_eq!(c["holds"], true);
         assert!(c["bound"].as_f64().unwrap() < 2.0 * c["k"].as_f64().unwrap());
