@@ -147,11 +147,18 @@ async fn run() -> anyhow::Result<()> {
     }
     let mut seq = Vec::new();
     let mut feasible = 0;
+    let mut reasons: Vec<String> = Vec::new();
     for _ in 0..4 {
         for b in &bodies {
             let (s, ok, v) = post(&client, &url, b).await;
             anyhow::ensure!(ok, "plan failed: {v}");
             feasible += usize::from(v["feasible"] == true);
+            if v["feasible"] != true {
+                let reason = v["reason"].as_str().unwrap_or("no reason").to_owned();
+                if !reasons.contains(&reason) {
+                    reasons.push(reason);
+                }
+            }
             seq.push(s);
         }
     }
@@ -162,6 +169,9 @@ async fn run() -> anyhow::Result<()> {
         1e3 * percentile(&seq, 0.5),
         1e3 * percentile(&seq, 0.9)
     );
+    for r in &reasons {
+        println!("  infeasible: {r}");
+    }
 
     // 32 concurrent clients.
     let t = Instant::now();
