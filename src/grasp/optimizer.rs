@@ -859,8 +859,8 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
     let (lo, hi) = (model.lower_limits(), model.upper_limits());
     // Hand preshape: mid-range, jittered on later starts. Where fingers cross each other there
     // (the T42's and the iHY's overlap at mid-range) the hand is opened towards the lower limits,
-    // where the bundled hands are open, to the first tenth of the range with the fingers clear:
-    // a start with crossed fingers does not untangle them. A hand that no opening clears (the
+    // where the bundled hands are open, a tenth of the range at a time until the fingers are
+    // clear: a start with crossed fingers does not untangle them. A hand that no opening clears (the
     // OB4F, whose thumb base sits 10 mm from its middle finger's) keeps mid-range.
     let jitter: Vec<f64> = sys
         .hand_joints
