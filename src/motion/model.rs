@@ -204,8 +204,8 @@ pub enum ProfileInputs {
     /// `q_start` and `q_goal` of all joints (the default). Why all joints and both ends: the
     /// hand's opening depends on the arm's transport, and the way a joint bends depends on
     /// where it starts (limits, the posture of the arm), not only on how far it goes. On the
-    /// held-out study (`examples/motion_heldout.rs`) this lowered NF / joint line by 0.02-0.11
-    /// against the group's own `q_goal − q_start` on every system but one (±0.01).
+    /// held-out study (`examples/motion_heldout.rs`) this lowered NF / joint line by 0.015-0.11
+    /// against the group's own `q_goal − q_start` on five of the six systems (pa10_ob4f: +0.006).
     #[default]
     AllEnds,
     /// `q_goal − q_start` of the group's own joints (models stored before the choice existed).
