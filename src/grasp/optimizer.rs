@@ -1287,16 +1287,15 @@ pub(crate) fn describe(
         .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     let pair_row = e.pair_row();
     let link_row = e.link_pair_row();
-    let min_link_sep = r[link_row..]
-        .iter()
-        .map(|v| FINGER_CLEARANCE - v)
-        .fold(f64::INFINITY, f64::min)
-        .min(1.0);
-    let min_sep = r[pair_row..link_row]
-        .iter()
-        .map(|v| FINGER_CLEARANCE - v)
-        .fold(f64::INFINITY, f64::min)
-        .min(1.0);
+    // Rows `r_a + r_b + δ − ‖c_a − c_b‖` → the smallest gap; 1 m without rows.
+    let min_gap = |rows: &[f64]| {
+        rows.iter()
+            .map(|v| FINGER_CLEARANCE - v)
+            .fold(f64::INFINITY, f64::min)
+            .min(1.0)
+    };
+    let min_link_sep = min_gap(&r[link_row..]);
+    let min_sep = min_gap(&r[pair_row..link_row]);
     let plane_pen = r[n_eq + ns + s..pair_row]
         .iter()
         .fold(f64::NEG_INFINITY, |m, &v| m.max(v));

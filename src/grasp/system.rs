@@ -199,37 +199,28 @@ fn pair_gap(h: &HandArm, spheres: &[LinkSphere], data: &Data, p: LinkPair) -> f6
     (at(&spheres[a]) - c).norm() - spheres[a].radius - r
 }
 
-/// The finger a link frame belongs to: walking from `frame` towards the root, the first frame
-/// on exactly one finger's chain names it; a frame on several chains (palm, wrist) first, or on
-/// none, belongs to no finger.
-fn finger_of(model: &Model, frame: FrameId, chains: &[Vec<FrameId>]) -> Option<usize> {
+/// The finger a link frame belongs to, and how many moving joints of that finger carry it (1:
+/// the finger's first link, which sits on the palm). Walking from `frame` towards the root, the
+/// first frame on exactly one finger's chain names it; a frame on several chains (palm, wrist)
+/// ends the walk, and a link reached before any finger's chain belongs to no finger.
+fn finger_of(model: &Model, frame: FrameId, chains: &[Vec<FrameId>]) -> (Option<usize>, usize) {
+    let (mut finger, mut depth) = (None, 0);
     let mut fr = Some(frame);
     while let Some(f) = fr {
         let mut on = chains.iter().enumerate().filter(|(_, c)| c.contains(&f));
         match (on.next(), on.next()) {
-            (Some((i, _)), None) => return Some(i),
-            (Some(_), Some(_)) => return None,
-            _ => fr = model.frame_parent(f),
-        }
-    }
-    None
-}
-
-/// How many moving joints of its own finger carry `frame` (1: the finger's first link, which
-/// sits on the palm).
-fn finger_depth(model: &Model, frame: FrameId, chains: &[Vec<FrameId>]) -> usize {
-    let mut depth = 0;
-    let mut fr = Some(frame);
-    while let Some(f) = fr {
-        if chains.iter().filter(|c| c.contains(&f)).count() >= 2 {
-            break;
+            (Some(_), Some(_)) => break,
+            (Some((i, _)), None) => {
+                finger.get_or_insert(i);
+            }
+            _ => {}
         }
         if model.joint_of_frame(f).is_some_and(|j| !j.kind.is_fixed()) {
             depth += 1;
         }
         fr = model.frame_parent(f);
     }
-    depth
+    (finger, depth)
 }
 
 impl HandArm {
@@ -299,6 +290,8 @@ impl HandArm {
         let mut data = Data::new(model);
         forward_kinematics(model, &mut data, &model.neutral());
         let mut spheres = Vec::new();
+        // per sphere: how many of its finger's moving joints carry it
+        let mut depth = Vec::new();
         let mut buf = Vec::new();
         for c in model.collisions() {
             let sup = model.supporting_q(c.frame);
@@ -321,12 +314,14 @@ impl HandArm {
                     }
                 }
                 if radius > 1e-4 {
+                    let (finger, d) = finger_of(model, c.frame, &chains);
                     spheres.push(LinkSphere {
                         frame: c.frame,
                         center,
                         radius,
-                        finger: finger_of(model, c.frame, &chains),
+                        finger,
                     });
+                    depth.push(d);
                 }
             }
         }
@@ -337,10 +332,6 @@ impl HandArm {
         // and middle finger bases are 10 mm apart and their first two links' spheres 16 mm
         // across, so with them no ball grasp was found; the starts' preshape still uses them to
         // tell crossed fingers.
-        let depth: Vec<usize> = spheres
-            .iter()
-            .map(|s| finger_depth(model, s.frame, &chains))
-            .collect();
         let mut candidates = Vec::new();
         for (a, sa) in spheres.iter().enumerate() {
             let Some(fa) = sa.finger else { continue };
