@@ -1,0 +1,188 @@
+"""One execution on the physics worker: checks the `execute` message (as the reference worker's
+`Run::new` does), builds the model with the execution's scene, runs the motion, then the grasp
+trial, and assembles the report the `result` carries."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from . import build as B
+from .law import Law
+from .scene import Scene, SceneError, parse_scene, scene_from_object_spec
+from .service import Service
+from .sim import CONTROL_DT, ClosedLoop, OpenLoop, Pushes, PushOptions, RunOptions, Sim, Trial, TrialOptions
+
+
+class ExecutionError(ValueError):
+    pass
+
+
+def resolve_scene(ex: dict, robot: str, service: Service | None, object_defaults: bool):
+    """(scene or None, where it came from)."""
+    if ex.get("scene") is not None:
+        return parse_scene(ex["scene"], object_defaults), "execute message"
+    if service is None:
+        return None, "none (no service URL to look the plan up)"
+    plan = service.plan_for_execution(robot, ex)
+    if plan is None:
+        return None, "none (no stored plan runs this execution)"
+    spec = plan["grasp"]["object"]
+    sc = scene_from_object_spec(spec, object_defaults)
+    sc.plan_id = plan["id"]
+    return sc, f"plan {plan['id']}"
+
+
+def _finite(xs):
+    return all(isinstance(x, (int, float)) and math.isfinite(x) for x in xs)
+
+
+class Execution:
+    def __init__(self, ex: dict, urdf_text: str, info: B.SystemInfo, scene_and_note, q_start,
+                 run: RunOptions, trial: TrialOptions | None, push: PushOptions | None):
+        scene, note = scene_and_note if isinstance(scene_and_note, tuple) else (scene_and_note, "given")
+        self.id = ex.get("execution_id")
+        self.scene: Scene | None = scene
+        self.scene_note = note
+        self.opts = run
+        mode = ex.get("mode")
+        payload = ex.get("payload") or {}
+        kind = payload.get("kind")
+        names = info.joint_names
+        n = len(names)
+        if (mode, kind) not in (("open_loop", "trajectory"), ("closed_loop", "model")):
+            raise ExecutionError(f"mode {mode} does not fit a {kind} payload")
+        pnames = payload.get("joint_names") if kind == "trajectory" else payload.get("params", {}).get("joint_names")
+        if pnames != names:
+            raise ExecutionError(f"joint names {pnames} do not match this robot's {names}")
+        self.built = B.build(urdf_text, info, scene)
+        self.sim = Sim(self.built)
+        self.q_start = np.asarray(q_start, float).copy()
+        self.sim.set_posture(self.q_start)
+        lo, hi = self.sim.lower, self.sim.upper
+
+        def inside(q):
+            return bool(np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6))
+
+        self.pushes = None
+        if kind == "trajectory":
+            pts = payload.get("points") or []
+            if not pts:
+                raise ExecutionError("the trajectory has no points")
+            prev = -math.inf
+            for i, p in enumerate(pts):
+                ok = (
+                    len(p.get("positions", [])) == n
+                    and len(p.get("velocities", [])) == n
+                    and isinstance(p.get("t"), (int, float))
+                    and _finite(p["positions"]) and _finite(p["velocities"]) and math.isfinite(p["t"])
+                    and p["t"] > prev
+                )
+                if not ok:
+                    raise ExecutionError(f"trajectory point {i} is invalid")
+                if not inside(np.asarray(p["positions"])):
+                    raise ExecutionError(f"trajectory point {i} is outside the joint limits")
+                prev = p["t"]
+            d = float(np.max(np.abs(np.asarray(pts[0]["positions"]) - self.q_start)))
+            if d > run.start_tolerance:
+                raise ExecutionError(
+                    f"the robot is {d:.3f} rad from the trajectory's start (tolerance {run.start_tolerance})"
+                )
+            self.goal = np.asarray(pts[-1]["positions"], float)
+            self.motion = OpenLoop(self.sim, pts, run)
+        else:
+            try:
+                law = Law(payload["params"])
+            except (KeyError, ValueError, TypeError) as e:
+                raise ExecutionError(f"the model's law is unreadable: {e}") from None
+            goal = payload.get("goal") or []
+            if law.n != n or len(goal) != n:
+                raise ExecutionError(f"the model has {law.n} joints and the goal {len(goal)}, this robot {n}")
+            if not _finite(goal) or not inside(np.asarray(goal, float)):
+                raise ExecutionError("the goal is not finite or outside the joint limits")
+            self.goal = np.asarray(goal, float)
+            if push is not None and (push.target == "arm" or scene is not None and scene.object is not None):
+                self.pushes = Pushes(push, self.sim, push.seed)
+            self.motion = ClosedLoop(self.sim, law, self.goal, run, self.pushes if push and push.target == "arm" else None)
+        if trial is not None and push is not None and push.target == "object":
+            trial = dataclasses.replace(trial, object_push=push.force)
+        self.trial_opts = trial
+        self.trial: Trial | None = None
+        self.motion_outcome = None
+        self.trial_result = None
+        self.t_motion = None
+        self.ref = self.q_start
+
+    def tick(self):
+        """One control period; the (status, reason) of the motion once everything is done."""
+        if self.motion_outcome is None:
+            out = self.motion.tick()
+            if out is None:
+                return None
+            self.motion_outcome = out
+            self.t_motion = self.sim.t
+            if out[0] != "succeeded" or self.trial_opts is None or self.scene is None or self.scene.object is None:
+                return out
+            self.trial = Trial(self.sim, self.trial_opts)
+            return None
+        out = self.trial.tick()
+        if out is None:
+            return None
+        self.trial_result = out
+        return self.motion_outcome
+
+    def feedback(self):
+        if self.trial is None:
+            progress, err = self.motion.progress, self.motion.tracking_error
+        else:
+            progress = 1.0
+            err = float(np.max(np.abs(self.sim.q() - self.sim.q_ref)))
+        return {
+            "type": "feedback",
+            "execution_id": self.id,
+            "t": round(self.sim.t, 6),
+            "positions": [float(x) for x in self.sim.q()],
+            "velocities": [float(x) for x in self.sim.qd()],
+            "progress": float(progress),
+            "tracking_error": float(err),
+        }
+
+    def report(self, status, reason, wall):
+        sc = self.scene
+        out = {
+            "engine": "mujoco",
+            "motion": {"outcome": status, "reason": reason, "sim_time_s": round(self.t_motion or self.sim.t, 3)},
+            "scene": None,
+            "trial": self.trial_result,
+            "sim_time_s": round(self.sim.t, 3),
+            "wall_time_s": round(wall, 3),
+            "real_time_factor": round(self.sim.t / wall, 3) if wall > 0 else None,
+            "max_penetration_m": {k: round(v, 5) for k, v in self.sim.max_pen.items()},
+            "model_notes": self.built.notes,
+        }
+        if sc is not None and sc.object is not None:
+            out["scene"] = {
+                "source": self.scene_note,
+                "object": sc.object.name,
+                "mass": sc.object.mass,
+                "friction": sc.object.friction,
+                "properties_from": sc.provenance,
+                "obstacles": len(sc.obstacles),
+            }
+        if self.pushes is not None:
+            out["pushes"] = self.pushes.log
+        return out
+
+    def final_outcome(self, status, reason):
+        """The execution's outcome: the motion's, and with a trial, failed when not held."""
+        if status != "succeeded" or self.trial_result is None:
+            return status, reason
+        t = self.trial_result
+        if t["held"]:
+            return "succeeded", None
+        return "failed", (
+            f"grasp trial: object not held (lifted {t['object_lift_m']:.3f} m of {self.trial_opts.lift} m, "
+            f"slip {t['slip_m']:.3f} m, held after {t['held_after']})"
+        )

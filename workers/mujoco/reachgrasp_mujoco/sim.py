@@ -1,0 +1,544 @@
+"""The simulated arm-hand system: servo layer, the two execution controllers (open loop, closed
+loop), pushes, and the grasp trial (close, lift 10 cm, hold 2 s, two shakes) with its verdict.
+
+Time advances in control periods of `CONTROL_DT` (5 physics steps). Everything here is
+synchronous and deterministic for a given model, execution and seed; the bridge layer paces it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from .build import Built
+
+CONTROL_DT = 0.01  # s (100 Hz control, as the reference worker)
+
+
+@dataclass
+class RunOptions:
+    # Arrival: arm joints within `goal_tolerance` of the goal, hand joints (which the object may
+    # stop) within `hand_tolerance`, every joint slower than `stop_velocity`.
+    goal_tolerance: float = 0.01
+    hand_tolerance: float = 0.08
+    stop_velocity: float = 0.05
+    start_tolerance: float = 0.25
+    settle_time: float = 2.0
+    closed_loop_timeout: float = 30.0
+    # Closed loop: the servo reference may run at most this far ahead of the measured state, so
+    # a push that displaces the arm drags the reference with it and the law acts from there.
+    reference_band: float = 0.05
+
+
+@dataclass
+class PushOptions:
+    """Pushes during a closed-loop execution (the paper's perturbation experiment): a force of
+    `force` N for `duration` s in a random horizontal direction on a random arm or hand body,
+    at random times while the motion is under way (`progress` < 0.8), at most `max_pushes`."""
+
+    target: str = "arm"  # arm | object
+    force: float = 40.0
+    duration: float = 0.15
+    mean_interval: float = 0.8
+    max_pushes: int = 3
+    seed: int = 7
+
+
+@dataclass
+class TrialOptions:
+    close_time: float = 0.6
+    close_settle: float = 0.6
+    lift: float = 0.10
+    lift_time: float = 1.5
+    hold_time: float = 2.0
+    shakes: int = 2
+    shake_amplitude: float = 0.04  # m
+    shake_frequency: float = 2.0  # Hz: peak acceleration A(2 pi f)^2 = 6.3 m/s^2
+    settle_time: float = 0.5
+    # Held: object above the support by at least this share of the lift and touching the hand.
+    held_lift_share: float = 0.5
+    # Slipped: the object moved more than this relative to the hand (m) while lifted.
+    slip_threshold: float = 0.01
+    # Push the held object during the hold (N, 0.1 s along -z then +y), 0 = none.
+    object_push: float = 0.0
+
+
+class Sim:
+    def __init__(self, built: Built):
+        self.b = built
+        self.m = built.model
+        self.d = mujoco.MjData(self.m)
+        self.n = len(built.drives)
+        self.steps_per_control = max(1, round(CONTROL_DT / self.m.opt.timestep))
+        self.qadr = np.array([self.m.jnt_qposadr[dr.joint_id] for dr in built.drives])
+        self.vadr = np.array([self.m.jnt_dofadr[dr.joint_id] for dr in built.drives])
+        self.lower = np.array([dr.lower for dr in built.drives])
+        self.upper = np.array([dr.upper for dr in built.drives])
+        vel = np.array([dr.velocity for dr in built.drives])
+        self.vlimit = np.where(vel > 0, vel, 1.5)
+        self.arm = np.array([dr.arm for dr in built.drives])
+        self.t = 0.0
+        self._kin = mujoco.MjData(self.m)  # kinematic scratch for IK
+        self.max_pen = {"hand_object": 0.0, "robot_support": 0.0, "object_support": 0.0, "robot_obstacle": 0.0}
+        self._geom_class = np.zeros(self.m.ngeom, int)  # 0 other, 1 robot, 2 hand, 3 object, 4 support, 5 obstacle
+        self._geom_class[built.robot_geoms] = 1
+        self._geom_class[built.hand_geoms] = 2
+        if built.object_geom >= 0:
+            self._geom_class[built.object_geom] = 3
+        if built.support_geom >= 0:
+            self._geom_class[built.support_geom] = 4
+        for g in built.obstacle_geoms:
+            self._geom_class[g] = 5
+
+    # --- state -------------------------------------------------------------------------------
+    def set_posture(self, q):
+        """Places the robot at independent joint values `q` (followers from their couplings)."""
+        q = np.clip(np.asarray(q, float), self.lower, self.upper)
+        for k, dr in enumerate(self.b.drives):
+            self.d.qpos[self.qadr[k]] = q[k]
+            for jid, mult in dr.followers:
+                self.d.qpos[self.m.jnt_qposadr[jid]] = mult * q[k]
+        for e in range(self.m.neq):
+            if self.m.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT:
+                j1, j2 = self.m.eq_obj1id[e], self.m.eq_obj2id[e]
+                c = self.m.eq_data[e]
+                self.d.qpos[self.m.jnt_qposadr[j1]] = c[0] + c[1] * self.d.qpos[self.m.jnt_qposadr[j2]]
+        self.d.qvel[:] = 0
+        self.set_reference(q, np.zeros(self.n))
+        mujoco.mj_forward(self.m, self.d)
+
+    def q(self):
+        return self.d.qpos[self.qadr].copy()
+
+    def qd(self):
+        return self.d.qvel[self.vadr].copy()
+
+    def set_reference(self, q_ref, qd_ref):
+        """Servo targets: position `q_ref` with velocity feed-forward `qd_ref`."""
+        q_ref = np.clip(q_ref, self.lower, self.upper)
+        self.q_ref = q_ref
+        m = self.m
+        for k, dr in enumerate(self.b.drives):
+            a = dr.actuator_id
+            kp = m.actuator_gainprm[a, 0]
+            kv = -m.actuator_biasprm[a, 2]
+            ff = kv / kp * qd_ref[k] if kp > 0 else 0.0
+            if dr.tendon_id >= 0:
+                ratio = 1.0 + sum(mu for _, mu in dr.followers)
+                self.d.ctrl[a] = dr.ctrl_gain * q_ref[k] + ff * ratio
+            else:
+                self.d.ctrl[a] = q_ref[k] + ff
+
+    def step_control(self, pushes=None):
+        for _ in range(self.steps_per_control):
+            if pushes is not None:
+                pushes.apply(self)
+            mujoco.mj_step(self.m, self.d)
+            self.t += self.m.opt.timestep
+            self._watch_contacts()
+
+    def _watch_contacts(self):
+        d = self.d
+        cls = self._geom_class
+        for i in range(d.ncon):
+            c = d.contact[i]
+            if c.dist >= 0:
+                continue
+            a, b = sorted((cls[c.geom1], cls[c.geom2]))
+            pen = -c.dist
+            key = None
+            if a in (1, 2) and b == 3:
+                key = "hand_object" if a == 2 else "hand_object"
+            elif a in (1, 2) and b == 4:
+                key = "robot_support"
+            elif a == 3 and b == 4:
+                key = "object_support"
+            elif a in (1, 2) and b == 5:
+                key = "robot_obstacle"
+            if key and pen > self.max_pen[key]:
+                self.max_pen[key] = pen
+
+    # --- contacts and poses ------------------------------------------------------------------
+    def object_contacts(self):
+        """[(robot geom, normal force N)] of the robot's contacts with the object, and whether
+        the object touches the support."""
+        out = []
+        on_support = False
+        f6 = np.zeros(6)
+        og = self.b.object_geom
+        for i in range(self.d.ncon):
+            c = self.d.contact[i]
+            if og not in (c.geom1, c.geom2):
+                continue
+            other = c.geom2 if c.geom1 == og else c.geom1
+            if other == self.b.support_geom:
+                on_support = True
+                continue
+            if self._geom_class[other] in (1, 2):
+                mujoco.mj_contactForce(self.m, self.d, i, f6)
+                out.append((int(other), float(f6[0])))
+        return out, on_support
+
+    def body_pose(self, body):
+        return self.d.xpos[body].copy(), self.d.xmat[body].reshape(3, 3).copy()
+
+    def object_in_hand(self):
+        """Object position (hand frame) and rotation relative to the hand."""
+        ph, Rh = self.body_pose(self.b.hand_body)
+        po, Ro = self.body_pose(self.b.object_body)
+        return Rh.T @ (po - ph), Rh.T @ Ro
+
+    # --- kinematic IK for the trial's Cartesian hand motion -----------------------------------
+    def arm_ik_path(self, q0, offsets):
+        """Joint paths putting the hand root at its pose for `q0` shifted by each world offset
+        (orientation kept): damped least squares on the arm joints, warm-started along the path."""
+        m, kd = self.m, self._kin
+        kd.qpos[:] = self.d.qpos
+        kd.qpos[self.qadr] = q0
+        mujoco.mj_kinematics(m, kd)
+        p0 = kd.xpos[self.b.hand_body].copy()
+        R0 = kd.xmat[self.b.hand_body].reshape(3, 3).copy()
+        arm = np.where(self.arm)[0]
+        cols = self.vadr[arm]
+        jp = np.zeros((3, m.nv))
+        jr = np.zeros((3, m.nv))
+        q = np.asarray(q0, float).copy()
+        path = []
+        worst = 0.0
+        for off in offsets:
+            target = p0 + off
+            for _ in range(30):
+                kd.qpos[self.qadr] = q
+                mujoco.mj_kinematics(m, kd)
+                mujoco.mj_comPos(m, kd)
+                p = kd.xpos[self.b.hand_body]
+                R = kd.xmat[self.b.hand_body].reshape(3, 3)
+                ep = target - p
+                Re = R0 @ R.T
+                er = 0.5 * np.array([Re[2, 1] - Re[1, 2], Re[0, 2] - Re[2, 0], Re[1, 0] - Re[0, 1]])
+                e = np.concatenate([ep, er])
+                if np.linalg.norm(e) < 1e-6:
+                    break
+                mujoco.mj_jacBody(m, kd, jp, jr, self.b.hand_body)
+                J = np.vstack([jp[:, cols], jr[:, cols]])
+                dq = J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(6), e)
+                q[arm] = np.clip(q[arm] + dq, self.lower[arm], self.upper[arm])
+            worst = max(worst, float(np.linalg.norm(e)))
+            path.append(q.copy())
+        return path, worst
+
+
+# --- pushes ----------------------------------------------------------------------------------
+class Pushes:
+    def __init__(self, opts: PushOptions, sim: Sim, seed: int):
+        self.o = opts
+        self.rng = np.random.default_rng(seed)
+        self.count = 0
+        self.active_until = -1.0
+        self.body = -1
+        self.force = np.zeros(3)
+        self.enabled = True
+        self.log = []
+        m = sim.m
+        if opts.target == "object":
+            self.bodies = [sim.b.object_body]
+        else:
+            # The arm's moving bodies from the forearm out (pushes on the shoulder barely move it).
+            bodies = sorted({int(m.jnt_bodyid[dr.joint_id]) for dr in sim.b.drives if dr.arm})
+            self.bodies = bodies[len(bodies) // 2 :] + [sim.b.hand_body]
+
+    def maybe_start(self, sim: Sim, progress: float, dt: float):
+        if not self.enabled or self.count >= self.o.max_pushes or progress >= 0.8 or sim.t < self.active_until:
+            return
+        if self.rng.random() < dt / self.o.mean_interval:
+            self.body = int(self.rng.choice(self.bodies))
+            a = self.rng.uniform(0, 2 * math.pi)
+            self.force = self.o.force * np.array([math.cos(a), math.sin(a), 0.0])
+            self.active_until = sim.t + self.o.duration
+            self.count += 1
+            self.log.append(
+                {"t": round(sim.t, 3), "body": mujoco.mj_id2name(sim.m, mujoco.mjtObj.mjOBJ_BODY, self.body),
+                 "force": [round(float(x), 2) for x in self.force]}
+            )
+
+    def apply(self, sim: Sim):
+        sim.d.xfrc_applied[:] = 0
+        if sim.t < self.active_until and self.body >= 0:
+            sim.d.xfrc_applied[self.body, :3] = self.force
+
+
+# --- controllers -----------------------------------------------------------------------------
+class OpenLoop:
+    """Follows timed points (servo reference = the trajectory, velocity feed-forward)."""
+
+    def __init__(self, sim: Sim, points, opts: RunOptions):
+        self.sim = sim
+        self.o = opts
+        self.t_pts = np.array([p["t"] for p in points], float)
+        self.q_pts = np.array([p["positions"] for p in points], float)
+        self.v_pts = np.array([p["velocities"] for p in points], float)
+        self.t0 = sim.t
+        self.t_end = float(self.t_pts[-1])
+        self.goal = self.q_pts[-1]
+        self.tracking_error = 0.0
+        self.progress = 0.0
+
+    def reference(self, t):
+        if t >= self.t_end:
+            return self.goal, np.zeros_like(self.goal)
+        k = int(np.searchsorted(self.t_pts, t, side="right") - 1)
+        k = max(0, min(k, len(self.t_pts) - 2))
+        s = (t - self.t_pts[k]) / (self.t_pts[k + 1] - self.t_pts[k])
+        s = min(max(s, 0.0), 1.0)
+        q = self.q_pts[k] + s * (self.q_pts[k + 1] - self.q_pts[k])
+        v = self.v_pts[k] + s * (self.v_pts[k + 1] - self.v_pts[k])
+        return q, v
+
+    def tick(self):
+        sim = self.sim
+        t = sim.t - self.t0
+        q_ref, v_ref = self.reference(t)
+        sim.set_reference(q_ref, v_ref)
+        sim.step_control()
+        t = sim.t - self.t0
+        q = sim.q()
+        self.tracking_error = float(np.max(np.abs(q - q_ref)))
+        self.progress = min(t / self.t_end, 1.0) if self.t_end > 0 else 1.0
+        if t < self.t_end:
+            return None
+        return arrival(sim, self.goal, self.o, t - self.t_end, self.o.settle_time)
+
+
+def arrival(sim: Sim, goal, o: RunOptions, waited: float, allowed: float):
+    q = sim.q()
+    err = np.abs(q - goal)
+    arm_err = float(np.max(err[sim.arm])) if sim.arm.any() else 0.0
+    hand_err = float(np.max(err[~sim.arm])) if (~sim.arm).any() else 0.0
+    speed = float(np.max(np.abs(sim.qd())))
+    if arm_err <= o.goal_tolerance and hand_err <= o.hand_tolerance and speed <= o.stop_velocity:
+        return ("succeeded", None)
+    if waited >= allowed:
+        return (
+            "failed",
+            f"arm error {arm_err:.4f} rad (tolerance {o.goal_tolerance}), hand error {hand_err:.4f} rad "
+            f"(tolerance {o.hand_tolerance}), speed {speed:.3f} rad/s after {waited:.1f} s",
+        )
+    return None
+
+
+class ClosedLoop:
+    """Runs the model's law `u(q)` on the measured state (velocity command, servo reference
+    integrated from it and kept within `reference_band` of the measured state)."""
+
+    def __init__(self, sim: Sim, law, goal, opts: RunOptions, pushes: Pushes | None):
+        self.sim = sim
+        self.law = law
+        self.goal = np.asarray(goal, float)
+        self.o = opts
+        self.pushes = pushes
+        self.t0 = sim.t
+        self.q_ref = sim.q()
+        self.initial = max(float(np.max(np.abs(self.q_ref - self.goal))), 1e-9)
+        self.tracking_error = self.initial
+        self.progress = 0.0
+
+    def tick(self):
+        sim = self.sim
+        q = sim.q()
+        u = np.clip(self.law.control(q, self.goal), -sim.vlimit, sim.vlimit)
+        band = self.o.reference_band
+        self.q_ref = q + np.clip(self.q_ref + u * CONTROL_DT - q, -band, band)
+        sim.set_reference(self.q_ref, u)
+        if self.pushes is not None:
+            self.pushes.maybe_start(sim, self.progress, CONTROL_DT)
+        sim.step_control(self.pushes)
+        q = sim.q()
+        err = float(np.max(np.abs(q - self.goal)))
+        self.tracking_error = err
+        self.progress = min(max(1.0 - err / self.initial, 0.0), 1.0)
+        t = sim.t - self.t0
+        pushing = self.pushes is not None and sim.t < self.pushes.active_until
+        if pushing:
+            return None
+        return arrival(sim, self.goal, self.o, t, self.o.closed_loop_timeout)
+
+
+# --- the grasp trial -------------------------------------------------------------------------
+def min_jerk(s):
+    return s * s * s * (10 - 15 * s + 6 * s * s)
+
+
+class Trial:
+    """Close, lift, hold, shake; `tick()` advances one control period, `result()` is the verdict.
+
+    Closing: each finger's tendon (or, without a tendon, its last independent joint that is not
+    a spread joint) is commanded to the joint limit on the object's side, force limited by the
+    URDF effort; spread and opposition joints hold. Lift/shake: the hand root moves along world
+    offsets (orientation kept) through arm IK, tracked by the arm servos."""
+
+    def __init__(self, sim: Sim, opts: TrialOptions):
+        self.sim = sim
+        self.o = opts
+        b = sim.b
+        self.q_grasp = sim.q()
+        spread = {j for p in b.info.spread_pairs for j in p}
+        names = [dr.name for dr in b.drives]
+        close = set()
+        for f in b.info.fingers:
+            idx = [names.index(j) for j in f["joints"] if j in names]
+            tendon = [k for k in idx if b.drives[k].tendon_id >= 0]
+            if tendon:
+                close.update(tendon)
+            else:
+                free = [k for k in idx if names[k] not in spread and not b.drives[k].arm]
+                if free:
+                    close.add(free[-1])
+        self.close = sorted(close)
+        self.close_target = self.q_grasp.copy()
+        self.tips = {f["name"]: mujoco.mj_name2id(sim.m, mujoco.mjtObj.mjOBJ_BODY, f["tip_frame"]) for f in b.info.fingers}
+        for k in self.close:
+            self.close_target[k] = self._closing_limit(k)
+        self.phase = "close"
+        self.t0 = sim.t
+        self.z0 = float(sim.d.xpos[b.object_body][2])
+        self.events = []
+        self.forces = []
+        self.rel0 = None
+        self.held_after = {}
+        # Cartesian offsets, one per control period, after closing.
+        o = opts
+        offs = []
+        n_lift = int(round(o.lift_time / CONTROL_DT))
+        for i in range(1, n_lift + 1):
+            offs.append(("lift", np.array([0, 0, o.lift * min_jerk(i / n_lift)])))
+        for _ in range(int(round(o.hold_time / CONTROL_DT))):
+            offs.append(("hold", np.array([0, 0, o.lift])))
+        axes = [np.array([0, 1.0, 0]), np.array([0, 0, 1.0])]
+        n_shake = int(round(1.0 / o.shake_frequency / CONTROL_DT))
+        for s in range(o.shakes):
+            ax = axes[s % 2]
+            for i in range(1, n_shake + 1):
+                a = o.shake_amplitude * math.sin(2 * math.pi * i / n_shake)
+                offs.append((f"shake{s + 1}", np.array([0, 0, o.lift]) + a * ax))
+        for _ in range(int(round(o.settle_time / CONTROL_DT))):
+            offs.append(("settle", np.array([0, 0, o.lift])))
+        self.plan = offs
+        self.cursor = 0
+        self.path = None
+        self.ik_error = 0.0
+
+    def _closing_limit(self, k):
+        """The joint limit whose side brings the finger's tip nearer the object's centre."""
+        sim = self.sim
+        dr = sim.b.drives[k]
+        kd = sim._kin
+        kd.qpos[:] = sim.d.qpos
+        mujoco.mj_kinematics(sim.m, kd)
+        tipb = [bid for f, bid in self.tips.items() if dr.name in next(x["joints"] for x in sim.b.info.fingers if x["name"] == f)]
+        po = sim.d.xpos[sim.b.object_body]
+
+        def dist(delta):
+            kd.qpos[sim.qadr[k]] = self.q_grasp[k] + delta
+            for jid, mult in dr.followers:
+                kd.qpos[sim.m.jnt_qposadr[jid]] = mult * (self.q_grasp[k] + delta)
+            mujoco.mj_kinematics(sim.m, kd)
+            return sum(float(np.linalg.norm(kd.xpos[t] - po)) for t in tipb)
+
+        up = dist(0.05) < dist(-0.05)
+        return dr.upper if up else dr.lower
+
+    def tick(self):
+        sim, o = self.sim, self.o
+        t = sim.t - self.t0
+        if self.phase == "close":
+            s = min(t / o.close_time, 1.0)
+            q_ref = self.q_grasp + min_jerk(s) * (self.close_target - self.q_grasp)
+            sim.set_reference(q_ref, np.zeros(sim.n))
+            sim.step_control()
+            if t >= o.close_time + o.close_settle:
+                self.phase = "move"
+                self.q_closed = sim.q()
+                self.rel0 = sim.object_in_hand()
+                self.contacts_closed = sim.object_contacts()
+                self.path, self.ik_error = sim.arm_ik_path(self.q_grasp, [off for _, off in self.plan])
+            return None
+        if self.cursor >= len(self.plan):
+            return self.result()
+        phase, _ = self.plan[self.cursor]
+        q_ref = self.close_target.copy()
+        arm = sim.arm
+        q_ref[arm] = self.path[self.cursor][arm]
+        prev = self.path[self.cursor - 1][arm] if self.cursor > 0 else self.q_grasp[arm]
+        v = np.zeros(sim.n)
+        v[arm] = (q_ref[arm] - prev) / CONTROL_DT
+        sim.set_reference(q_ref, v)
+        if phase == "hold" and o.object_push > 0:
+            k = self.cursor - int(round(o.lift_time / CONTROL_DT))
+            sim.d.xfrc_applied[:] = 0
+            if 50 <= k < 60:
+                sim.d.xfrc_applied[sim.b.object_body, :3] = [0, 0, -o.object_push]
+            elif 100 <= k < 110:
+                sim.d.xfrc_applied[sim.b.object_body, :3] = [0, o.object_push, 0]
+        sim.step_control()
+        sim.d.xfrc_applied[:] = 0
+        if phase == "hold":
+            cs, _ = sim.object_contacts()
+            self.forces.append(cs)
+        nxt = self.plan[self.cursor + 1][0] if self.cursor + 1 < len(self.plan) else "end"
+        if nxt != phase:
+            self.held_after[phase] = self.held()
+        self.cursor += 1
+        return None
+
+    def held(self):
+        sim = self.sim
+        cs, on_support = sim.object_contacts()
+        z = float(sim.d.xpos[sim.b.object_body][2])
+        lifted = z - self.z0
+        hand = {sim._geom_class[g] for g, _ in cs}
+        return bool(not on_support and lifted >= self.o.held_lift_share * self.o.lift and cs and hand)
+
+    def result(self):
+        sim = self.sim
+        m = sim.m
+        held = self.held()
+        p_rel, R_rel = sim.object_in_hand()
+        p0, R0 = self.rel0
+        slip = float(np.linalg.norm(p_rel - p0))
+        dR = R0.T @ R_rel
+        slip_rot = math.degrees(math.acos(min(1.0, max(-1.0, (np.trace(dR) - 1) / 2))))
+        z = float(sim.d.xpos[sim.b.object_body][2])
+        # Mean normal force per robot body over the hold.
+        per_body = {}
+        totals = []
+        for cs in self.forces:
+            tot = 0.0
+            for g, f in cs:
+                name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g]))
+                per_body[name] = per_body.get(name, 0.0) + f
+                tot += f
+            totals.append(tot)
+        nh = max(len(self.forces), 1)
+        cs_closed, _ = self.contacts_closed
+        closed_links = sorted({mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g])) for g, _ in cs_closed})
+        out = {
+            "held": held,
+            "slipped": bool(slip > self.o.slip_threshold),
+            "held_after": self.held_after,
+            "object_lift_m": round(z - self.z0, 4),
+            "slip_m": round(slip, 4),
+            "slip_rotation_deg": round(slip_rot, 2),
+            "displacement_in_hand_m": [round(float(x), 4) for x in (p_rel - p0)],
+            "contacts_after_close": closed_links,
+            "contact_force_mean_n": {k: round(v / nh, 3) for k, v in sorted(per_body.items())},
+            "contact_force_total_mean_n": round(float(np.mean(totals)) if totals else 0.0, 3),
+            "contact_force_total_max_n": round(float(np.max(totals)) if totals else 0.0, 3),
+            "max_penetration_m": {k: round(v, 5) for k, v in sim.max_pen.items()},
+            "ik_error_m": round(self.ik_error, 6),
+            "closing_joints": [sim.b.drives[k].name for k in self.close],
+            "duration_s": round(sim.t - self.t0, 3),
+        }
+        return out
