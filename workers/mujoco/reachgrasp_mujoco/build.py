@@ -45,7 +45,12 @@ FINGER_DAMPING = 0.005  # N m s/rad, flexure damping
 # tendon's force limit, so closing spends most of the effort on the object.
 SPRING_SHARE = 0.15
 TENDON_STIFFNESS = 20.0  # N m per rad of tendon error (saturates at the effort limit)
-ROBOT_FRICTION = 1.0  # robot geoms never decide a friction (object/support have priority)
+ROBOT_FRICTION = 1.0
+# Object contacts stiffer than MuJoCo's default (time constant 0.02 s) so that the fingers'
+# forces (tens of N) leave millimetres, not a centimetre, of overlap; 2 x the timestep is the
+# stiffest the solver resolves. (Priority geoms' contact parameters decide the contact.)
+CONTACT_SOLREF = (2 * TIMESTEP, 1.0)
+CONTACT_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)  # robot geoms never decide a friction (object/support have priority)
 
 
 class BuildError(ValueError):
@@ -363,6 +368,8 @@ def build(
             )
             g.friction = [s.friction, 0.005, 0.0001]
             g.priority = 2
+            g.solref = list(CONTACT_SOLREF)
+            g.solimp = list(CONTACT_SOLIMP)
             g.contype = 1
             g.conaffinity = 1
             g.rgba = [0.8, 0.75, 0.6, 1]
@@ -381,6 +388,8 @@ def build(
             g.friction = [o.friction, 0.005, 0.0001]
             g.condim = 4
             g.priority = 1
+            g.solref = list(CONTACT_SOLREF)
+            g.solimp = list(CONTACT_SOLIMP)
             g.contype = 1
             g.conaffinity = 1
             g.rgba = [0.9, 0.6, 0.1, 1]

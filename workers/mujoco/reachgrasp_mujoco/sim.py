@@ -66,6 +66,16 @@ class TrialOptions:
     object_push: float = 0.0
 
 
+def rotation_error(target_R, R):
+    """World-frame rotation vector (axis x angle) taking `R` to `target_R` (exact log map: the
+    skew part alone vanishes at 180 degrees)."""
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, (target_R @ R.T).ravel())
+    v = np.zeros(3)
+    mujoco.mju_quat2Vel(v, quat, 1.0)
+    return v
+
+
 class Sim:
     def __init__(self, built: Built):
         self.b = built
@@ -192,6 +202,33 @@ class Sim:
         return Rh.T @ (po - ph), Rh.T @ Ro
 
     # --- kinematic IK for the trial's Cartesian hand motion -----------------------------------
+    def hand_pose_ik(self, q0, target_p, target_R, iters=200):
+        """Arm joints (hand and the rest from `q0`) putting the hand root at `target_p`,
+        `target_R` by damped least squares; returns (q, residual norm)."""
+        m, kd = self.m, self._kin
+        kd.qpos[:] = self.d.qpos
+        arm = np.where(self.arm)[0]
+        cols = self.vadr[arm]
+        jp = np.zeros((3, m.nv))
+        jr = np.zeros((3, m.nv))
+        q = np.asarray(q0, float).copy()
+        err = math.inf
+        for _ in range(iters):
+            kd.qpos[self.qadr] = q
+            mujoco.mj_kinematics(m, kd)
+            mujoco.mj_comPos(m, kd)
+            p = kd.xpos[self.b.hand_body]
+            R = kd.xmat[self.b.hand_body].reshape(3, 3)
+            e = np.concatenate([target_p - p, rotation_error(target_R, R)])
+            err = float(np.linalg.norm(e))
+            if err < 1e-8:
+                break
+            mujoco.mj_jacBody(m, kd, jp, jr, self.b.hand_body)
+            J = np.vstack([jp[:, cols], jr[:, cols]])
+            dq = J.T @ np.linalg.solve(J @ J.T + 1e-4 * np.eye(6), e)
+            q[arm] = np.clip(q[arm] + dq, self.lower[arm], self.upper[arm])
+        return q, err
+
     def arm_ik_path(self, q0, offsets):
         """Joint paths putting the hand root at its pose for `q0` shifted by each world offset
         (orientation kept): damped least squares on the arm joints, warm-started along the path."""
@@ -217,9 +254,7 @@ class Sim:
                 p = kd.xpos[self.b.hand_body]
                 R = kd.xmat[self.b.hand_body].reshape(3, 3)
                 ep = target - p
-                Re = R0 @ R.T
-                er = 0.5 * np.array([Re[2, 1] - Re[1, 2], Re[0, 2] - Re[2, 0], Re[1, 0] - Re[0, 1]])
-                e = np.concatenate([ep, er])
+                e = np.concatenate([ep, rotation_error(R0, R)])
                 if np.linalg.norm(e) < 1e-6:
                     break
                 mujoco.mj_jacBody(m, kd, jp, jr, self.b.hand_body)

@@ -200,9 +200,12 @@ def parse(text: str) -> Robot:
             vals = tuple(
                 _number(i, k, f"{what} inertia") for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
             )
-            if mass <= 0:
-                raise UrdfError(f"{what} mass must be positive")
-            link.inertial = Inertial(mass, xyz, rpy, vals)
+            if mass < 0:
+                raise UrdfError(f"{what} mass must not be negative")
+            # A zero-mass inertial (what urdf-rs writes for a link without one, as the
+            # service's combined URDF does) means "none": the inertia comes from the geoms.
+            if mass > 0:
+                link.inertial = Inertial(mass, xyz, rpy, vals)
         links[name] = link
     joints = {}
     for el in root.findall("joint"):
