@@ -153,7 +153,8 @@ class Execution:
         sc = self.scene
         out = {
             "engine": "mujoco",
-            "motion": {"outcome": status, "reason": reason, "sim_time_s": round(self.t_motion or self.sim.t, 3)},
+            "motion": {"outcome": status, "reason": reason, "sim_time_s": round(self.t_motion or self.sim.t, 3),
+                       "final_error": self.sim.arrival_errors},
             "scene": None,
             "trial": self.trial_result,
             "sim_time_s": round(self.sim.t, 3),

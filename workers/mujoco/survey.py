@@ -1,0 +1,276 @@
+"""Physics surveys against a running service (numbers for the README and the issue):
+
+  survey.py grasps --http URL     grasp trial at each grasp's exact joint values:
+                                   seeded objects x six systems x default tasks
+  survey.py plans  --http URL --token T
+                                   the same matrix as plans executed on MuJoCo workers
+                                   (trajectory, then the trial), one worker per system
+  survey.py fig5   --http URL     Q_DC-optimal grasp vs random feasible grasps (same object)
+  survey.py pushes --http URL --token T [--runs 20]
+                                   closed loop with pushes on the arm, then the trial
+  survey.py rtf    --http URL --token T
+                                   real-time factor of a 5 s plan with its grasp trial
+
+Default tasks: the README's two examples, force along z and velocity along y (maximised).
+Mass and friction of the seeded objects: the worker's table (`--object-defaults`), since the
+service stores none. Run it niced: `nice -n 10 .venv/bin/python survey.py ...`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from reachgrasp_mujoco.offline import grasp_trial  # noqa: E402
+from reachgrasp_mujoco.service import Service  # noqa: E402
+
+SYSTEMS = ["wam_t42", "wam_ihy", "wam_ob4f", "pa10_t42", "pa10_ihy", "pa10_ob4f"]
+TASKS = {
+    "force_z": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}],
+    "velocity_y": [{"direction": [0, 1, 0], "kind": "velocity", "goal": "maximize"}],
+}
+
+
+def objects(svc):
+    return {o["name"]: o["id"] for o in svc.get_json("/v1/objects") if o.get("seeded")}
+
+
+def table(rows, key_a, key_b, ok):
+    """Per `key_a` and per `key_b`: held / tried."""
+    out = {}
+    for k in (key_a, key_b):
+        agg = {}
+        for r in rows:
+            a = agg.setdefault(r[k], [0, 0])
+            a[1] += 1
+            a[0] += 1 if ok(r) else 0
+        out[k] = {n: f"{h}/{t}" for n, (h, t) in sorted(agg.items())}
+    total = sum(1 for r in rows if ok(r))
+    out["total"] = f"{total}/{len(rows)}"
+    return out
+
+
+def zeros_start(svc, robot):
+    names = svc.get_json(f"/v1/robots/{robot}")["joint_names"]
+    return {"joint_names": names, "positions": [0.0] * len(names)}
+
+
+def cmd_grasps(a):
+    svc = Service(a.http)
+    objs = objects(svc)
+    rows = []
+    for robot in SYSTEMS:
+        for oname, oid in objs.items():
+            for tname, task in TASKS.items():
+                g = svc.post_json("/v1/grasps", {"robot": robot, "object_id": oid, "task_directions": task})
+                row = {"robot": robot, "object": oname, "task": tname, "grasp": g["id"],
+                       "feasible": g["result"]["feasible"]}
+                if row["feasible"]:
+                    t = grasp_trial(svc, g, True)
+                    row.update({k: t[k] for k in ("held", "slip_m", "object_lift_m", "initial_penetration_m",
+                                                   "contacts_after_close", "contact_force_total_mean_n",
+                                                   "real_time_factor")})
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+    feas = [r for r in rows if r["feasible"]]
+    summary = {"feasible": f"{len(feas)}/{len(rows)}",
+               "held_of_feasible": table(feas, "robot", "object", lambda r: r["held"])}
+    print(json.dumps({"summary": summary}, indent=1))
+
+
+def start_worker(a, robot, report_dir, extra=()):
+    log = open(Path(report_dir) / f"worker-{robot}.log", "w")
+    cmd = [sys.executable, "-m", "reachgrasp_mujoco", "--robot", robot, "--url", a.ws, "--token", a.token,
+           "--object-defaults", "--pace", "0", "--report-dir", report_dir, "--name", f"survey-{robot}", *extra]
+    p = subprocess.Popen(cmd, cwd=HERE, stdout=log, stderr=subprocess.STDOUT)
+    deadline = time.time() + 60
+    svc = Service(a.http)
+    while time.time() < deadline:
+        names = [b["name"] for b in svc.get_json("/v1/bridges")["items"] if b.get("connected")]
+        if f"survey-{robot}" in names:
+            return p
+        if p.poll() is not None:
+            raise RuntimeError(f"worker for {robot} exited: see {log.name}")
+        time.sleep(0.3)
+    raise RuntimeError(f"worker for {robot} did not connect")
+
+
+def wait_execution(svc, eid, timeout=600):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        e = svc.get_json(f"/v1/executions/{eid}")
+        if e["state"] not in ("queued", "running"):
+            return e
+        time.sleep(0.3)
+    raise RuntimeError(f"execution {eid} did not finish")
+
+
+def cmd_plans(a):
+    svc = Service(a.http)
+    objs = objects(svc)
+    rows = []
+    rep = tempfile.mkdtemp(prefix="rg-plans-")
+    for robot in SYSTEMS:
+        w = start_worker(a, robot, rep)
+        try:
+            start = zeros_start(svc, robot)
+            for oname, oid in objs.items():
+                for tname, task in TASKS.items():
+                    body = {"robot": robot, "object_id": oid, "task_directions": task, "start": start,
+                            "execute": True, "worker": f"survey-{robot}"}
+                    p = svc.post_json("/v1/plans", body)
+                    row = {"robot": robot, "object": oname, "task": tname, "plan": p["id"], "feasible": p["feasible"]}
+                    if p["feasible"] and p.get("execution_id"):
+                        e = wait_execution(svc, p["execution_id"])
+                        row["state"] = e["state"]
+                        row["reason"] = e["reason"]
+                        path = Path(rep) / f"{p['execution_id']}.json"
+                        if path.exists():
+                            r = json.loads(path.read_text())
+                            t = r.get("trial") or {}
+                            row["motion"] = r["motion"]["outcome"]
+                            row["held"] = bool(t.get("held"))
+                            row["slip_m"] = t.get("slip_m")
+                            row["rtf"] = r.get("real_time_factor")
+                            row["max_penetration_m"] = r.get("max_penetration_m")
+                    else:
+                        row["reason"] = p.get("reason")
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
+        finally:
+            w.terminate()
+            w.wait(10)
+    feas = [r for r in rows if r["feasible"]]
+    summary = {"feasible_plans": f"{len(feas)}/{len(rows)}",
+               "held_of_executed": table(feas, "robot", "object", lambda r: r.get("held", False)),
+               "held_of_all": table(rows, "robot", "object", lambda r: r.get("held", False))}
+    print(json.dumps({"summary": summary}, indent=1))
+
+
+def cmd_fig5(a):
+    """For each system and object: the Q_DC-optimal grasp (quality centroid_distance, default
+    weights) and `--random` feasible grasps found with every cost weight zero (feasibility only,
+    one start, seeds 1..), each tried in physics; reports held counts and Q_DC."""
+    svc = Service(a.http)
+    objs = objects(svc)
+    rows = []
+    for robot in a.systems.split(","):
+        for oname in a.objects.split(","):
+            oid = objs[oname]
+            base = {"robot": robot, "object_id": oid, "quality": "centroid_distance"}
+            g = svc.post_json("/v1/grasps", dict(base, starts=8))
+            opt = None
+            if g["result"]["feasible"]:
+                t = grasp_trial(svc, g, True)
+                opt = {"held": t["held"], "q_dc": g["result"]["terms"]["q_dc"], "slip_m": t["slip_m"]}
+            rnd = []
+            seed = 1
+            while len(rnd) < a.random and seed <= 4 * a.random:
+                r = svc.post_json("/v1/grasps", dict(base, starts=1, seed=seed,
+                                                     weights={"tc": 0, "gc": 0, "q": 0, "d": 0}))
+                seed += 1
+                if r["result"]["feasible"]:
+                    t = grasp_trial(svc, r, True)
+                    rnd.append({"held": t["held"], "q_dc": r["result"]["terms"]["q_dc"], "slip_m": t["slip_m"]})
+            row = {"robot": robot, "object": oname, "optimal": opt,
+                   "random_held": f"{sum(x['held'] for x in rnd)}/{len(rnd)}",
+                   "random_q_dc_median": sorted(x["q_dc"] for x in rnd)[len(rnd) // 2] if rnd else None}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    opt_h = sum(1 for r in rows if r["optimal"] and r["optimal"]["held"])
+    opt_n = sum(1 for r in rows if r["optimal"])
+    rh = sum(int(r["random_held"].split("/")[0]) for r in rows)
+    rn = sum(int(r["random_held"].split("/")[1]) for r in rows)
+    print(json.dumps({"summary": {"optimal_held": f"{opt_h}/{opt_n}", "random_held": f"{rh}/{rn}"}}, indent=1))
+
+
+def cmd_pushes(a):
+    """Closed-loop executions to a feasible grasp of the ball with pushes on the arm."""
+    svc = Service(a.http)
+    objs = objects(svc)
+    rep = tempfile.mkdtemp(prefix="rg-push-")
+    robot = a.robot
+    w = start_worker(a, robot, rep, ["--push", "arm", "--push-force", str(a.force), "--seed", str(a.seed)])
+    rows = []
+    try:
+        start = zeros_start(svc, robot)
+        body = {"robot": robot, "object_id": objs[a.object], "task_directions": TASKS["force_z"], "start": start,
+                "execute": False}
+        p = svc.post_json("/v1/plans", body)
+        if not p["feasible"]:
+            raise RuntimeError(f"plan infeasible: {p['reason']}")
+        goal = {"joint_names": p["trajectory"]["joint_names"], "positions": p["trajectory"]["goal"]}
+        for i in range(a.runs):
+            e = svc.post_json("/v1/executions", {"robot": robot, "mode": "closed_loop", "model_id": p["model_id"],
+                                                 "goal": goal, "worker": f"survey-{robot}"})
+            e = wait_execution(svc, e["id"])
+            r = json.loads((Path(rep) / f"{e['id']}.json").read_text())
+            t = r.get("trial") or {}
+            row = {"run": i, "state": e["state"], "motion": r["motion"]["outcome"], "held": bool(t.get("held")),
+                   "pushes": len(r.get("pushes", [])), "sim_time_s": r["motion"]["sim_time_s"],
+                   "reason": e["reason"]}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    finally:
+        w.terminate()
+        w.wait(10)
+    conv = sum(1 for r in rows if r["motion"] == "succeeded")
+    held = sum(1 for r in rows if r["motion"] == "succeeded" and r["held"])
+    print(json.dumps({"summary": {"converged": f"{conv}/{len(rows)}", "converged_and_held": f"{held}/{len(rows)}",
+                                  "pushes": sum(r["pushes"] for r in rows)}}, indent=1))
+
+
+def cmd_rtf(a):
+    svc = Service(a.http)
+    objs = objects(svc)
+    rep = tempfile.mkdtemp(prefix="rg-rtf-")
+    robot = a.robot
+    w = start_worker(a, robot, rep)
+    try:
+        body = {"robot": robot, "object_id": objs[a.object], "task_directions": TASKS["force_z"],
+                "start": zeros_start(svc, robot), "duration": 5.0, "execute": True, "worker": f"survey-{robot}"}
+        out = []
+        for _ in range(a.repeat):
+            p = svc.post_json("/v1/plans", body)
+            e = wait_execution(svc, p["execution_id"])
+            r = json.loads((Path(rep) / f"{e['id']}.json").read_text())
+            out.append({"plan_duration_s": p["trajectory"]["points"][-1]["t"], "sim_time_s": r["sim_time_s"],
+                        "wall_time_s": r["wall_time_s"], "real_time_factor": r["real_time_factor"],
+                        "held": (r.get("trial") or {}).get("held")})
+            print(json.dumps(out[-1]), flush=True)
+    finally:
+        w.terminate()
+        w.wait(10)
+    print(json.dumps({"uptime": subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()}))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("cmd", choices=["grasps", "plans", "fig5", "pushes", "rtf"])
+    ap.add_argument("--http", default="http://127.0.0.1:8080")
+    ap.add_argument("--token", default=os.environ.get("REACHGRASP_BRIDGE_TOKEN"))
+    ap.add_argument("--systems", default=",".join(SYSTEMS))
+    ap.add_argument("--objects", default="ball,bottle,kitchen_timer,pencil,sunglasses")
+    ap.add_argument("--random", type=int, default=4)
+    ap.add_argument("--robot", default="wam_ihy")
+    ap.add_argument("--object", default="ball")
+    ap.add_argument("--runs", type=int, default=20)
+    ap.add_argument("--force", type=float, default=40.0)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--repeat", type=int, default=3)
+    a = ap.parse_args()
+    a.ws = a.http.replace("http://", "ws://").replace("https://", "wss://") + "/v1/bridges/connect"
+    {"grasps": cmd_grasps, "plans": cmd_plans, "fig5": cmd_fig5, "pushes": cmd_pushes, "rtf": cmd_rtf}[a.cmd](a)
+
+
+if __name__ == "__main__":
+    main()
