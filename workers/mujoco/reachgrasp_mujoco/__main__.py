@@ -39,7 +39,11 @@ def worker_args(p: argparse.ArgumentParser):
     p.add_argument("--max-pushes", type=int, default=3)
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--reset", choices=["start", "keep"], default="start",
-                   help="after a grasp trial put the robot back where the execution started (start) or keep it")
+                   help="after an execution with an object put the robot back where it started (start, a scene reset) or keep it")
+    p.add_argument("--initial", help="initial joint positions, comma-separated in the robot's joint order "
+                   "(default: 0 where allowed, else the nearest limit)")
+    p.add_argument("--scene", help="JSON file: the scene ({object, support, obstacles}) of executions that "
+                   "bring none and come from no stored plan (e.g. an inline trajectory)")
     p.add_argument("--report-dir", help="also write each execution's physics report here as <id>.json")
     p.add_argument("--max-executions", type=int, default=0, help="exit after this many executions")
     p.add_argument("--log", default="info")
@@ -82,11 +86,22 @@ def main(argv=None):
     if args.push:
         push = PushOptions(target=args.push, force=args.push_force, duration=args.push_duration,
                            max_pushes=args.max_pushes, seed=args.seed)
+    scene = None
+    if args.scene:
+        from .scene import SceneError, parse_scene
+
+        try:
+            with open(args.scene) as f:
+                scene = json.load(f)
+            parse_scene(scene, args.object_defaults)
+        except (OSError, ValueError, SceneError) as e:
+            print(f"error: --scene {args.scene}: {e}", file=sys.stderr)
+            return 2
     cfg = WorkerConfig(
         url=args.url, token=args.token, name=args.name or f"mujoco-{args.robot}", robot=args.robot,
         feedback_hz=args.feedback_hz, pace=args.pace, run=RunOptions(), trial=TrialOptions(), push=push,
         object_defaults=args.object_defaults, trial_enabled=not args.no_trial, reset=args.reset,
-        report_dir=args.report_dir, max_executions=args.max_executions,
+        report_dir=args.report_dir, max_executions=args.max_executions, scene=scene,
     )
     try:
         worker = Worker(cfg, detail, urdf_text, svc)
@@ -94,6 +109,19 @@ def main(argv=None):
         # Refused before any hello: the service never sees a worker it could not drive.
         print(f"error: robot `{args.robot}` cannot be simulated: {e}", file=sys.stderr)
         return 3
+    if args.initial:
+        try:
+            q0 = [float(x) for x in args.initial.split(",")]
+        except ValueError:
+            q0 = []
+        if len(q0) != len(worker.info.joint_names):
+            print(f"error: --initial needs {len(worker.info.joint_names)} numbers", file=sys.stderr)
+            return 2
+        import numpy as np
+
+        lo = np.array([d.lower for d in worker.robot_model.drives])
+        hi = np.array([d.upper for d in worker.robot_model.drives])
+        worker.q = np.clip(np.array(q0), lo, hi)
     stop = asyncio.Event()
 
     async def go():

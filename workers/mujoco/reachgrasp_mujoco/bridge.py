@@ -52,6 +52,7 @@ class WorkerConfig:
     reset: str = "start"  # start | keep: robot posture after an execution with a trial
     report_dir: str | None = None
     max_executions: int = 0  # stop after this many (0 = never); for tests and surveys
+    scene: dict | None = None  # `--scene` file: the scene of executions that bring none
 
 
 class Worker:
@@ -180,7 +181,7 @@ class Worker:
         eid = ex.get("execution_id")
         loop = asyncio.get_running_loop()
         try:
-            scene = await loop.run_in_executor(None, resolve_scene, ex, self.cfg.robot, self.service, self.cfg.object_defaults)
+            scene = await loop.run_in_executor(None, resolve_scene, ex, self.cfg.robot, self.service, self.cfg.object_defaults, self.cfg.scene)
             push = None
             if self.cfg.push is not None:
                 self.push_seed += 1
@@ -226,7 +227,9 @@ class Worker:
         finally:
             self.current = None
             self.cancel_id = None
-            if self.cfg.reset == "start" and run.trial is not None:
+            # A simulated lab resets the scene: with an object, the robot is put back where the
+            # execution started (the next plan starts there); without one it stays put.
+            if self.cfg.reset == "start" and run.scene is not None and run.scene.object is not None:
                 self.q = run.q_start.copy()
             else:
                 self.q = run.sim.q()

@@ -20,14 +20,15 @@ class ExecutionError(ValueError):
     pass
 
 
-def resolve_scene(ex: dict, robot: str, service: Service | None, object_defaults: bool):
-    """(scene or None, where it came from)."""
+def resolve_scene(ex: dict, robot: str, service: Service | None, object_defaults: bool, fallback=None):
+    """(scene or None, where it came from): the `execute` message's `scene`, else the stored plan
+    the execution runs, else the worker's `--scene` file (`fallback`, parsed JSON), else none."""
     if ex.get("scene") is not None:
         return parse_scene(ex["scene"], object_defaults), "execute message"
-    if service is None:
-        return None, "none (no service URL to look the plan up)"
-    plan = service.plan_for_execution(robot, ex)
+    plan = service.plan_for_execution(robot, ex) if service is not None else None
     if plan is None:
+        if fallback is not None:
+            return parse_scene(fallback, object_defaults), "worker --scene file"
         return None, "none (no stored plan runs this execution)"
     spec = plan["grasp"]["object"]
     sc = scene_from_object_spec(spec, object_defaults)
@@ -113,7 +114,9 @@ class Execution:
         self.motion_outcome = None
         self.trial_result = None
         self.t_motion = None
-        self.ref = self.q_start
+        self.object_moved = None
+        b = self.built
+        self.object_p0 = self.sim.d.xpos[b.object_body].copy() if b.object_body >= 0 else None
 
     def tick(self):
         """One control period; the (status, reason) of the motion once everything is done."""
@@ -123,6 +126,9 @@ class Execution:
                 return None
             self.motion_outcome = out
             self.t_motion = self.sim.t
+            if self.object_p0 is not None:
+                moved = self.sim.d.xpos[self.built.object_body] - self.object_p0
+                self.object_moved = [round(float(x), 4) for x in moved]
             if out[0] != "succeeded" or self.trial_opts is None or self.scene is None or self.scene.object is None:
                 return out
             self.trial = Trial(self.sim, self.trial_opts)
@@ -154,7 +160,9 @@ class Execution:
         out = {
             "engine": "mujoco",
             "motion": {"outcome": status, "reason": reason, "sim_time_s": round(self.t_motion or self.sim.t, 3),
-                       "final_error": self.sim.arrival_errors},
+                       "final_error": self.sim.arrival_errors,
+                       # where the motion left the object (m, world): the approach may push it
+                       "object_moved_m": self.object_moved},
             "scene": None,
             "trial": self.trial_result,
             "sim_time_s": round(self.sim.t, 3),

@@ -1,7 +1,8 @@
 """Fixtures: a reachgrasp service on a free loopback port with a temporary database.
 
-The binary is `$REACHGRASP_BIN`, else `target/release/reachgrasp`, else `target/debug/reachgrasp`
-(the one `cargo test` builds); without one the service tests fail, never skip, when CI=true.
+The binary is `$REACHGRASP_BIN`, else the newer of `target/release/reachgrasp` and
+`target/debug/reachgrasp` (the one `cargo test` builds); without one the service tests fail,
+never skip, when CI=true.
 """
 
 from __future__ import annotations
@@ -30,10 +31,8 @@ def binary():
     env = os.environ.get("REACHGRASP_BIN")
     if env:
         return env
-    for p in (REPO / "target/release/reachgrasp", REPO / "target/debug/reachgrasp"):
-        if p.exists():
-            return str(p)
-    return None
+    built = [p for p in (REPO / "target/release/reachgrasp", REPO / "target/debug/reachgrasp") if p.exists()]
+    return str(max(built, key=lambda p: p.stat().st_mtime)) if built else None
 
 
 class Service:
