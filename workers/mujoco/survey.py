@@ -194,29 +194,44 @@ def cmd_fig5(a):
 
 
 def cmd_pushes(a):
-    """Closed-loop executions to a feasible grasp of the ball with pushes on the arm."""
+    """Closed-loop executions with pushes on the arm, then the grasp trial. `--case plan`: to the
+    grasp of a plan (robot, object, force along z) from zero; `--case pinch`: to the T42 pinch of
+    the reference block (reachgrasp_mujoco.cases) from `--height` above it, the law of the
+    robot's default model."""
+    from reachgrasp_mujoco.cases import BLOCK, pinch
+
     svc = Service(a.http)
-    objs = objects(svc)
     rep = tempfile.mkdtemp(prefix="rg-push-")
-    robot = a.robot
-    w = start_worker(a, robot, rep, ["--push", "arm", "--push-force", str(a.force), "--seed", str(a.seed)])
-    rows = []
-    try:
-        start = zeros_start(svc, robot)
-        body = {"robot": robot, "object_id": objs[a.object], "task_directions": TASKS["force_z"], "start": start,
-                "execute": False}
-        p = svc.post_json("/v1/plans", body)
+    extra = ["--push", "arm", "--push-force", str(a.force), "--seed", str(a.seed)]
+    if a.case == "pinch":
+        robot = "wam_t42"
+        names, goal, pts = pinch(svc, robot, height=a.height)
+        scene = Path(rep) / "block.json"
+        scene.write_text(json.dumps(BLOCK))
+        extra += ["--scene", str(scene), "--initial=" + ",".join(str(x) for x in pts[0]["positions"])]
+        model = next(m["id"] for m in svc.get_json(f"/v1/models?robot={robot}")["items"] if m["status"] == "succeeded")
+        goal = {"joint_names": names, "positions": list(goal)}
+    else:
+        robot = a.robot
+        p = svc.post_json("/v1/plans", {"robot": robot, "object_id": objects(svc)[a.object],
+                                        "task_directions": TASKS["force_z"], "start": zeros_start(svc, robot)})
         if not p["feasible"]:
             raise RuntimeError(f"plan infeasible: {p['reason']}")
+        model = p["model_id"]
         goal = {"joint_names": p["trajectory"]["joint_names"], "positions": p["trajectory"]["goal"]}
+    w = start_worker(a, robot, rep, extra)
+    rows = []
+    try:
         for i in range(a.runs):
-            e = svc.post_json("/v1/executions", {"robot": robot, "mode": "closed_loop", "model_id": p["model_id"],
+            e = svc.post_json("/v1/executions", {"robot": robot, "mode": "closed_loop", "model_id": model,
                                                  "goal": goal, "worker": f"survey-{robot}"})
             e = wait_execution(svc, e["id"])
             r = json.loads((Path(rep) / f"{e['id']}.json").read_text())
             t = r.get("trial") or {}
+            pushes = r.get("pushes", [])
             row = {"run": i, "state": e["state"], "motion": r["motion"]["outcome"], "held": bool(t.get("held")),
-                   "pushes": len(r.get("pushes", [])), "sim_time_s": r["motion"]["sim_time_s"],
+                   "pushes": len(pushes), "max_deflection_rad": max([x["deflection_rad"] for x in pushes], default=0),
+                   "sim_time_s": r["motion"]["sim_time_s"], "object_moved_m": r["motion"].get("object_moved_m"),
                    "reason": e["reason"]}
             rows.append(row)
             print(json.dumps(row), flush=True)
@@ -225,8 +240,11 @@ def cmd_pushes(a):
         w.wait(10)
     conv = sum(1 for r in rows if r["motion"] == "succeeded")
     held = sum(1 for r in rows if r["motion"] == "succeeded" and r["held"])
-    print(json.dumps({"summary": {"converged": f"{conv}/{len(rows)}", "converged_and_held": f"{held}/{len(rows)}",
-                                  "pushes": sum(r["pushes"] for r in rows)}}, indent=1))
+    print(json.dumps({"summary": {"case": a.case, "converged": f"{conv}/{len(rows)}",
+                                  "converged_and_held": f"{held}/{len(rows)}",
+                                  "pushes": sum(r["pushes"] for r in rows),
+                                  "median_max_deflection_rad": sorted(r["max_deflection_rad"] for r in rows)[len(rows) // 2]}},
+                     indent=1))
 
 
 def cmd_rtf(a):
@@ -264,7 +282,9 @@ def main():
     ap.add_argument("--robot", default="wam_ihy")
     ap.add_argument("--object", default="ball")
     ap.add_argument("--runs", type=int, default=20)
-    ap.add_argument("--force", type=float, default=40.0)
+    ap.add_argument("--force", type=float, default=150.0)
+    ap.add_argument("--case", choices=["plan", "pinch"], default="pinch")
+    ap.add_argument("--height", type=float, default=0.05)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args()

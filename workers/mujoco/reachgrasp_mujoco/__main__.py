@@ -34,8 +34,8 @@ def worker_args(p: argparse.ArgumentParser):
     p.add_argument("--object-defaults", action="store_true",
                    help="fill a missing mass/friction of the service's seeded objects from the worker's table")
     p.add_argument("--push", choices=["arm", "object"], help="push the arm (closed loop) or the held object")
-    p.add_argument("--push-force", type=float, default=40.0, help="N")
-    p.add_argument("--push-duration", type=float, default=0.15, help="s")
+    p.add_argument("--push-force", type=float, default=150.0, help="N")
+    p.add_argument("--push-duration", type=float, default=0.2, help="s")
     p.add_argument("--max-pushes", type=int, default=3)
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--reset", choices=["start", "keep"], default="start",

@@ -34,14 +34,17 @@ class RunOptions:
 
 @dataclass
 class PushOptions:
-    """Pushes during a closed-loop execution (the paper's perturbation experiment): a force of
-    `force` N for `duration` s in a random horizontal direction on a random arm or hand body,
-    at random times while the motion is under way (`progress` < 0.8), at most `max_pushes`."""
+    """Pushes during a closed-loop execution (the paper's perturbation experiment): `max_pushes`
+    pushes of `force` N for `duration` s, `interval` s apart from `first` s after the start,
+    while the motion is under way (`progress` < 0.8), each on a random body of the forearm,
+    wrist or hand in a random horizontal direction (seeded). The servo gives way where the
+    push exceeds the joints' effort limits; the law then acts from the displaced state."""
 
-    target: str = "arm"  # arm | object
-    force: float = 40.0
-    duration: float = 0.15
-    mean_interval: float = 0.8
+    target: str = "arm"  # arm | object (object: pushes on the held object during the hold)
+    force: float = 150.0
+    duration: float = 0.2
+    first: float = 0.3
+    interval: float = 0.6
     max_pushes: int = 3
     seed: int = 7
 
@@ -275,7 +278,6 @@ class Pushes:
         self.active_until = -1.0
         self.body = -1
         self.force = np.zeros(3)
-        self.enabled = True
         self.log = []
         m = sim.m
         if opts.target == "object":
@@ -285,18 +287,23 @@ class Pushes:
             bodies = sorted({int(m.jnt_bodyid[dr.joint_id]) for dr in sim.b.drives if dr.arm})
             self.bodies = bodies[len(bodies) // 2 :] + [sim.b.hand_body]
 
-    def maybe_start(self, sim: Sim, progress: float, dt: float):
-        if not self.enabled or self.count >= self.o.max_pushes or progress >= 0.8 or sim.t < self.active_until:
+    def maybe_start(self, sim: Sim, progress: float, t: float):
+        """`t`: seconds since the execution started."""
+        o = self.o
+        if self.log and sim.t < self.active_until:
+            dev = float(np.max(np.abs(sim.q() - sim.q_ref)))
+            self.log[-1]["deflection_rad"] = max(self.log[-1]["deflection_rad"], round(dev, 4))
+        if o.force <= 0 or self.count >= o.max_pushes or progress >= 0.8 or sim.t < self.active_until:
             return
-        if self.rng.random() < dt / self.o.mean_interval:
+        if t >= o.first + self.count * o.interval:
             self.body = int(self.rng.choice(self.bodies))
             a = self.rng.uniform(0, 2 * math.pi)
-            self.force = self.o.force * np.array([math.cos(a), math.sin(a), 0.0])
-            self.active_until = sim.t + self.o.duration
+            self.force = o.force * np.array([math.cos(a), math.sin(a), 0.0])
+            self.active_until = sim.t + o.duration
             self.count += 1
             self.log.append(
-                {"t": round(sim.t, 3), "body": mujoco.mj_id2name(sim.m, mujoco.mjtObj.mjOBJ_BODY, self.body),
-                 "force": [round(float(x), 2) for x in self.force]}
+                {"t": round(t, 3), "body": mujoco.mj_id2name(sim.m, mujoco.mjtObj.mjOBJ_BODY, self.body),
+                 "force_n": [round(float(x), 2) for x in self.force], "deflection_rad": 0.0}
             )
 
     def apply(self, sim: Sim):
@@ -392,7 +399,7 @@ class ClosedLoop:
         self.q_ref = q + np.clip(self.q_ref + u * CONTROL_DT - q, -band, band)
         sim.set_reference(self.q_ref, u)
         if self.pushes is not None:
-            self.pushes.maybe_start(sim, self.progress, CONTROL_DT)
+            self.pushes.maybe_start(sim, self.progress, sim.t - self.t0)
         sim.step_control(self.pushes)
         q = sim.q()
         err = float(np.max(np.abs(q - self.goal)))

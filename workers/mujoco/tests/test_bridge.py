@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 
 from conftest import TOKEN, WORKER
+from reachgrasp_mujoco.cases import BLOCK
+from reachgrasp_mujoco.cases import pinch as pinch_case
 from reachgrasp_mujoco.law import Law
+from reachgrasp_mujoco.service import Service
 
 # Today's plans do not hold in physics (README: 0 of 60 through the bridge, the grasps overlap
 # the table and the motions have no approach phase; issues #18/#23). So the held execution is
 # one the service forwards like any other: a trajectory descending straight onto a block until
 # the T42's open distal phalanges straddle it (the pinch of test_trial.py), the block given to
 # the worker with --scene; the trial then decides the execution's state in the service.
-BLOCK = {"object": {"name": "block", "shape": {"type": "box", "size": [0.04, 0.04, 0.05]},
-                    "position": [0.5, 0.0, 0.025], "orientation": [1, 0, 0, 0], "mass": 0.1, "friction": 0.8},
-         "support": {"normal": [0, 0, 1], "offset": 0.0}}
 BALL = "00000000-0000-4000-8000-000000000001"
 FORCE_Z = [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]
 
@@ -70,45 +70,13 @@ def start(svc, robot):
     return {"joint_names": names, "positions": [0.0] * len(names)}
 
 
-def descent(svc, robot="wam_t42", height=0.15, duration=3.0, n=150):
-    """(start, points): the hand pointing down, from `height` above the pinch pose straight down
-    onto it (arm IK along the vertical line, from the goal up so the path ends exactly there)."""
-    import urllib.request
-
-    from reachgrasp_mujoco import build as B
-    from reachgrasp_mujoco.sim import Sim
-
-    detail = svc.get(f"/v1/robots/{robot}")
-    with urllib.request.urlopen(f"{svc.http}/v1/robots/{robot}/urdf") as r:
-        urdf = r.read().decode()
-    sim = Sim(B.build(urdf, B.SystemInfo.from_detail(detail), None))
-    q0 = np.zeros(sim.n)
-    q0[1], q0[3] = 0.8, 1.6
-    sim.set_posture(q0)
-    goal, err = sim.hand_pose_ik(q0, np.array([0.5, 0.0, 0.2055]), np.diag([1.0, -1.0, -1.0]))
-    assert err < 1e-6
-    sim.set_posture(goal)
-    s = [k / n for k in range(n + 1)]
-    offs = [np.array([0, 0, height * (10 * u**3 - 15 * u**4 + 6 * u**5)]) for u in s]
-    path, err = sim.arm_ik_path(goal, offs)
-    assert err < 1e-5
-    path = np.array(path[::-1])
-    dt = duration / n
-    vel = np.gradient(path, dt, axis=0)
-    vel[0] = vel[-1] = 0
-    zero = [0.0] * sim.n
-    pts = [{"t": k * dt, "positions": path[k].tolist(), "velocities": vel[k].tolist(), "accelerations": zero}
-           for k in range(n + 1)]
-    return detail["joint_names"], pts
-
-
 @pytest.fixture(scope="module")
 def pinch(seeded_service):
-    names, pts = descent(seeded_service)
+    names, _, pts = pinch_case(Service(seeded_service.http))
     scene = Path(tempfile.mkdtemp(prefix="rg-phys-scene-")) / "block.json"
     scene.write_text(json.dumps(BLOCK))
     w = WorkerProc(seeded_service, "wam_t42", "--scene", str(scene),
-                   "--initial", ",".join(str(x) for x in pts[0]["positions"]), tag="-pinch")
+                   "--initial=" + ",".join(str(x) for x in pts[0]["positions"]), tag="-pinch")
     yield w, names, pts
     w.close()
 
@@ -211,3 +179,28 @@ def test_the_closed_loop_law_matches_the_service(seeded_service):
         worst = max(worst, float(np.max(np.abs(mine - np.asarray(r["u"])))))
         scale = float(np.max(np.abs(r["u"])))
     assert worst < 1e-9 * max(1.0, scale), worst
+
+
+def test_a_registered_robot_with_a_mesh_the_worker_cannot_get_is_refused_before_hello(service):
+    """The service stores uploaded meshes but serves none: the worker names the link and the
+    file and exits (code 3) without connecting; the service and other workers are unaffected."""
+    reg = json.loads((WORKER.parent.parent / "examples/register-robot.json").read_text())
+    stl = "solid c\n" + "".join(
+        f"facet normal 0 0 0\nouter loop\nvertex {a}\nvertex {b}\nvertex {c}\nendloop\nendfacet\n"
+        for a, b, c in [("0 0 0", "0.01 0 0", "0 0.01 0"), ("0 0 0", "0 0 0.01", "0.01 0 0"),
+                        ("0 0 0", "0 0.01 0", "0 0 0.01"), ("0.01 0 0", "0 0 0.01", "0 0.01 0")]
+    ) + "endsolid c\n"
+    reg["hand_urdf"] = reg["hand_urdf"].replace(
+        '<box size="0.0625 0.02 0.018"/>', '<mesh filename="package://lab/meshes/proximal.stl"/>', 1)
+    reg["meshes"] = {"package://lab/meshes/proximal.stl": {"data": stl}}
+    reg["descriptor"]["name"] = "mesh lab system"
+    status, robot = service.post("/v1/robots", reg)
+    assert status == 201, robot
+    before = service.get("/v1/bridges")["items"]
+    p = subprocess.run(
+        [sys.executable, "-m", "reachgrasp_mujoco", "--robot", robot["id"], "--url", service.ws, "--token", TOKEN],
+        cwd=WORKER, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 3, (p.returncode, p.stderr)
+    assert "collision mesh `package://lab/meshes/proximal.stl` is not available" in p.stderr, p.stderr
+    assert "t42_left_proximal" in p.stderr or "t42_right_proximal" in p.stderr, p.stderr
+    assert service.get("/v1/bridges")["items"] == before
