@@ -485,6 +485,10 @@ class Trial:
         mujoco.mj_kinematics(sim.m, kd)
         tipb = [bid for f, bid in self.tips.items() if dr.name in next(x["joints"] for x in sim.b.info.fingers if x["name"] == f)]
         po = sim.d.xpos[sim.b.object_body]
+        if not tipb:
+            # No fingertip frame moves with this joint: flex towards the upper limit, the
+            # closing side of every bundled hand.
+            return dr.upper
 
         def dist(delta):
             kd.qpos[sim.qadr[k]] = self.q_grasp[k] + delta
@@ -544,8 +548,7 @@ class Trial:
         cs, on_support = sim.object_contacts()
         z = float(sim.d.xpos[sim.b.object_body][2])
         lifted = z - self.z0
-        hand = {sim._geom_class[g] for g, _ in cs}
-        return bool(not on_support and lifted >= self.o.held_lift_share * self.o.lift and cs and hand)
+        return bool(not on_support and lifted >= self.o.held_lift_share * self.o.lift and cs)
 
     def result(self):
         sim = self.sim

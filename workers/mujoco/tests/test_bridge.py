@@ -204,3 +204,30 @@ def test_a_registered_robot_with_a_mesh_the_worker_cannot_get_is_refused_before_
     assert "collision mesh `package://lab/meshes/proximal.stl` is not available" in p.stderr, p.stderr
     assert "t42_left_proximal" in p.stderr or "t42_right_proximal" in p.stderr, p.stderr
     assert service.get("/v1/bridges")["items"] == before
+
+
+def test_a_cancelled_execution_is_aborted_on_the_worker(seeded_service):
+    """A real-time worker (--pace 1) is cancelled mid-motion: `cancelled` in the service."""
+    svc = seeded_service
+    w = WorkerProc(svc, "wam_t42", "--pace", "1", tag="-rt")
+    try:
+        names = svc.get("/v1/robots/wam_t42")["joint_names"]
+        zero = [0.0] * len(names)
+        goal = [0.0, 0.5] + [0.0] * (len(names) - 2)
+        pts = [{"t": 0.0, "positions": zero, "velocities": zero, "accelerations": zero},
+               {"t": 20.0, "positions": goal, "velocities": zero, "accelerations": zero}]
+        status, ex = svc.post("/v1/executions", {"robot": "wam_t42", "mode": "open_loop", "worker": w.name,
+                                                 "trajectory": {"joint_names": names, "points": pts}})
+        assert status == 202, ex
+        deadline = time.monotonic() + 30
+        while svc.get(f"/v1/executions/{ex['id']}")["state"] != "running" and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        status, _ = svc.post(f"/v1/executions/{ex['id']}/cancel", {})
+        assert status in (200, 202), status
+        e = wait(svc, ex["id"], timeout=30)
+        assert e["state"] == "cancelled", e
+        # it stopped early, in simulated time well short of the 20 s trajectory
+        assert e["last_feedback"]["t"] < 10.0, e["last_feedback"]
+    finally:
+        w.close()
