@@ -231,3 +231,30 @@ def test_a_cancelled_execution_is_aborted_on_the_worker(seeded_service):
         assert e["last_feedback"]["t"] < 10.0, e["last_feedback"]
     finally:
         w.close()
+
+
+def test_the_closed_loop_recovers_from_pushes_on_the_arm(seeded_service):
+    """In process: the wam_ihy default model's law from zero to a plan's grasp configuration,
+    150 N pushes (0.6 s apart from 0.3 s, up to three while under way) on the forearm, wrist or
+    hand that overpower the servos; the law still
+    brings the arm to the goal (arrival: arm within 0.01 rad, at rest)."""
+    from reachgrasp_mujoco import build as B
+    from reachgrasp_mujoco.sim import ClosedLoop, PushOptions, Pushes, RunOptions, Sim
+
+    svc = seeded_service
+    status, plan = svc.post("/v1/plans", {"robot": "wam_ihy", "object_id": BALL, "task_directions": FORCE_Z,
+                                          "start": start(svc, "wam_ihy")})
+    assert status == 201 and plan["feasible"], plan
+    params = svc.get(f"/v1/models/{plan['model_id']}/params")
+    detail, urdf = Service(svc.http).robot("wam_ihy")
+    sim = Sim(B.build(urdf, B.SystemInfo.from_detail(detail), None))
+    sim.set_posture(np.zeros(sim.n))
+    pushes = Pushes(PushOptions(force=150.0, seed=3), sim, 3)
+    run = ClosedLoop(sim, Law(params), plan["trajectory"]["goal"], RunOptions(), pushes)
+    out = None
+    while out is None:
+        out = run.tick()
+    assert out == ("succeeded", None), out
+    assert len(pushes.log) >= 2, pushes.log  # the third only if still under way (progress < 0.8)
+    # the pushes displaced the arm beyond what the servo holds (its reference band)
+    assert max(p["deflection_rad"] for p in pushes.log) >= 0.05, pushes.log
