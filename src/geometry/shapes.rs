@@ -416,4 +416,3 @@ pub fn parse_stl(bytes: &[u8]) -> Result<ShapeSpec, GeometryError> {
         triangles,
     })
 }
-
