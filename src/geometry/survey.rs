@@ -120,3 +120,120 @@ fn survey_self_intersections_of_the_bundled_systems() {
         }
     }
 }
+
+/// Every non-adjacent pair of arm links whose relative pose depends on at most three joints
+/// (link i against link i+2 or i+3: the pairs that meet at a folded joint) is clear over the
+/// whole joint box, not just at samples: branch and bound over the box of those joints, a box
+/// being clear when the pair's exact distance at its centre exceeds the half-widths times the
+/// pair's speed gains (the most any point can move within the box).
+#[test]
+fn arm_links_two_or_three_joints_apart_never_intersect_within_the_limits() {
+    for name in ["wam_t42", "pa10_t42"] {
+        let sys = System::from_file(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("robots/systems/{name}.toml")),
+        )
+        .unwrap();
+        let model = &sys.model;
+        let robot = Arc::new(RobotGeometry::from_system(&sys));
+        let checker = CollisionChecker::new(robot.clone(), Scene::new());
+        let mut data = checker.data();
+        let shapes = robot.shapes();
+        let (lo, hi) = (model.lower_limits(), model.upper_limits());
+        let mut checked = 0;
+        for (pi, p) in checker.pairs().iter().enumerate() {
+            let Target::Shape(j) = p.other else { continue };
+            let (a, b) = (&shapes[p.shape], &shapes[j]);
+            if in_hand(model, sys.wrist_frame, a.frame) || in_hand(model, sys.wrist_frame, b.frame)
+            {
+                continue;
+            }
+            let mut joints: Vec<usize> = a.chain[p.a_from..]
+                .iter()
+                .chain(&b.chain[p.b_from..])
+                .map(|c| c.q)
+                .collect();
+            // A fixed base cylinder on the axis of the first joint is unchanged by that joint's
+            // rotation: the pair's distance does not depend on it (checked, then left out).
+            if a.is_static() && a.solid().shape().as_cylinder().is_some() {
+                checker.update(&mut data, &model.neutral());
+                let pose = data.shape_poses()[p.shape];
+                let axis = pose * nalgebra::Vector3::y();
+                let j1 = &b.chain[0];
+                let jf = FrameId(j1.frame);
+                let joint = model.joint_of_frame(jf).unwrap();
+                let world = data.kinematics().frame(jf);
+                let j_axis = world * joint.kind.axis().unwrap().into_inner();
+                let off = pose.translation.vector - world.translation.vector;
+                if axis.cross(&j_axis).norm() < 1e-12 && off.cross(&j_axis).norm() < 1e-12 {
+                    joints.retain(|&k| k != j1.q);
+                }
+            }
+            if joints.len() > 3 {
+                continue;
+            }
+            checked += 1;
+            let gains: Vec<f64> = joints
+                .iter()
+                .map(|&k| {
+                    let mut rates = vec![0.0; model.nq()];
+                    rates[k] = 1.0;
+                    robot.speed_bound(p.shape, &rates) + robot.speed_bound(j, &rates)
+                })
+                .collect();
+            let mut boxes = vec![joints.iter().map(|&k| (lo[k], hi[k])).collect::<Vec<_>>()];
+            let (mut evaluations, mut margin) = (0usize, f64::INFINITY);
+            let mut q = model.neutral();
+            while let Some(bx) = boxes.pop() {
+                evaluations += 1;
+                assert!(
+                    evaluations < 400_000,
+                    "{name}: {} - {} not certified",
+                    a.link,
+                    b.link
+                );
+                for (&k, &(l, h)) in joints.iter().zip(&bx) {
+                    q[k] = 0.5 * (l + h);
+                }
+                checker.update(&mut data, &q);
+                let d = checker.pair_distance(&mut data, pi).distance;
+                assert!(
+                    d > 0.0,
+                    "{name}: {} - {} intersect ({:.1} mm) at {q:?}",
+                    a.link,
+                    b.link,
+                    -1e3 * d
+                );
+                let slack: f64 = gains
+                    .iter()
+                    .zip(&bx)
+                    .map(|(g, (l, h))| g * 0.5 * (h - l))
+                    .sum();
+                if d > slack {
+                    margin = margin.min(d - slack);
+                    continue;
+                }
+                let widest = (0..bx.len())
+                    .max_by(|&x, &y| {
+                        (gains[x] * (bx[x].1 - bx[x].0))
+                            .total_cmp(&(gains[y] * (bx[y].1 - bx[y].0)))
+                    })
+                    .unwrap();
+                let (l, h) = bx[widest];
+                let mut left = bx.clone();
+                left[widest].1 = 0.5 * (l + h);
+                let mut right = bx;
+                right[widest].0 = 0.5 * (l + h);
+                boxes.push(left);
+                boxes.push(right);
+            }
+            println!(
+                "{name}: {} - {} clear over the joint box ({} joints, {evaluations} boxes, margin >= {:.2} mm)",
+                a.link,
+                b.link,
+                joints.len(),
+                1e3 * margin
+            );
+        }
+        assert!(checked >= 4, "{name}: only {checked} pairs checked");
+    }
+}
