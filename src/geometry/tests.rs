@@ -488,8 +488,8 @@ fn point_segment(p: Vector3<f64>, a: Vector3<f64>, b: Vector3<f64>) -> f64 {
 fn wam_clearances_at_the_zero_posture_match_hand_computation() {
     // At q = 0 the WAM stands straight up and every link frame is world-aligned (the DH twists
     // of joints 2/3, 4/5 and 6/7 cancel pairwise). From the URDF: shoulder at z = 0.346 with
-    // link1's 0.09 sphere; the upper-arm cylinder (r 0.06) runs from the shoulder to the elbow
-    // at (0.045, 0, 0.346 + 0.55).
+    // link1's 0.09 sphere; the upper-arm cylinder (r 0.045) runs up the shoulder axis from
+    // 0.095 to 0.49 above the shoulder.
     let sys = system("wam_t42");
     let robot = Arc::new(RobotGeometry::from_system(&sys));
     let ball_at = Vector3::new(0.25, 0.0, 0.62);
@@ -510,9 +510,8 @@ fn wam_clearances_at_the_zero_posture_match_hand_computation() {
         (support.distance.distance - (0.346 - 0.09)).abs() < 1e-9,
         "{support:?}"
     );
-    let shoulder = Vector3::new(0.0, 0.0, 0.346);
-    let elbow = Vector3::new(0.045, 0.0, 0.896);
-    let want = point_segment(ball_at, shoulder, elbow) - 0.06 - 0.04;
+    let (a, b) = (Vector3::new(0.0, 0.0, 0.441), Vector3::new(0.0, 0.0, 0.836));
+    let want = point_segment(ball_at, a, b) - 0.045 - 0.04;
     let obs = c.category(Category::Obstacle).unwrap();
     assert!(
         (obs.distance.distance - want).abs() < 1e-7,
