@@ -1,7 +1,7 @@
 //! reachgrasp: humanlike, task-specific reaching and grasping for redundant arms and
 //! low-complexity hands, as an HTTP planning service.
 //!
-//! Pure computation (no I/O, no async, deterministic for a seed): [`kinematics`], [`human`],
+//! Pure computation (no I/O, no async, deterministic for a seed): [`kinematics`], [`geometry`], [`human`],
 //! [`mapping`], [`motion`], [`grasp`], [`optim`]. The service shell around them: [`store`],
 //! [`api`], [`jobs`], [`bridge`], [`dashboard`], wired together by [`app`] from a
 //! typed [`config`]. Equation numbers refer to
@@ -13,6 +13,7 @@ pub mod bridge;
 pub mod config;
 pub mod dashboard;
 pub mod figures;
+pub mod geometry;
 pub mod grasp;
 pub mod human;
 pub mod jobs;

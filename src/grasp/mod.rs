@@ -90,3 +90,17 @@ pub enum GraspError {
         reason: String,
     },
 }
+
+impl From<crate::geometry::GeometryError> for GraspError {
+    fn from(e: crate::geometry::GeometryError) -> Self {
+        use crate::geometry::GeometryError as G;
+        match e {
+            G::InvalidDimension { field, value } => GraspError::InvalidDimension { field, value },
+            G::NonFinite { field } => GraspError::NonFinite { field },
+            G::MalformedMesh { reason } => GraspError::MalformedMesh { reason },
+            G::NonManifoldMesh { reason } => GraspError::NonManifoldMesh { reason },
+            G::MeshTooLarge { triangles, limit } => GraspError::MeshTooLarge { triangles, limit },
+            // GeometryError is non_exhaustive only towards other crates; every variant is above.
+        }
+    }
+}

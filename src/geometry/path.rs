@@ -1,0 +1,344 @@
+//! Continuous collision checking along a joint-space path by conservative advancement.
+//!
+//! The path is `q(s)`, `s ∈ [0, end]` (a polyline through configurations, or any path that can
+//! bound its joint rates `|dq_k/ds|` over an interval). Over `[s, s + Δ]` every point of a robot
+//! shape moves at most `L·Δ` relative to the other member of a pair, with `L` from the shape's
+//! joint-speed gains ([`super::robot`]) and the rate bounds (for two robot shapes only the joints
+//! below their common ancestor count), so the pair's signed distance falls by at most `L·Δ`.
+//! Each step is the largest `Δ` with `L_p·Δ ≤ d_p − m_c + tol` for every pair `p`, where `d_p`
+//! is a lower bound of the pair's distance at `s` (exact, or an earlier exact value minus the
+//! motion since, or the bounding-sphere gap), `m_c` the smallest exact distance found so far in
+//! the pair's category and `tol` the tolerance. Pairs whose bound limits the step are evaluated
+//! exactly until the limiting pair is exact, so steps are at least `tol / L`.
+//!
+//! Guarantee (when the report is `complete`): for every non-allowed pair and every `s`, the
+//! signed distance is at least the reported category minimum minus `tol`; the reported minimum
+//! is an exact distance at a sampled `s`, so the true minimum lies within `tol` below it. A
+//! collision deeper than `tol` cannot be missed, and before the reported first collision no pair
+//! is more than `tol` inside.
+
+use super::checker::{Category, CheckData, CollisionChecker, Target};
+use super::solid::SignedDistance;
+
+/// A joint-space path `q(s)`, `s ∈ [0, end]`.
+pub trait JointPath {
+    /// Number of coordinates of `q`.
+    fn nq(&self) -> usize;
+    /// The parameter runs over `[0, end]`.
+    fn end(&self) -> f64;
+    /// `q(s)`.
+    fn eval(&self, s: f64, q: &mut [f64]);
+    /// `out[k] ≥ sup |dq_k/ds|` over `[s0, s1]`.
+    fn rate_bound(&self, s0: f64, s1: f64, out: &mut [f64]);
+}
+
+/// The piecewise-linear path through configurations `points` (`n × nq`, row-major); `s` counts
+/// segments (`q(k) = points[k]`).
+#[derive(Clone, Copy, Debug)]
+pub struct Polyline<'a> {
+    points: &'a [f64],
+    nq: usize,
+}
+
+impl<'a> Polyline<'a> {
+    /// Panics unless `points` holds at least one configuration of `nq` values.
+    pub fn new(points: &'a [f64], nq: usize) -> Self {
+        assert!(nq > 0 && points.len() >= nq && points.len().is_multiple_of(nq));
+        Polyline { points, nq }
+    }
+    fn count(&self) -> usize {
+        self.points.len() / self.nq
+    }
+}
+
+impl JointPath for Polyline<'_> {
+    fn nq(&self) -> usize {
+        self.nq
+    }
+    fn end(&self) -> f64 {
+        (self.count() - 1) as f64
+    }
+    fn eval(&self, s: f64, q: &mut [f64]) {
+        let n = self.nq;
+        let last = self.count() - 1;
+        if last == 0 {
+            q.copy_from_slice(&self.points[..n]);
+            return;
+        }
+        let s = s.clamp(0.0, last as f64);
+        let k = (s.floor() as usize).min(last - 1);
+        let t = s - k as f64;
+        let (a, b) = (
+            &self.points[k * n..(k + 1) * n],
+            &self.points[(k + 1) * n..(k + 2) * n],
+        );
+        for i in 0..n {
+            q[i] = a[i] + t * (b[i] - a[i]);
+        }
+    }
+    fn rate_bound(&self, s0: f64, s1: f64, out: &mut [f64]) {
+        let n = self.nq;
+        out.fill(0.0);
+        let last = self.count() - 1;
+        if last == 0 {
+            return;
+        }
+        let k0 = (s0.max(0.0).floor() as usize).min(last - 1);
+        let k1 = ((s1.ceil() as usize).saturating_sub(1)).clamp(k0, last - 1);
+        for k in k0..=k1 {
+            let (a, b) = (
+                &self.points[k * n..(k + 1) * n],
+                &self.points[(k + 1) * n..(k + 2) * n],
+            );
+            for i in 0..n {
+                out[i] = out[i].max((b[i] - a[i]).abs());
+            }
+        }
+    }
+}
+
+/// Options of [`CollisionChecker::check_path`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PathOptions {
+    /// Metres: the true minimum lies at most this far below the reported one.
+    pub tolerance: f64,
+    /// Step budget (deterministic); the report says `complete: false` when it runs out.
+    pub max_steps: usize,
+}
+
+impl Default for PathOptions {
+    fn default() -> Self {
+        PathOptions {
+            tolerance: 5e-4,
+            max_steps: 100_000,
+        }
+    }
+}
+
+/// An exact distance found along a path.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PathHit {
+    /// Path parameter.
+    pub s: f64,
+    /// Index into [`CollisionChecker::pairs`].
+    pub pair: usize,
+    pub distance: SignedDistance,
+}
+
+/// Result of a continuous check (see the module docs for what it guarantees).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PathReport {
+    /// Smallest exact distance over all non-allowed pairs.
+    pub min: Option<PathHit>,
+    /// Per category, indexed by `Category as usize`.
+    pub by_category: [Option<PathHit>; 4],
+    /// First sampled penetration (distance < 0).
+    pub first_collision: Option<PathHit>,
+    pub tolerance: f64,
+    /// False when the step budget ran out before the end (then only `[0, reached]` is covered).
+    pub complete: bool,
+    pub reached: f64,
+    pub steps: usize,
+    pub exact_queries: usize,
+}
+
+impl PathReport {
+    /// Smallest exact distance (`+∞` without pairs).
+    pub fn distance(&self) -> f64 {
+        self.min.map_or(f64::INFINITY, |h| h.distance.distance)
+    }
+    /// Certified lower bound on every non-allowed pair's distance along the covered path.
+    pub fn lower_bound(&self) -> f64 {
+        self.distance() - self.tolerance
+    }
+    pub fn category(&self, c: Category) -> Option<&PathHit> {
+        self.by_category[c as usize].as_ref()
+    }
+    pub fn category_distance(&self, c: Category) -> f64 {
+        self.category(c)
+            .map_or(f64::INFINITY, |h| h.distance.distance)
+    }
+}
+
+struct Tracker {
+    m: [f64; 4],
+    report: PathReport,
+}
+
+impl Tracker {
+    fn record(&mut self, cat: Category, s: f64, pair: usize, d: SignedDistance) {
+        let c = cat as usize;
+        let hit = PathHit {
+            s,
+            pair,
+            distance: d,
+        };
+        if d.distance < self.m[c] {
+            self.m[c] = d.distance;
+            self.report.by_category[c] = Some(hit);
+            if self
+                .report
+                .min
+                .is_none_or(|h| d.distance < h.distance.distance)
+            {
+                self.report.min = Some(hit);
+            }
+        }
+        if d.distance < 0.0 && self.report.first_collision.is_none() {
+            self.report.first_collision = Some(hit);
+        }
+    }
+}
+
+impl CollisionChecker {
+    /// Relative motion bound of every pair for the rates in `data.rates` (m per unit `s`).
+    fn pair_rate(&self, data: &CheckData, pair: usize) -> f64 {
+        let p = &self.pairs()[pair];
+        let oa = self.suffix_offset[p.shape];
+        let la = data.suffix[oa + p.a_from];
+        match p.other {
+            Target::Shape(j) => la + data.suffix[self.suffix_offset[j] + p.b_from],
+            _ => la,
+        }
+    }
+
+    fn fill_suffix(&self, data: &mut CheckData) {
+        for (i, s) in self.robot().shapes().iter().enumerate() {
+            let off = self.suffix_offset[i];
+            let n = s.chain.len();
+            data.suffix[off + n] = 0.0;
+            for k in (0..n).rev() {
+                let c = &s.chain[k];
+                data.suffix[off + k] = data.suffix[off + k + 1] + c.gain * data.rates[c.q].abs();
+            }
+        }
+    }
+
+    /// Exact minimum per category at the current sample (branch and bound on sphere gaps),
+    /// recorded; the pairs evaluated become exact.
+    fn resolve_sample(&self, data: &mut CheckData, s: f64, t: &mut Tracker) {
+        let cl = self.clearance_at_update(data);
+        for c in Category::ALL {
+            if let Some(h) = cl.by_category[c as usize] {
+                data.bound[h.pair] = h.distance.distance;
+                data.exact[h.pair] = true;
+                t.record(c, s, h.pair, h.distance);
+            }
+        }
+    }
+
+    /// Continuous check of `path` against every non-allowed pair (see the module docs).
+    pub fn check_path(
+        &self,
+        data: &mut CheckData,
+        path: &dyn JointPath,
+        opts: &PathOptions,
+    ) -> PathReport {
+        assert_eq!(
+            path.nq(),
+            self.robot().model().nq(),
+            "path has the wrong nq"
+        );
+        let tol = opts.tolerance.max(1e-9);
+        let n_pairs = self.pairs().len();
+        let queries0 = data.exact_queries;
+        let mut t = Tracker {
+            m: [f64::INFINITY; 4],
+            report: PathReport {
+                min: None,
+                by_category: [None; 4],
+                first_collision: None,
+                tolerance: tol,
+                complete: false,
+                reached: 0.0,
+                steps: 0,
+                exact_queries: 0,
+            },
+        };
+        let end = path.end();
+        let mut q = std::mem::take(&mut data.q);
+        let mut s = 0.0;
+        path.eval(s, &mut q);
+        self.update(data, &q);
+        data.exact.fill(false);
+        self.resolve_sample(data, s, &mut t);
+        let mut step = end;
+        let mut complete = end <= 0.0;
+        while !complete && t.report.steps < opts.max_steps {
+            t.report.steps += 1;
+            let mut try_end = (s + step).min(end);
+            let mut rates = std::mem::take(&mut data.rates);
+            path.rate_bound(s, try_end, &mut rates);
+            data.rates = rates;
+            self.fill_suffix(data);
+            // Evaluate limiting pairs until the limiting pair is exact.
+            let mut limit;
+            loop {
+                limit = f64::INFINITY;
+                let mut arg = usize::MAX;
+                for i in 0..n_pairs {
+                    if self.is_allowed(i) {
+                        continue;
+                    }
+                    let l = self.pair_rate(data, i);
+                    if l <= 0.0 {
+                        continue;
+                    }
+                    let c = self.pairs()[i].category as usize;
+                    let key = (data.bound[i] - t.m[c] + tol) / l;
+                    if key < limit {
+                        limit = key;
+                        arg = i;
+                    }
+                }
+                if arg == usize::MAX || data.exact[arg] {
+                    break;
+                }
+                let d = self.pair_distance(data, arg);
+                data.bound[arg] = d.distance;
+                data.exact[arg] = true;
+                t.record(self.pairs()[arg].category, s, arg, d);
+            }
+            let delta = if limit < try_end - s {
+                // Shorter than tried: rates over the shorter interval are no larger, so the
+                // bound still holds; carry the motion with those rates.
+                try_end = s + limit;
+                let mut rates = std::mem::take(&mut data.rates);
+                path.rate_bound(s, try_end, &mut rates);
+                data.rates = rates;
+                self.fill_suffix(data);
+                limit
+            } else {
+                try_end - s
+            };
+            for i in 0..n_pairs {
+                if !self.is_allowed(i) {
+                    data.bound[i] -= self.pair_rate(data, i) * delta;
+                }
+            }
+            s = try_end;
+            step = 2.0 * delta.max(1e-12);
+            path.eval(s, &mut q);
+            self.update(data, &q);
+            data.exact.fill(false);
+            if s >= end {
+                self.resolve_sample(data, s, &mut t);
+                complete = true;
+            } else {
+                for i in 0..n_pairs {
+                    if !self.is_allowed(i) {
+                        let b = self.sphere_bound(data, i);
+                        if b > data.bound[i] {
+                            data.bound[i] = b;
+                        }
+                    }
+                }
+            }
+        }
+        data.q = q;
+        t.report.complete = complete;
+        t.report.reached = s;
+        t.report.exact_queries = data.exact_queries - queries0;
+        t.report
+    }
+}
