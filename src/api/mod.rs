@@ -32,9 +32,13 @@
 //!    ```
 //!    Always use [`Json`], [`Path`] and [`Query`] from this module (not axum's): their
 //!    rejections are problem+json with the JSONPath of the bad field. Handlers: extract → parse
-//!    into domain types → call the pure module → persist → DTO.
+//!    into domain types → call a use case of [`crate::service`] (numerics, then one
+//!    transaction per unit of work) → DTO. New use cases belong in `src/service/`, never here:
+//!    the CLI, seeding and the dashboard must be able to call them without this module.
 //! 4. **Errors.** Keep one `#[non_exhaustive]` thiserror enum per layer and convert it at the
-//!    edge with `impl From<RobotError> for ApiError` in your api file: bad input →
+//!    edge with `impl From<RobotError> for ApiError` in your api file (use cases return
+//!    [`crate::service::Error`], rendered by `impl From<service::Error> for ApiError`; never
+//!    branch on an `ApiError`'s status or field paths): bad input →
 //!    [`ApiError::invalid_field`] / [`ApiError::validation`] (422, JSONPath like
 //!    `$.joints[2].position` in each [`FieldError`]), unknown id → [`ApiError::not_found`],
 //!    duplicates/state conflicts → [`ApiError::conflict`], bugs → [`ApiError::internal`] (logged,

@@ -211,10 +211,7 @@ mod tests {
             "plans" => "SELECT COUNT(*) FROM plans",
             other => panic!("no table {other}"),
         };
-        let (n,): (i64,) = sqlx::query_as(sql)
-            .fetch_one(&ctx.db)
-            .await
-            .expect("count");
+        let (n,): (i64,) = sqlx::query_as(sql).fetch_one(&ctx.db).await.expect("count");
         n
     }
 
