@@ -373,7 +373,7 @@ async fn create_demonstration(
     }
     let demo = ingest_blocking(input).await?;
     let id = Uuid::new_v4().to_string();
-    let mut tx = state.db.begin().await?;
+    let mut tx = crate::store::begin_write(&state.db).await?;
     match repo::insert(&mut tx, &id, None, &demo, &now()).await {
         Ok(()) => tx.commit().await?,
         Err(e) if is_unique_violation(&e) => {

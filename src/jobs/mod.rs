@@ -613,7 +613,7 @@ async fn complete(
     output: JobOutput,
     events: &watch::Sender<JobRecord>,
 ) -> anyhow::Result<()> {
-    let mut tx = pool.begin().await?;
+    let mut tx = store::begin_write(pool).await?;
     let result = match output.persist {
         Some(p) => Some(p.persist(id, &mut tx).await?),
         None => None,

@@ -94,7 +94,7 @@ pub(crate) async fn store_with(
         execution,
         mut plan,
     } = rows;
-    let mut tx = ctx.db.begin().await?;
+    let mut tx = crate::store::begin_write(&ctx.db).await?;
     let grasp = grasp_repo::insert_grasp_in(&mut tx, &grasp, None).await?;
     after(Write::Grasp)?;
     let trajectory = match &trajectory {

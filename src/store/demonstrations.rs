@@ -251,7 +251,7 @@ pub enum Deleted {
 
 /// Delete a demonstration; with `cascade`, also the mappings that use it (one transaction).
 pub async fn delete(pool: &SqlitePool, id: &str, cascade: bool) -> Result<Deleted, sqlx::Error> {
-    let mut tx: Transaction<'static, Sqlite> = pool.begin().await?;
+    let mut tx: Transaction<'static, Sqlite> = super::begin_write(pool).await?;
     let exists: bool =
         sqlx::query_scalar("SELECT EXISTS (SELECT 1 FROM demonstrations WHERE id = ?)")
             .bind(id)

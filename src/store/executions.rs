@@ -289,7 +289,7 @@ pub async fn save_progress(
     tracking: &str,
     history: Option<&Chunk>,
 ) -> Result<bool, sqlx::Error> {
-    let mut tx = pool.begin().await?;
+    let mut tx = super::begin_write(pool).await?;
     let r = sqlx::query(
         "UPDATE executions SET last_feedback = ?, tracking = ? WHERE id = ? AND state = 'running'",
     )
@@ -332,7 +332,7 @@ pub async fn finish(
     history: Option<&Chunk>,
 ) -> Result<bool, sqlx::Error> {
     debug_assert!(is_final(state));
-    let mut tx = pool.begin().await?;
+    let mut tx = super::begin_write(pool).await?;
     let r = sqlx::query(
         "UPDATE executions SET state = ?, reason = ?, finished_at = ?, \
          last_feedback = COALESCE(?, last_feedback), tracking = COALESCE(?, tracking) \

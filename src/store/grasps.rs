@@ -136,7 +136,7 @@ pub async fn insert_grasp_in(
 }
 
 pub async fn insert_grasp(pool: &SqlitePool, g: &NewGrasp) -> Result<GraspRow, sqlx::Error> {
-    let mut tx = pool.begin().await?;
+    let mut tx = super::begin_write(pool).await?;
     let row = insert_grasp_in(&mut tx, g, None).await?;
     tx.commit().await?;
     Ok(row)

@@ -2,7 +2,7 @@
 //!
 //! Queries use `sqlx::query` / `sqlx::query_as` with `#[derive(sqlx::FromRow)]` rows, never the
 //! `query!` macros, so building never needs a live database. Every write that matters runs in a
-//! transaction (`pool.begin()`); see [`crate::jobs`] for how a job stores its result rows and its
+//! transaction started with [`begin_write`] (`BEGIN IMMEDIATE`); see [`crate::jobs`] for how a job stores its result rows and its
 //! result reference in one transaction.
 
 pub mod blob;
@@ -23,8 +23,8 @@ use std::path::Path;
 use std::str::FromStr;
 use std::time::Duration;
 
-use sqlx::SqlitePool;
 use sqlx::sqlite::{SqliteConnectOptions, SqliteJournalMode, SqlitePoolOptions, SqliteSynchronous};
+use sqlx::{Sqlite, SqlitePool, Transaction};
 use time::OffsetDateTime;
 use time::format_description::FormatItem;
 use time::macros::format_description;
@@ -70,7 +70,12 @@ pub async fn connect(path: &Path) -> Result<SqlitePool, StoreError> {
         // last commits), which is the failure the job recovery is about.
         .synchronous(SqliteSynchronous::Normal)
         .foreign_keys(true)
-        .busy_timeout(Duration::from_secs(5));
+        // Writers queue for SQLite's one write lock (`begin_write`); a long job result commit
+        // under load can hold it for seconds, so a waiting writer gets well over that.
+        .busy_timeout(Duration::from_secs(30))
+        // A checkpoint truncates the WAL back to this size instead of leaving it at its
+        // high-water mark after a large write (64 MiB).
+        .pragma("journal_size_limit", "67108864");
     let pool = SqlitePoolOptions::new()
         .max_connections(8)
         .connect_with(options)
@@ -81,6 +86,17 @@ pub async fn connect(path: &Path) -> Result<SqlitePool, StoreError> {
         })?;
     MIGRATOR.run(&pool).await?;
     Ok(pool)
+}
+
+/// Begins a write transaction with `BEGIN IMMEDIATE`: it takes SQLite's single write lock at
+/// once, waiting (up to the busy timeout) while another writer holds it.
+///
+/// A deferred `BEGIN` (sqlx's `pool.begin()`) reads from a snapshot and upgrades to a writer at
+/// its first write; when another connection committed in between, the upgrade fails at once with
+/// SQLITE_BUSY_SNAPSHOT in WAL mode — the busy timeout cannot help, because the conflict is with
+/// data already read. Every transaction that writes starts here.
+pub async fn begin_write(pool: &SqlitePool) -> Result<Transaction<'static, Sqlite>, sqlx::Error> {
+    pool.begin_with("BEGIN IMMEDIATE").await
 }
 
 /// Answers whether the database is reachable (used by `/readyz`).
@@ -146,5 +162,92 @@ mod tests {
         ping(&pool).await.unwrap();
         // Applying the migrations a second time is a no-op, not an error.
         MIGRATOR.run(&pool).await.unwrap();
+        let limit: (i64,) = sqlx::query_as("PRAGMA journal_size_limit")
+            .fetch_one(&pool)
+            .await
+            .unwrap();
+        assert_eq!(limit.0, 64 << 20);
+    }
+
+    /// Reads, lets another connection commit, then writes: the pattern of a job that checks
+    /// what exists before storing, or a delete that checks what uses a row.
+    async fn read_commit_write(immediate: bool) -> Result<(), sqlx::Error> {
+        let dir = tempfile::tempdir().unwrap();
+        let pool = connect(&dir.path().join("t.db")).await.unwrap();
+        sqlx::query("CREATE TABLE t (x INTEGER)")
+            .execute(&pool)
+            .await
+            .unwrap();
+        let mut tx = if immediate {
+            begin_write(&pool).await?
+        } else {
+            pool.begin().await?
+        };
+        let _: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM t")
+            .fetch_one(&mut *tx)
+            .await?;
+        // Another writer; it waits for the lock when `tx` holds it.
+        let other = tokio::spawn({
+            let pool = pool.clone();
+            async move { sqlx::query("INSERT INTO t VALUES (2)").execute(&pool).await }
+        });
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        sqlx::query("INSERT INTO t VALUES (1)")
+            .execute(&mut *tx)
+            .await?;
+        tx.commit().await?;
+        other.await.unwrap()?;
+        let rows: Vec<i64> = sqlx::query_scalar("SELECT x FROM t ORDER BY rowid")
+            .fetch_all(&pool)
+            .await?;
+        assert_eq!(
+            rows,
+            [1, 2],
+            "the immediate writer goes first, the other waits"
+        );
+        Ok(())
+    }
+
+    #[tokio::test]
+    async fn a_write_transaction_survives_a_commit_between_its_read_and_its_write() {
+        read_commit_write(true).await.unwrap();
+        // The reference: a deferred transaction fails exactly there (SQLITE_BUSY_SNAPSHOT,
+        // extended code 517), which is what made concurrent jobs end `failed: internal`.
+        let err = read_commit_write(false).await.unwrap_err();
+        let code = err.as_database_error().and_then(|e| e.code()).unwrap();
+        assert_eq!(code, "517", "{err}");
+    }
+
+    /// Every write transaction in the service starts IMMEDIATE (tests may use `begin()`).
+    #[test]
+    fn no_deferred_transaction_outside_tests() {
+        fn visit(dir: &Path, found: &mut Vec<String>) {
+            for entry in std::fs::read_dir(dir).unwrap() {
+                let path = entry.unwrap().path();
+                if path.is_dir() {
+                    visit(&path, found);
+                    continue;
+                }
+                let name = path.file_name().unwrap().to_string_lossy();
+                if name == "tests.rs" || name.ends_with("_tests.rs") || name == "testing.rs" {
+                    continue;
+                }
+                let text = std::fs::read_to_string(&path).unwrap();
+                // An inline unit-test module sits at the end of its file.
+                let body = text.split("mod tests {").next().unwrap_or("");
+                for (i, line) in body.lines().enumerate() {
+                    let code = line.split("//").next().unwrap_or("");
+                    if code.contains(".begin()") {
+                        found.push(format!("{}:{}", path.display(), i + 1));
+                    }
+                }
+            }
+        }
+        let mut found = Vec::new();
+        visit(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("src"),
+            &mut found,
+        );
+        assert!(found.is_empty(), "use store::begin_write: {found:?}");
     }
 }

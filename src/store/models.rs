@@ -127,7 +127,7 @@ async fn mark_default(
 /// Marks a trained model as its robot's default (clearing any other mark). Returns false when
 /// the model does not exist or is not trained.
 pub async fn set_default(pool: &SqlitePool, id: &str) -> Result<bool, sqlx::Error> {
-    let mut tx = pool.begin().await?;
+    let mut tx = super::begin_write(pool).await?;
     let robot: Option<String> =
         sqlx::query_scalar("SELECT robot FROM models WHERE id = ? AND model IS NOT NULL")
             .bind(id)

@@ -52,7 +52,7 @@ pub async fn insert_with_meshes(
     meshes: &[(String, Vec<u8>)],
 ) -> Result<RobotRow, sqlx::Error> {
     let t = now();
-    let mut tx = pool.begin().await?;
+    let mut tx = super::begin_write(pool).await?;
     sqlx::query(
         "INSERT INTO robots (id, name, bundled, descriptor, arm_urdf, hand_urdf, created_at, updated_at) \
          VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
@@ -99,7 +99,7 @@ pub enum Upsert {
 /// Inserts a bundled system, updates it when any stored text differs, or leaves it alone; in one
 /// transaction so concurrent starts cannot interleave.
 pub async fn upsert_bundled(pool: &SqlitePool, r: &NewRobot<'_>) -> Result<Upsert, sqlx::Error> {
-    let mut tx = pool.begin().await?;
+    let mut tx = super::begin_write(pool).await?;
     let existing: Option<RobotRow> = sqlx::query_as("SELECT id, name, bundled, descriptor, arm_urdf, hand_urdf, created_at, updated_at FROM robots WHERE id = ?")
         .bind(r.id)
         .fetch_optional(&mut *tx)

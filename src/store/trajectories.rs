@@ -175,7 +175,7 @@ pub async fn insert_trajectory(
     pool: &SqlitePool,
     t: &NewTrajectory<'_>,
 ) -> Result<StoredTrajectory, sqlx::Error> {
-    let mut tx = pool.begin().await?;
+    let mut tx = super::begin_write(pool).await?;
     let stored = insert_trajectory_in(&mut tx, t).await?;
     tx.commit().await?;
     Ok(stored)

@@ -1,6 +1,7 @@
 //! Black-box API tests: the real service on an ephemeral port with a temporary database.
 
 mod bridges;
+mod concurrency;
 mod demonstrations;
 mod errors;
 mod figures;
