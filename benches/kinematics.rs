@@ -5,7 +5,7 @@
 
 use std::hint::black_box;
 use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use criterion::{Criterion, criterion_group};
 use nalgebra::{Matrix6xX, Vector3};
@@ -115,15 +115,12 @@ fn fk_jacobian(c: &mut Criterion) {
 }
 
 fn ik(c: &mut Criterion) {
-    let mut g = c.benchmark_group("pose ik, random reachable pose, random seed, 5 ms budget");
+    let mut g = c.benchmark_group("pose ik, random reachable pose, random seed, default budget");
     for (file, flange) in [("wam.urdf", "wam_flange"), ("pa10.urdf", "pa10_flange")] {
         let model = arm(file);
         let cases = targets(&model, flange, 1000, 3);
         let mut solver = IkSolver::new(&model);
-        let opts = IkOptions {
-            time_budget: Duration::from_millis(5),
-            ..IkOptions::default()
-        };
+        let opts = IkOptions::default();
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let mut i = 0;
         g.bench_function(file, |b| {
