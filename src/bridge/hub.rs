@@ -18,6 +18,7 @@ use axum::extract::ws::{CloseFrame, Message, WebSocket};
 use futures::{Sink, SinkExt, Stream, StreamExt};
 use serde::{Deserialize, Serialize};
 use sqlx::SqlitePool;
+use subtle::ConstantTimeEq;
 use tokio::sync::{Notify, mpsc, watch};
 use utoipa::ToSchema;
 
@@ -141,13 +142,10 @@ impl fmt::Debug for Hub {
     }
 }
 
-/// Constant-time comparison, so the token cannot be guessed byte by byte from response times.
+/// Constant-time comparison, so the token cannot be guessed byte by byte from response times
+/// (only its length can leak, and that is not secret).
 fn same_token(a: &str, b: &str) -> bool {
-    let (a, b) = (a.as_bytes(), b.as_bytes());
-    if a.len() != b.len() {
-        return false;
-    }
-    a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+    a.as_bytes().ct_eq(b.as_bytes()).into()
 }
 
 fn error(code: ErrorCode, message: impl Into<String>, fatal: bool) -> ErrorReply {
