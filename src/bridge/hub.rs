@@ -15,9 +15,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use axum::extract::ws::{CloseFrame, Message, WebSocket};
-use futures::{SinkExt, StreamExt};
+use futures::{Sink, SinkExt, Stream, StreamExt};
 use serde::{Deserialize, Serialize};
 use sqlx::SqlitePool;
+use subtle::ConstantTimeEq;
 use tokio::sync::{Notify, mpsc, watch};
 use utoipa::ToSchema;
 
@@ -141,13 +142,10 @@ impl fmt::Debug for Hub {
     }
 }
 
-/// Constant-time comparison, so the token cannot be guessed byte by byte from response times.
+/// Constant-time comparison, so the token cannot be guessed byte by byte from response times
+/// (only its length can leak, and that is not secret).
 fn same_token(a: &str, b: &str) -> bool {
-    let (a, b) = (a.as_bytes(), b.as_bytes());
-    if a.len() != b.len() {
-        return false;
-    }
-    a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+    a.as_bytes().ct_eq(b.as_bytes()).into()
 }
 
 fn error(code: ErrorCode, message: impl Into<String>, fatal: bool) -> ErrorReply {
@@ -180,6 +178,39 @@ impl Hub {
         authorization
             .and_then(|v| v.strip_prefix("Bearer "))
             .is_some_and(|t| same_token(t.trim(), &self.0.settings.token))
+    }
+
+    pub(super) fn robots(&self) -> &RobotLibrary {
+        &self.0.robots
+    }
+
+    /// Waits until execution `id` is in a final state and returns it. Woken by the execution's
+    /// watcher; the periodic re-read only guards against a missed wake-up.
+    pub async fn wait_final(&self, id: &str) -> Result<super::client::Finished, BridgeError> {
+        let mut changes = self.subscribe(id);
+        loop {
+            let row = repo::get(&self.0.db, id)
+                .await?
+                .ok_or_else(|| BridgeError::UnknownExecution(id.to_owned()))?;
+            if let Some(state) = repo::ExecutionState::parse(&row.state)
+                && state.is_final()
+            {
+                return Ok(super::client::Finished {
+                    state,
+                    reason: row.reason,
+                });
+            }
+            tokio::select! {
+                changed = changes.changed() => {
+                    if changed.is_err() {
+                        // The final notification dropped the watcher; subscribe again in case
+                        // the execution is live once more (requeued).
+                        changes = self.subscribe(id);
+                    }
+                }
+                () = tokio::time::sleep(Duration::from_secs(1)) => {}
+            }
+        }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, State> {
@@ -778,70 +809,56 @@ impl Hub {
 
     /// Serves one authenticated WebSocket connection until it closes.
     pub async fn serve(self, shutdown: Shutdown, socket: WebSocket) {
-        let (mut sink, mut stream) = socket.split();
-        let send = |m: &ServiceMessage| {
-            Message::Text(
-                serde_json::to_string(m)
-                    .expect("service messages serialise")
-                    .into(),
-            )
-        };
-        let close_with = |e: &ErrorReply| {
-            Message::Close(Some(CloseFrame {
-                // 1008: policy violation; 1001: going away.
-                code: if e.code == ErrorCode::ShuttingDown {
-                    1001
-                } else {
-                    1008
-                },
-                reason: e.message.chars().take(120).collect::<String>().into(),
-            }))
-        };
+        let (sink, stream) = socket.split();
+        self.serve_session(shutdown, sink, stream).await;
+    }
 
-        // 1. hello
-        let first = tokio::time::timeout(HELLO_TIMEOUT, stream.next()).await;
-        let hello = match first {
-            Ok(Some(Ok(Message::Text(t)))) => match decode_worker_message(t.as_str()) {
-                Ok(WorkerMessage::Hello(h)) => Ok(h),
-                Ok(_) => Err(error(
-                    ErrorCode::UnexpectedMessage,
-                    "the first message must be `hello`",
-                    true,
-                )),
-                Err(e) => Err(error(e.code, e.message, true)),
-            },
-            Ok(Some(Ok(_))) => Err(error(
-                ErrorCode::Malformed,
-                "the first message must be a `hello` text frame",
-                true,
-            )),
-            Ok(None | Some(Err(_))) => return,
-            Err(_) => Err(error(
-                ErrorCode::UnexpectedMessage,
-                "no `hello` within 10 s",
-                true,
-            )),
+    /// The session over any frame sink and stream (a WebSocket in service, channels in tests):
+    /// handshake, then frames until either side ends it, then the worker is removed.
+    pub async fn serve_session<Si, St, E>(self, shutdown: Shutdown, mut sink: Si, mut stream: St)
+    where
+        Si: Sink<Message> + Unpin,
+        St: Stream<Item = Result<Message, E>> + Unpin,
+        E: fmt::Display,
+    {
+        let Some((hello, conn, rx)) = self.handshake(&mut sink, &mut stream).await else {
+            return;
         };
-        let hello = match hello {
+        let why = self
+            .session(&shutdown, &hello, conn, rx, &mut sink, &mut stream)
+            .await;
+        self.disconnect(conn, &why).await;
+    }
+
+    /// Reads `hello`, admits the worker and answers `welcome`; on refusal sends the error,
+    /// closes and returns None.
+    async fn handshake<Si, St, E>(
+        &self,
+        sink: &mut Si,
+        stream: &mut St,
+    ) -> Option<(Hello, u64, mpsc::Receiver<ServiceMessage>)>
+    where
+        Si: Sink<Message> + Unpin,
+        St: Stream<Item = Result<Message, E>> + Unpin,
+    {
+        let hello = match read_hello(stream).await? {
             Ok(h) => h,
             Err(e) => {
-                let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
-                let _ = sink.send(close_with(&e)).await;
-                return;
+                refuse(sink, &e).await;
+                return None;
             }
         };
-        let (tx, mut rx) = mpsc::channel(OUTBOX);
-        let checked = match self.check_hello(&hello).await {
+        let (tx, rx) = mpsc::channel(OUTBOX);
+        let admitted = match self.check_hello(&hello).await {
             Ok(()) => self.register(&hello, tx),
             Err(e) => Err(e),
         };
-        let conn = match checked {
+        let conn = match admitted {
             Ok(c) => c,
             Err(e) => {
                 tracing::info!(worker = %hello.worker, reason = %e.message, "bridge hello refused");
-                let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
-                let _ = sink.send(close_with(&e)).await;
-                return;
+                refuse(sink, &e).await;
+                return None;
             }
         };
         let caps = serde_json::to_string(&hello.capabilities).unwrap_or_default();
@@ -858,105 +875,266 @@ impl Hub {
             heartbeat_interval_ms: self.0.settings.heartbeat_interval.as_millis() as u64,
             heartbeat_timeout_ms: self.0.settings.heartbeat_timeout.as_millis() as u64,
         });
-        if sink.send(send(&welcome)).await.is_err() {
+        if sink.send(text(&welcome)).await.is_err() {
             self.disconnect(conn, "closed before welcome").await;
-            return;
+            return None;
         }
         self.wake();
+        Some((hello, conn, rx))
+    }
 
-        // 2. the session
+    /// Relays frames both ways until the connection ends; returns why it ended.
+    async fn session<Si, St, E>(
+        &self,
+        shutdown: &Shutdown,
+        hello: &Hello,
+        conn: u64,
+        mut rx: mpsc::Receiver<ServiceMessage>,
+        sink: &mut Si,
+        stream: &mut St,
+    ) -> String
+    where
+        Si: Sink<Message> + Unpin,
+        St: Stream<Item = Result<Message, E>> + Unpin,
+        E: fmt::Display,
+    {
         let mut errors = 0u32;
         let mut last_heard = Instant::now();
         let mut check = tokio::time::interval(self.0.settings.heartbeat_interval / 2);
         let stopping = shutdown.wait();
         tokio::pin!(stopping);
-        let why: String = loop {
-            let reply: Option<ErrorReply> = tokio::select! {
+        loop {
+            let reply = tokio::select! {
                 frame = stream.next() => {
                     last_heard = Instant::now();
-                    if let Some(w) = self.lock().workers.get_mut(&conn) {
-                        w.snapshot.messages += 1;
-                    }
-                    match frame {
-                        None => break "connection closed".into(),
-                        Some(Err(e)) => {
-                            let e = error(ErrorCode::Oversized, format!("unreadable frame: {e}"), true);
-                            let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
-                            let _ = sink.send(close_with(&e)).await;
-                            break e.message;
+                    match self.on_frame(conn, frame).await {
+                        Step::Reply(r) => r,
+                        Step::End(why) => return why,
+                        Step::Fatal(e) => {
+                            refuse(sink, &e).await;
+                            return e.message;
                         }
-                        Some(Ok(Message::Close(_))) => break "closed by the worker".into(),
-                        Some(Ok(Message::Ping(_) | Message::Pong(_))) => None,
-                        Some(Ok(Message::Binary(_))) => Some(error(
-                            ErrorCode::Malformed, "binary frames are not part of the protocol", false)),
-                        Some(Ok(Message::Text(t))) => match decode_worker_message(t.as_str()) {
-                            Err(e) => Some(error(e.code, e.message, false)),
-                            Ok(WorkerMessage::Hello(_)) => Some(error(
-                                ErrorCode::UnexpectedMessage, "`hello` was already received", false)),
-                            Ok(WorkerMessage::Heartbeat(h)) => {
-                                self.on_heartbeat(conn, h.positions);
-                                None
-                            }
-                            Ok(WorkerMessage::Feedback(f)) => self.on_feedback(conn, f).await.err(),
-                            Ok(WorkerMessage::Result(r)) => self.on_result(conn, r).await.err(),
-                        },
                     }
                 }
                 out = rx.recv() => match out {
                     Some(m) => {
-                        if sink.send(send(&m)).await.is_err() {
-                            break "send failed".into();
+                        if sink.send(text(&m)).await.is_err() {
+                            return "send failed".into();
                         }
                         None
                     }
-                    None => break "hub closed".into(),
+                    None => return "hub closed".into(),
                 },
                 _ = check.tick() => {
                     if last_heard.elapsed() > self.0.settings.heartbeat_timeout {
                         let e = error(ErrorCode::HeartbeatTimeout, format!(
                             "nothing received for {} ms", self.0.settings.heartbeat_timeout.as_millis()), true);
-                        let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
-                        let _ = sink.send(close_with(&e)).await;
-                        break e.message;
+                        refuse(sink, &e).await;
+                        return e.message;
                     }
                     None
                 }
                 () = &mut stopping => {
                     let e = error(ErrorCode::ShuttingDown, "the service is shutting down", true);
-                    let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
-                    let _ = sink.send(close_with(&e)).await;
-                    break e.message;
+                    refuse(sink, &e).await;
+                    return e.message;
                 }
             };
-            if let Some(e) = reply {
-                errors += 1;
-                tracing::debug!(worker = %hello.worker, code = ?e.code, message = %e.message, "bad bridge message");
-                if sink
-                    .send(send(&ServiceMessage::Error(e.clone())))
-                    .await
-                    .is_err()
-                {
-                    break "send failed".into();
-                }
-                if errors >= MAX_ERRORS {
-                    let e = error(
-                        ErrorCode::TooManyErrors,
-                        format!("{MAX_ERRORS} bad messages; closing"),
-                        true,
-                    );
-                    let _ = sink.send(send(&ServiceMessage::Error(e.clone()))).await;
-                    let _ = sink.send(close_with(&e)).await;
-                    break e.message;
-                }
+            let Some(e) = reply else { continue };
+            errors += 1;
+            tracing::debug!(worker = %hello.worker, code = ?e.code, message = %e.message, "bad bridge message");
+            if sink
+                .send(text(&ServiceMessage::Error(e.clone())))
+                .await
+                .is_err()
+            {
+                return "send failed".into();
             }
-        };
-        self.disconnect(conn, &why).await;
+            if errors >= MAX_ERRORS {
+                let e = error(
+                    ErrorCode::TooManyErrors,
+                    format!("{MAX_ERRORS} bad messages; closing"),
+                    true,
+                );
+                refuse(sink, &e).await;
+                return e.message;
+            }
+        }
     }
+
+    /// Handles one incoming frame of an admitted worker.
+    async fn on_frame<E: fmt::Display>(
+        &self,
+        conn: u64,
+        frame: Option<Result<Message, E>>,
+    ) -> Step {
+        if let Some(w) = self.lock().workers.get_mut(&conn) {
+            w.snapshot.messages += 1;
+        }
+        let bad = |code, message: &str| Step::Reply(Some(error(code, message, false)));
+        match frame {
+            None => Step::End("connection closed".into()),
+            Some(Err(e)) => Step::Fatal(error(
+                ErrorCode::Oversized,
+                format!("unreadable frame: {e}"),
+                true,
+            )),
+            Some(Ok(Message::Close(_))) => Step::End("closed by the worker".into()),
+            Some(Ok(Message::Ping(_) | Message::Pong(_))) => Step::Reply(None),
+            Some(Ok(Message::Binary(_))) => bad(
+                ErrorCode::Malformed,
+                "binary frames are not part of the protocol",
+            ),
+            Some(Ok(Message::Text(t))) => match decode_worker_message(t.as_str()) {
+                Err(e) => Step::Reply(Some(error(e.code, e.message, false))),
+                Ok(WorkerMessage::Hello(_)) => {
+                    bad(ErrorCode::UnexpectedMessage, "`hello` was already received")
+                }
+                Ok(WorkerMessage::Heartbeat(h)) => {
+                    self.on_heartbeat(conn, h.positions);
+                    Step::Reply(None)
+                }
+                Ok(WorkerMessage::Feedback(f)) => {
+                    Step::Reply(self.on_feedback(conn, f).await.err())
+                }
+                Ok(WorkerMessage::Result(r)) => Step::Reply(self.on_result(conn, r).await.err()),
+            },
+        }
+    }
+}
+
+/// What the session does after a frame.
+enum Step {
+    /// Keep going, answering with this error (a bad but survivable frame) or nothing.
+    Reply(Option<ErrorReply>),
+    /// The worker went away.
+    End(String),
+    /// Send this error, close and end.
+    Fatal(ErrorReply),
+}
+
+fn text(m: &ServiceMessage) -> Message {
+    Message::Text(
+        serde_json::to_string(m)
+            .expect("service messages serialise")
+            .into(),
+    )
+}
+
+/// Sends a fatal error and closes (1001 going away when shutting down, else 1008 policy
+/// violation). Send failures are ignored: the connection is ending anyway.
+async fn refuse<Si: Sink<Message> + Unpin>(sink: &mut Si, e: &ErrorReply) {
+    let _ = sink.send(text(&ServiceMessage::Error(e.clone()))).await;
+    let close = Message::Close(Some(CloseFrame {
+        code: if e.code == ErrorCode::ShuttingDown {
+            1001
+        } else {
+            1008
+        },
+        reason: e.message.chars().take(120).collect::<String>().into(),
+    }));
+    let _ = sink.send(close).await;
+}
+
+/// The first frame, which must be a `hello` within [`HELLO_TIMEOUT`]. None: the connection
+/// ended before saying anything (nothing to answer).
+async fn read_hello<St, E>(stream: &mut St) -> Option<Result<Hello, ErrorReply>>
+where
+    St: Stream<Item = Result<Message, E>> + Unpin,
+{
+    let first = tokio::time::timeout(HELLO_TIMEOUT, stream.next()).await;
+    Some(match first {
+        Ok(Some(Ok(Message::Text(t)))) => match decode_worker_message(t.as_str()) {
+            Ok(WorkerMessage::Hello(h)) => Ok(h),
+            Ok(_) => Err(error(
+                ErrorCode::UnexpectedMessage,
+                "the first message must be `hello`",
+                true,
+            )),
+            Err(e) => Err(error(e.code, e.message, true)),
+        },
+        Ok(Some(Ok(_))) => Err(error(
+            ErrorCode::Malformed,
+            "the first message must be a `hello` text frame",
+            true,
+        )),
+        Ok(None | Some(Err(_))) => return None,
+        Err(_) => Err(error(
+            ErrorCode::UnexpectedMessage,
+            "no `hello` within 10 s",
+            true,
+        )),
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn hub() -> Hub {
+        // Never queried by the refusals below (they happen before any robot lookup).
+        let db = SqlitePool::connect_lazy("sqlite::memory:").unwrap();
+        Hub::new(
+            db.clone(),
+            RobotLibrary::new(db),
+            HubSettings {
+                token: "t".into(),
+                heartbeat_interval: Duration::from_secs(1),
+                heartbeat_timeout: Duration::from_secs(3),
+                queue_timeout: None,
+            },
+        )
+    }
+
+    /// Runs a session fed with `frames`, then returns what the service sent.
+    async fn session(frames: Vec<Message>) -> Vec<Message> {
+        let (sink, sent) = futures::channel::mpsc::unbounded::<Message>();
+        let stream = futures::stream::iter(frames.into_iter().map(Ok::<_, std::io::Error>));
+        let (_trigger, shutdown) = Shutdown::new();
+        let hub = hub();
+        hub.clone().serve_session(shutdown, sink, stream).await;
+        assert!(hub.workers().is_empty(), "a refused worker is not kept");
+        sent.collect().await
+    }
+
+    fn error_then_close(sent: &[Message]) -> (ErrorReply, u16) {
+        let [Message::Text(t), Message::Close(Some(close))] = sent else {
+            panic!("expected an error and a close, got {sent:?}");
+        };
+        let ServiceMessage::Error(e) = serde_json::from_str(t.as_str()).unwrap() else {
+            panic!("expected an error message, got {t}");
+        };
+        (e, close.code)
+    }
+
+    #[tokio::test]
+    async fn a_session_that_does_not_start_with_hello_is_refused_and_closed() {
+        let heartbeat = r#"{"type":"heartbeat","seq":1}"#;
+        let sent = session(vec![Message::Text(heartbeat.into())]).await;
+        let (e, code) = error_then_close(&sent);
+        assert_eq!(e.code, ErrorCode::UnexpectedMessage);
+        assert!(e.fatal);
+        assert_eq!(code, 1008);
+    }
+
+    #[tokio::test]
+    async fn a_hello_in_another_protocol_version_is_refused() {
+        let hello = serde_json::json!({
+            "type": "hello", "protocol_version": PROTOCOL_VERSION + 1, "worker": "w",
+            "robot": "r", "joint_names": [], "capabilities": ["open_loop"],
+        });
+        let sent = session(vec![Message::Text(hello.to_string().into())]).await;
+        let (e, code) = error_then_close(&sent);
+        assert_eq!(e.code, ErrorCode::UnsupportedVersion);
+        assert_eq!(code, 1008);
+    }
+
+    #[tokio::test]
+    async fn a_binary_first_frame_is_malformed_and_a_silent_close_gets_no_answer() {
+        let sent = session(vec![Message::Binary(vec![1, 2].into())]).await;
+        assert_eq!(error_then_close(&sent).0.code, ErrorCode::Malformed);
+        assert!(session(vec![]).await.is_empty());
+    }
 
     #[test]
     fn tokens_compare_whole() {

@@ -2,17 +2,24 @@
 //! (DESIGN §7).
 //!
 //! - [`protocol`]: the versioned JSON messages (shared by service and worker; OpenAPI schemas).
+//! - [`client`]: the robot-client seam (`arci`-style trait, the WebSocket implementation over
+//!   the hub, a recording fake, a URDF limit-checking decorator).
 //! - [`hub`]: connected workers, the dispatcher over the SQLite queue
 //!   ([`crate::store::executions`]), one task per connection.
 //! - [`sim`] + [`worker`]: the reference worker (`reachgrasp bridge --sim`).
 //!
 //! Other resources queue executions with [`enqueue`] (the plans endpoint does).
 
+pub mod client;
 pub mod hub;
 pub mod protocol;
 pub mod sim;
 pub mod worker;
 
+pub use client::{
+    Completion, FakeClient, Finished, HubClient, JointLimits, LimitChecked, Rejected, Trajectory,
+    TrajectoryClient,
+};
 pub use hub::{Hub, HubSettings, TrackingSummary, WorkerSnapshot};
 pub use protocol::{ExecutionPayload, Mode};
 

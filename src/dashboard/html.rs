@@ -5,20 +5,9 @@ use std::fmt::Write;
 use axum::http::StatusCode;
 use axum::response::{Html, IntoResponse, Response};
 
-/// Escapes text for HTML element content and double-quoted attribute values.
+/// Escapes text for HTML element content and quoted attribute values (`&<>"'`).
 pub fn esc(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => out.push_str("&amp;"),
-            '<' => out.push_str("&lt;"),
-            '>' => out.push_str("&gt;"),
-            '"' => out.push_str("&quot;"),
-            '\'' => out.push_str("&#39;"),
-            c => out.push(c),
-        }
-    }
-    out
+    html_escape::encode_quoted_attribute(s).into_owned()
 }
 
 /// The sections of the navigation bar: (path, label).
@@ -207,5 +196,18 @@ pub fn num(v: f64, digits: usize) -> String {
         format!("{v:.digits$}")
     } else {
         "–".into()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn markup_characters_are_escaped_to_their_entities() {
+        // The five characters HTML reserves in text and quoted attributes, and nothing else.
+        assert_eq!(
+            super::esc(r#"<a title="x">Tom & Jerry's/é</a>"#),
+            "&lt;a title=&quot;x&quot;&gt;Tom &amp; Jerry&#x27;s/é&lt;/a&gt;"
+        );
+        assert_eq!(super::esc("plain"), "plain");
     }
 }

@@ -26,6 +26,58 @@ pub fn is_final(state: &str) -> bool {
     !matches!(state, QUEUED | RUNNING)
 }
 
+/// An execution's state, typed; stored and sent as the snake_case strings above.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ExecutionState {
+    Queued,
+    Running,
+    Succeeded,
+    Failed,
+    Aborted,
+    Cancelled,
+    Interrupted,
+}
+
+impl ExecutionState {
+    pub const ALL: [ExecutionState; 7] = [
+        ExecutionState::Queued,
+        ExecutionState::Running,
+        ExecutionState::Succeeded,
+        ExecutionState::Failed,
+        ExecutionState::Aborted,
+        ExecutionState::Cancelled,
+        ExecutionState::Interrupted,
+    ];
+
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            ExecutionState::Queued => QUEUED,
+            ExecutionState::Running => RUNNING,
+            ExecutionState::Succeeded => SUCCEEDED,
+            ExecutionState::Failed => FAILED,
+            ExecutionState::Aborted => ABORTED,
+            ExecutionState::Cancelled => CANCELLED,
+            ExecutionState::Interrupted => INTERRUPTED,
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<ExecutionState> {
+        Self::ALL.into_iter().find(|st| st.as_str() == s)
+    }
+
+    /// Whether the execution has ended (it never changes state again).
+    pub fn is_final(self) -> bool {
+        !matches!(self, ExecutionState::Queued | ExecutionState::Running)
+    }
+}
+
+impl std::fmt::Display for ExecutionState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// An execution row without its payload.
 #[derive(Debug, Clone, sqlx::FromRow)]
 pub struct ExecutionRow {
