@@ -35,16 +35,17 @@ pub struct Weights {
 impl Default for Weights {
     /// Fingertip positions dominate (1 cm costs 1e-4); the robot hands' tip frames can rarely
     /// match a human fingertip frame, so orientation only breaks ties (1 rad costs 1e-4). The
-    /// anthropomorphism terms resolve the arm's redundancy: a 10 cm elbow distance costs 1e-3
-    /// and a 15° swivel difference 6.8e-4 (about a 2.6 mm fingertip error), so they decide the
-    /// self-motion of the arm but move the fingertips by at most a few millimetres — chosen on
-    /// the default study over the six systems (`mapping::tests`, which prints the trade-off
-    /// against `elbow = swivel = 0`).
+    /// anthropomorphism terms resolve the arm's redundancy: a 10 cm elbow distance costs 1e-4
+    /// (eq. 4, as before) and a 15° swivel difference 6.8e-4. Chosen on the default study over
+    /// the six systems (`mapping::tests::probe_registration_and_weights`): `swivel = 1e-2`
+    /// brings the median swivel difference from 96-156° (both terms off) to 55-71°; `1e-1`
+    /// only gains another 3-25° for 3-6 cm more fingertip error; `elbow = 5e-3` let a wam_ihy
+    /// finger into the object before the grasp.
     fn default() -> Self {
         Self {
             position: 1.0,
             orientation: 1e-4,
-            elbow: 1e-1,
+            elbow: 1e-2,
             swivel: 1e-2,
         }
     }

@@ -129,7 +129,7 @@ impl Default for SceneRegistration {
     fn default() -> Self {
         Self {
             subject_axes: BodyAxes::default(),
-            transport_scale: Scale::One,
+            transport_scale: Scale::Auto,
             hand_scale: 1.0,
             placement: None,
             human_support: 0.0,
@@ -524,7 +524,11 @@ mod tests {
         let frames = [arm(sh), arm(sh + Vector3::new(0.01, 0.0, 0.0))];
         let mean_sh = Point3::new(-0.145, 0.1, 0.33);
         let o = bottle_at(0.3, 0.3);
-        let reg = Registration::resolve(&scene(Some(o)), &frames, &robot()).unwrap();
+        let one = RegistrationSpec::Scene(SceneRegistration {
+            transport_scale: Scale::One,
+            ..SceneRegistration::default().with_object(Some(o))
+        });
+        let reg = Registration::resolve(&one, &frames, &robot()).unwrap();
         // Object: horizontally where it was relative to the mean shoulder, resting on z = 0.
         let want = Point3::new(0.0 + 0.3 - mean_sh.x, 0.3 - mean_sh.y, 0.105);
         assert!((reg.robot_anchor - want).norm() < 1e-12);
@@ -551,6 +555,7 @@ mod tests {
                 up: Vector3::z(),
             },
             placement: Some(Point3::new(0.5, -0.1, 0.105)),
+            transport_scale: Scale::One,
             ..SceneRegistration::default().with_object(Some(bottle_at(0.1, 0.5)))
         });
         let frames = [arm(Point3::new(0.0, 0.0, 0.33))];

@@ -81,8 +81,8 @@ impl Default for SolverOptions {
             first_frame_fallback: FIRST_FRAME_FALLBACK,
             step_scale: 2.0,
             fallback_speed: 3.0,
-            clearance_weight: 100.0,
-            clearance_margin: 0.002,
+            clearance_weight: 1e3,
+            clearance_margin: 0.005,
             object_free_until: 0.9,
         }
     }

@@ -9,7 +9,8 @@ use super::objective::{FrameGoals, MappingModel, Weights, swivel_direction};
 use super::registration::{ArmPoints, Registration, RegistrationSpec, RobotAnchor};
 use super::solve::{Clearance, FrameMetrics, Mapper, SolverOptions, StartReference};
 use crate::geometry::{
-    Category, CollisionChecker, Plane, Scene, SceneShape, ShapeSpec, build_shape,
+    AllowedContacts, Category, CollisionChecker, Member, Plane, Scene, SceneShape, ShapeSpec,
+    build_shape,
 };
 use crate::human::{HumanFrame, ObjectShape};
 use nalgebra::Point3;
@@ -67,10 +68,11 @@ impl Mapper {
     /// (with [`MappingModel::geometry`]).
     pub fn set_scene(&mut self, reg: &Registration) {
         let nq = self.eval.nq();
-        self.clearance = self
-            .geometry
-            .as_ref()
-            .map(|g| Clearance::new(CollisionChecker::new(g.clone(), scene_of(reg)), nq));
+        self.clearance = self.geometry.as_ref().map(|g| {
+            let checker = CollisionChecker::new(g.clone(), scene_of(reg))
+                .with_allowed(&standing_contacts(g, &reg.up));
+            Clearance::new(checker, nq)
+        });
     }
 
     /// Maps a whole demonstration on its own: its first frame is solved by the multi-start.
@@ -196,6 +198,33 @@ impl Mapper {
         }
         Some(Ok(out))
     }
+}
+
+/// Shapes the first joint alone moves about an axis along `up` (the arm's base yaw link): they
+/// stand on the support the robot stands on and keep their height in every posture, so their
+/// contact with the support is the robot's footing, not a collision.
+pub fn standing_contacts(
+    geometry: &crate::geometry::RobotGeometry,
+    up: &nalgebra::Vector3<f64>,
+) -> AllowedContacts {
+    let model = geometry.model();
+    let mut data = crate::kinematics::Data::new(model);
+    crate::kinematics::forward_kinematics(model, &mut data, &vec![0.0; model.nq()]);
+    let mut acm = AllowedContacts::none();
+    for (i, shape) in geometry.shapes().iter().enumerate() {
+        let [joint] = shape.chain.as_slice() else {
+            continue;
+        };
+        let frame = crate::kinematics::FrameId(joint.frame);
+        let Some(axis) = model.joint_of_frame(frame).and_then(|j| j.kind.axis()) else {
+            continue;
+        };
+        let world = data.frame(frame).rotation * axis.into_inner();
+        if world.cross(up).norm() < 1e-9 {
+            acm.allow(Member::Shape(i), Member::Support);
+        }
+    }
+    acm
 }
 
 /// The robot-frame scene of a registration: the registered object and the robot's support plane
