@@ -111,7 +111,7 @@ pub struct TransformIn {
 /// each demonstration's object lands on `placement` (default: where the subject had it relative
 /// to the shoulder, resting on the robot's table at z = 0), its table on the robot's table, the
 /// subject's forward/up axes on the base's; arm transport scaled horizontally by `scale`
-/// (default 1), fingertips relative to the wrist by `hand_scale` (default 1). With `transform`:
+/// (default `"auto"`), fingertips relative to the wrist by `hand_scale` (default 1). With `transform`:
 /// `p_robot = transform · (scale · p_human)` for every point (scale a number, default 1).
 #[derive(Debug, Clone, Default, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
@@ -585,7 +585,7 @@ pub fn parse_params(
             }
             RegistrationSpec::Scene(SceneRegistration {
                 subject_axes: axes,
-                transport_scale: scale.unwrap_or(Scale::One),
+                transport_scale: scale.unwrap_or(Scale::Auto),
                 hand_scale,
                 placement: reg.placement.map(nalgebra::Point3::from),
                 ..SceneRegistration::default()

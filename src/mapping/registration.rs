@@ -13,8 +13,12 @@
 //!   resting on the subject's table rests on the robot's;
 //! * the **arm plane keeps its orientation**: the only rotation is the subject's forward/up axes
 //!   onto the robot base's (a yaw for level tables), so the shoulder→wrist direction is kept;
-//! * the **arm transport** (shoulder, elbow, wrist) may be scaled perpendicular to the up axis by
-//!   `transport_scale` (`1` by default, like the paper; `auto` = robot reach / human reach);
+//! * the **arm transport** (shoulder, elbow, wrist) is scaled perpendicular to the up axis, about
+//!   the object, by `transport_scale` (default `auto` = robot reach / human reach, 1.4-1.7 on the
+//!   shipped systems; `1` is the paper's). Measured on the default study (`mapping::tests::
+//!   probe_registration_and_weights`, default weights): `auto` vs `1` gives a median swivel
+//!   difference of 55-59° vs 70-71° on the WAM systems and 68-71° vs 72-74° on the PA10 ones,
+//!   at a median fingertip error of 18-36 mm vs 20-37 mm: the robots' longer links fold less;
 //! * the **fingertips relative to the wrist are unscaled** by default (`hand_scale`, an explicit
 //!   option): grip apertures and fingertip spacing are the subject's, as in the paper, which
 //!   gives the robot hand the human's fingertip positions (eq. 1) without scaling.
@@ -23,10 +27,11 @@
 //! it relative to the shoulder: `horizontal(robot shoulder + transport_scale · R (object −
 //! mean human shoulder))`, resting on the robot's support at the height it had above the
 //! subject's table. The study's objects lie 62-80 % of an arm length in front of the shoulder,
-//! 35° left to 35° right (`human::synth`): on the shipped systems that is 0.3-0.5 m from the
-//! shoulder axis on the table the robots stand on — inside their reach, above the table — and
-//! the subject's shoulder lands horizontally on the robot's (vertically within 3 cm: seated
-//! shoulder height 0.33 m vs 0.317 m PA10 / 0.346 m WAM).
+//! 35° left to 35° right (`human::synth`), 0.37-0.48 m out horizontally: scaled by the reach
+//! ratio that is 0.55-0.8 m from the shoulder axis on the table the robots stand on — inside
+//! their reach (checked: an unreachable placement is an error), above the table — and the
+//! subject's shoulder lands horizontally on the robot's (vertically within 3 cm: seated shoulder
+//! height 0.33 m vs 0.317 m PA10 / 0.346 m WAM).
 //!
 //! Differences from the paper, and why: the paper states no registration at all (its subjects and
 //! robots share one lab frame). Anchoring the map at the object instead of at the shoulder is
@@ -112,7 +117,7 @@ impl HumanObject {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SceneRegistration {
     pub subject_axes: BodyAxes,
-    /// Scale of the arm transport perpendicular to the up axis (default `One`).
+    /// Scale of the arm transport perpendicular to the up axis (default `Auto`).
     pub transport_scale: Scale,
     /// Scale of the fingertips relative to the wrist (default `1`).
     pub hand_scale: f64,
