@@ -8,10 +8,13 @@ use anyhow::Context;
 use axum::serve::ListenerExt;
 use tokio::net::TcpListener;
 
-use crate::api::{self, AppState, Shutdown, ShutdownTrigger};
+use crate::api;
 use crate::config::Config;
 use crate::jobs::JobRunner;
+use crate::service;
+use crate::shutdown::{Shutdown, ShutdownTrigger};
 use crate::store;
+use crate::store::library::{self, RobotLibrary};
 
 /// Installs the global tracing subscriber (text or JSON lines on stdout). Call once.
 pub fn init_tracing(config: &Config) -> anyhow::Result<()> {
@@ -29,7 +32,7 @@ pub fn init_tracing(config: &Config) -> anyhow::Result<()> {
 /// A built, bound application ready to serve.
 pub struct App {
     listener: TcpListener,
-    state: AppState,
+    state: service::Context,
     trigger: ShutdownTrigger,
 }
 
@@ -45,7 +48,7 @@ impl App {
             // Robots can also be registered over the API, so a missing folder is not fatal.
             tracing::warn!(robots = %config.robots.display(), "robots folder not found; starting without bundled robots");
         } else {
-            api::robots::sync_bundled(&db, &config.robots)
+            library::sync_bundled(&db, &config.robots)
                 .await
                 .context("cannot synchronise the bundled robots")?;
         }
@@ -70,15 +73,17 @@ impl App {
                 t
             }
         };
-        let bridges = crate::bridge::Hub::new(db.clone(), config.bridge_settings(token));
+        let robots = RobotLibrary::new(db.clone());
+        let bridges =
+            crate::bridge::Hub::new(db.clone(), robots.clone(), config.bridge_settings(token));
         bridges.spawn_dispatcher(shutdown.clone());
-        let state = AppState {
+        let state = service::Context {
             bridges,
             db,
             config: Arc::new(config),
             jobs,
-            robots: api::robots::RobotCache::default(),
-            seed: crate::seed::SeedStatus::default(),
+            robots,
+            seed: crate::service::seed::SeedStatus::default(),
             shutdown,
         };
         crate::seed::start(&state)
@@ -98,7 +103,7 @@ impl App {
             .expect("a bound TCP listener has an address")
     }
 
-    pub fn state(&self) -> &AppState {
+    pub fn state(&self) -> &service::Context {
         &self.state
     }
 
@@ -118,7 +123,7 @@ impl App {
         tracing::info!(%addr, "listening");
         let grace = state.config.shutdown_grace();
         let shutdown = state.shutdown.clone();
-        let router = api::router(state.clone());
+        let router = api::router(state.clone(), crate::dashboard::router());
         // Small frames (bridge `execute`/`cancel`, SSE events) must not wait for delayed ACKs:
         // with Nagle's algorithm on they sit ~40 ms on loopback.
         let listener = listener.tap_io(|tcp| {

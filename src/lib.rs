@@ -2,9 +2,10 @@
 //! low-complexity hands, as an HTTP planning service.
 //!
 //! Pure computation (no I/O, no async, deterministic for a seed): [`kinematics`], [`geometry`], [`human`],
-//! [`mapping`], [`motion`], [`grasp`], [`optim`]. The service shell around them: [`store`],
-//! [`api`], [`jobs`], [`bridge`], [`dashboard`], wired together by [`app`] from a
-//! typed [`config`]. Equation numbers refer to
+//! [`mapping`], [`motion`], [`grasp`], [`optim`], [`figures`]. The service shell around them, in
+//! layers (see [`service`] for the order and the test that keeps it): [`store`] and
+//! [`shutdown`]; [`jobs`] and [`bridge`]; the use cases in [`service`] with the typed
+//! [`config`]; the edges [`api`], [`dashboard`] and the CLI, wired together by [`app`]. Equation numbers refer to
 //! `shared/reference/humanlike-grasping-paper.md`.
 
 pub mod api;
@@ -22,4 +23,6 @@ pub mod mapping;
 pub mod motion;
 pub mod optim;
 pub mod seed;
+pub mod service;
+pub mod shutdown;
 pub mod store;

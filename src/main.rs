@@ -431,7 +431,8 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
         ..RegistrationIn::default()
     };
     let params = parse_params(&weights, &registration, args.rate).map_err(api_failure)?;
-    let system = reachgrasp::api::robots::resolve_robot_for_cli(config, &args.robot)?;
+    let system =
+        reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, &args.robot)?;
     let text = std::fs::read_to_string(&args.demo)
         .with_context(|| format!("cannot read {}", args.demo.display()))?;
     let value: serde_json::Value = serde_json::from_str(&text)
@@ -498,7 +499,8 @@ fn bridge(config: &Config, args: BridgeArgs) -> anyhow::Result<()> {
         args.max_acceleration > 0.0 && args.max_acceleration.is_finite(),
         "--max-acceleration must be positive"
     );
-    let system = reachgrasp::api::robots::resolve_robot_for_cli(config, &args.robot)?;
+    let system =
+        reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, &args.robot)?;
     let name = args.name.unwrap_or_else(|| format!("sim-{}", args.robot));
     let mut opts = WorkerOptions::for_system(
         args.url,
@@ -550,7 +552,7 @@ fn serve(config: Config) -> anyhow::Result<()> {
 fn ik(config: &Config, robot: &str, targets: &std::path::Path) -> anyhow::Result<()> {
     use anyhow::Context;
     use reachgrasp::api::robots;
-    let system = robots::resolve_robot_for_cli(config, robot)?;
+    let system = reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, robot)?;
     let text = std::fs::read_to_string(targets)
         .with_context(|| format!("cannot read {}", targets.display()))?;
     let file: robots::IkBatchFile = serde_json::from_str(&text)

@@ -12,8 +12,6 @@
 //! While a system's model is being prepared, [`SeedStatus::pending_job`] names the job to
 //! watch, so requests that need the default model answer 503 with it instead of an error.
 
-use std::collections::HashMap;
-use std::sync::{Arc, RwLock};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
@@ -24,8 +22,8 @@ use serde_json::{Value, json};
 use tower::ServiceExt;
 use uuid::Uuid;
 
-use crate::api::AppState;
 use crate::jobs::JobStatus;
+use crate::service::Context as AppState;
 use crate::store;
 
 /// Seed of the default synthetic study (the paper's design: 5 subjects × 5 positions × 10
@@ -36,28 +34,6 @@ pub const STUDY_SEED: u64 = 1;
 pub const MAPPING_RATE_HZ: f64 = 30.0;
 /// Longest a seeding step may take before the task gives up on it (a bound, not a target).
 const STEP_TIMEOUT: Duration = Duration::from_secs(30 * 60);
-
-/// Robots whose default model the seeding is preparing, with the job to watch.
-#[derive(Clone, Debug, Default)]
-pub struct SeedStatus(Arc<RwLock<HashMap<String, Uuid>>>);
-
-impl SeedStatus {
-    /// The job to watch while `robot`'s default model is being prepared, if it is.
-    pub fn pending_job(&self, robot: &str) -> Option<Uuid> {
-        self.0.read().expect("seed status lock").get(robot).copied()
-    }
-
-    fn set(&self, robot: &str, job: Uuid) {
-        self.0
-            .write()
-            .expect("seed status lock")
-            .insert(robot.to_owned(), job);
-    }
-
-    fn clear(&self, robot: &str) {
-        self.0.write().expect("seed status lock").remove(robot);
-    }
-}
 
 /// Starts seeding in the background when some bundled system lacks a model (no-op when
 /// `--no-seed` is set). Returns once the task is spawned and the status is filled in, so a
@@ -72,7 +48,7 @@ pub async fn start(state: &AppState) -> anyhow::Result<()> {
         return Ok(());
     }
     // One router for every in-process request of this run (building it mounts Swagger UI).
-    let router = crate::api::router(state.clone());
+    let router = crate::api::router(state.clone(), Router::new());
     let study = submit_study(&router).await?;
     for r in &missing {
         state.seed.set(r, study);

@@ -161,5 +161,5 @@ async fn connect(
     // protocol's 64 KiB); larger ones end the connection.
     ws.max_message_size(1 << 20)
         .max_frame_size(1 << 20)
-        .on_upgrade(move |socket| hub.serve(state, socket))
+        .on_upgrade(move |socket| hub.serve(state.shutdown.clone(), socket))
 }

@@ -16,7 +16,7 @@ use crate::human::{
     IngestSummary, Labels, ObjectSpec, StudyConfig, Subject, SyncOptions, TrackerStream,
     unpack_frames,
 };
-use crate::jobs::{JobContext, JobError, JobOutput, JobRecord, ResultRef};
+use crate::jobs::JobRecord;
 use crate::store::demonstrations::{self as repo, Deleted, DemonstrationFilter, DemonstrationRow};
 use crate::store::{blob, is_unique_violation, now};
 
@@ -544,57 +544,6 @@ async fn generate_synthetic(
     State(state): State<AppState>,
     Json(req): Json<SyntheticRequest>,
 ) -> Result<Response, ApiError> {
-    let cfg = req.config;
-    cfg.validate().map_err(|e| match e {
-        HumanError::InvalidParameter {
-            field,
-            reason,
-            value,
-        } => ApiError::invalid_field(format!("$.{field}"), format!("{reason} (got {value})")),
-        e => e.into(),
-    })?;
-    let job = state
-        .jobs
-        .submit("synthetic_demonstrations", move |ctx: JobContext| {
-            run_study(&ctx, &cfg)
-        })
-        .await?;
+    let job = crate::service::demonstrations::submit_study(&state, req.config).await?;
     Ok(super::accepted_job(job, None))
-}
-
-fn run_study(ctx: &JobContext, cfg: &StudyConfig) -> Result<JobOutput, JobError> {
-    let trials = cfg.trials();
-    let n = trials.len();
-    let mut demos = Vec::with_capacity(n);
-    for (i, spec) in trials.iter().enumerate() {
-        ctx.check_cancelled()?;
-        let input = human::synth::generate_trial(spec, cfg.seed).map_err(JobError::failed)?;
-        demos.push(human::ingest(&input).map_err(JobError::failed)?);
-        ctx.progress((i + 1) as f64 / n as f64, format!("trial {} of {n}", i + 1));
-    }
-    Ok(JobOutput::persist_with(move |job_id, tx| {
-        Box::pin(async move {
-            let created_at = now();
-            let (mut first, mut stored) = (None, 0usize);
-            for demo in &demos {
-                let ext = demo.labels.external_id.as_deref().unwrap_or_default();
-                if let Some(row) = repo::get_by_external_id(tx, ext).await? {
-                    first.get_or_insert(row.id);
-                    continue;
-                }
-                let id = Uuid::new_v4().to_string();
-                repo::insert(tx, &id, Some(&job_id.to_string()), demo, &created_at).await?;
-                first.get_or_insert(id);
-                stored += 1;
-            }
-            tracing::info!(stored, total = demos.len(), "synthetic study stored");
-            let first = first.ok_or_else(|| anyhow::anyhow!("the study produced nothing"))?;
-            Ok(ResultRef::new("demonstrations", first))
-        })
-    })
-    .with_message(format!(
-        "{n} demonstrations generated; new ones are listed by GET /v1/demonstrations?job_id={}, \
-         all synthetic ones by ?synthetic=true",
-        ctx.id()
-    )))
 }

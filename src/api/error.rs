@@ -357,6 +357,65 @@ impl From<sqlx::Error> for ApiError {
     }
 }
 
+impl From<crate::service::Error> for ApiError {
+    fn from(e: crate::service::Error) -> Self {
+        use crate::service::Error as E;
+        match e {
+            E::Invalid(fields) => ApiError::validation(
+                fields
+                    .into_iter()
+                    .map(|f| FieldError::new(f.field, f.message))
+                    .collect(),
+            ),
+            E::Payload(issues) => {
+                ApiError::payload(&issues, &crate::api::executions::PayloadPaths::default())
+            }
+            E::NotFound { kind, id } => ApiError::not_found(kind, id),
+            E::Conflict(m) => ApiError::conflict(m),
+            E::NotReady { message, job } => ApiError::not_ready(message, job),
+            E::Unavailable(m) => ApiError::unavailable(m),
+            E::Internal(cause) => ApiError::internal(cause),
+        }
+    }
+}
+
+impl From<crate::store::library::LibraryError> for ApiError {
+    fn from(e: crate::store::library::LibraryError) -> Self {
+        crate::service::Error::from(e).into()
+    }
+}
+
+impl From<crate::bridge::BridgeError> for ApiError {
+    fn from(e: crate::bridge::BridgeError) -> Self {
+        crate::service::Error::from(e).into()
+    }
+}
+
+impl ApiError {
+    /// 422 for an execution payload that does not fit its robot, each issue at the JSONPath
+    /// `paths` gives its part.
+    pub fn payload(
+        issues: &[crate::bridge::PayloadIssue],
+        paths: &crate::api::executions::PayloadPaths,
+    ) -> Self {
+        use crate::bridge::PayloadPart as P;
+        ApiError::validation(
+            issues
+                .iter()
+                .map(|i| {
+                    let base = match i.part {
+                        P::Mode => "$.mode",
+                        P::JointNames => &paths.joint_names,
+                        P::Points => &paths.points,
+                        P::Goal => &paths.goal,
+                    };
+                    FieldError::new(format!("{base}{}", i.at), i.message.clone())
+                })
+                .collect(),
+        )
+    }
+}
+
 impl From<RunnerError> for ApiError {
     fn from(e: RunnerError) -> Self {
         match e {

@@ -20,10 +20,29 @@ use uuid::Uuid;
 
 use super::{ApiError, AppState, FieldError, Json, Path, Problem, Query};
 use crate::bridge::protocol::{Feedback, TrajectoryPointSchema};
-use crate::bridge::{ExecutionPayload, Mode, PayloadPaths, TrackingSummary};
+use crate::bridge::{ExecutionPayload, Mode, TrackingSummary, WorkerName};
 use crate::motion::TrajectoryPoint;
 use crate::store::executions as repo;
 use crate::store::feedback::{self, History};
+
+/// Where the parts of a payload came from in a request, for error paths
+/// (`$.trajectory.points`, ...).
+#[derive(Debug, Clone)]
+pub struct PayloadPaths {
+    pub joint_names: String,
+    pub points: String,
+    pub goal: String,
+}
+
+impl Default for PayloadPaths {
+    fn default() -> Self {
+        PayloadPaths {
+            joint_names: "$.payload.joint_names".into(),
+            points: "$.payload.points".into(),
+            goal: "$.payload.goal".into(),
+        }
+    }
+}
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -172,22 +191,12 @@ pub struct ExecutionList {
 
 /// The execution's view: the stored row with the live feedback overlaid while it runs.
 pub async fn view(state: &AppState, row: repo::ExecutionRow) -> ExecutionDto {
-    let live = (row.state == repo::RUNNING)
-        .then(|| state.bridges.live(&row.id))
-        .flatten();
-    let (last_feedback, tracking, feedback_samples) = match live {
-        Some((fb, tr, n)) => (fb, Some(tr), n as u64),
-        None => (
-            row.last_feedback
-                .as_deref()
-                .and_then(|s| serde_json::from_str::<Option<Feedback>>(s).ok())
-                .flatten(),
-            row.tracking
-                .as_deref()
-                .and_then(|s| serde_json::from_str(s).ok()),
-            row.feedback_samples.max(0) as u64,
-        ),
-    };
+    let crate::service::executions::ExecutionView {
+        row,
+        last_feedback,
+        tracking,
+        feedback_samples,
+    } = crate::service::executions::view(state, row);
     ExecutionDto {
         mode: Mode::parse(&row.mode).unwrap_or(Mode::OpenLoop),
         id: row.id,
@@ -470,7 +479,13 @@ async fn create_execution(
     let mode = body.mode;
     let worker = body.worker.clone();
     let (payload, paths) = resolve(&state, body).await?;
-    let id = crate::bridge::enqueue_checked(&state, &robot, mode, payload, worker, &paths).await?;
+    let worker = worker.as_deref().map(WorkerName::parse).transpose()?;
+    let id = crate::service::executions::enqueue(&state, &robot, mode, payload, worker)
+        .await
+        .map_err(|e| match e {
+            crate::service::Error::Payload(issues) => ApiError::payload(&issues, &paths),
+            other => other.into(),
+        })?;
     let dto = load(&state, &id.parse().map_err(ApiError::internal)?).await?;
     Ok((
         StatusCode::ACCEPTED,

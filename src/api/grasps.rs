@@ -286,7 +286,7 @@ fn object_dto(row: repo::ObjectRow) -> Result<ObjectDto, ApiError> {
 }
 
 /// Grasp views of the systems, by robot id, with the loaded system they were built from: a view
-/// is rebuilt only when [`robots::resolve_system`] hands out a different system (the robot's row
+/// is rebuilt only when [`robots::system`] hands out a different system (the robot's row
 /// changed), since building one samples every link's collision spheres.
 type ViewCache = Mutex<HashMap<String, (Arc<System>, Arc<HandArm>)>>;
 
@@ -312,13 +312,7 @@ fn hand_arm_of(key: &str, sys: &Arc<System>) -> Result<Arc<HandArm>, ApiError> {
 /// A grasp request's robot: any system of the robots store (bundled or registered), resolved
 /// like every other resource does; an unknown id in the body is a 422 naming `$.robot`.
 async fn robot_view(state: &AppState, robot: &str) -> Result<Arc<HandArm>, ApiError> {
-    let sys = robots::resolve_system(state, robot).await.map_err(|e| {
-        if e.status() == StatusCode::NOT_FOUND {
-            ApiError::invalid_field("$.robot", format!("unknown robot '{robot}'"))
-        } else {
-            e
-        }
-    })?;
+    let sys = robots::robot_field(state, robot, "$.robot").await?;
     let key = robot.to_owned();
     tokio::task::spawn_blocking(move || hand_arm_of(&key, &sys))
         .await

@@ -13,8 +13,9 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use uuid::Uuid;
 
-use super::{ApiError, AppState, Json, Path, Problem, Query, Shutdown};
+use super::{ApiError, AppState, Json, Path, Problem, Query};
 use crate::jobs::{JobRecord, JobRunner, JobStatus};
+use crate::shutdown::Shutdown;
 use crate::store::jobs::JobFilter;
 
 pub fn router() -> OpenApiRouter<AppState> {

@@ -1015,16 +1015,7 @@ async fn create_mapping(
     Json(body): Json<MappingIn>,
 ) -> Result<Response, ApiError> {
     let params = parse_params(&body.weights, &body.registration, body.output_rate_hz)?;
-    if crate::store::robots::get(&state.db, &body.robot)
-        .await?
-        .is_none()
-    {
-        return Err(ApiError::invalid_field(
-            "$.robot",
-            format!("unknown robot '{}'", body.robot),
-        ));
-    }
-    let system = super::robots::system(&state, &body.robot).await?;
+    let system = super::robots::robot_field(&state, &body.robot, "$.robot").await?;
     let (selected, filter) = resolve_selection(&state, &body.demonstrations).await?;
     let mut loaded = Vec::with_capacity(selected.len());
     for (id, path) in &selected {

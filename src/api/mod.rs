@@ -32,9 +32,13 @@
 //!    ```
 //!    Always use [`Json`], [`Path`] and [`Query`] from this module (not axum's): their
 //!    rejections are problem+json with the JSONPath of the bad field. Handlers: extract → parse
-//!    into domain types → call the pure module → persist → DTO.
+//!    into domain types → call a use case of [`crate::service`] (numerics, then one
+//!    transaction per unit of work) → DTO. New use cases belong in `src/service/`, never here:
+//!    the CLI, seeding and the dashboard must be able to call them without this module.
 //! 4. **Errors.** Keep one `#[non_exhaustive]` thiserror enum per layer and convert it at the
-//!    edge with `impl From<RobotError> for ApiError` in your api file: bad input →
+//!    edge with `impl From<RobotError> for ApiError` in your api file (use cases return
+//!    [`crate::service::Error`], rendered by `impl From<service::Error> for ApiError`; never
+//!    branch on an `ApiError`'s status or field paths): bad input →
 //!    [`ApiError::invalid_field`] / [`ApiError::validation`] (422, JSONPath like
 //!    `$.joints[2].position` in each [`FieldError`]), unknown id → [`ApiError::not_found`],
 //!    duplicates/state conflicts → [`ApiError::conflict`], bugs → [`ApiError::internal`] (logged,
@@ -50,8 +54,9 @@
 //!    transaction that marks the job succeeded. See [`crate::jobs`] for a full example.
 //!    Short CPU work (one IK, one grasp) can run inline with
 //!    `tokio::task::spawn_blocking(move || ...)`, so it never blocks an async worker.
-//! 7. **Shared state.** Need something process-wide (e.g. a loaded-robot cache)? Add a cloneable
-//!    field (`Arc<...>`) to [`AppState`] and initialise it in [`crate::app::App::build`].
+//! 7. **Shared state.** Need something process-wide? Add a cloneable field (`Arc<...>`) to the
+//!    service [`Context`](crate::service::Context) and initialise it in
+//!    [`crate::app::App::build`].
 //! 8. **Tests.** Black-box tests in `tests/api/<resource>.rs` (add `mod <resource>;` to
 //!    `tests/api/main.rs`) using `helpers::spawn_app()`.
 
@@ -71,14 +76,10 @@ pub mod plans;
 pub mod robots;
 pub mod testing;
 
-use std::sync::Arc;
-
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
 use axum::http::{Method, Request, Uri};
 use axum::response::IntoResponse;
-use sqlx::SqlitePool;
-use tokio::sync::watch;
 use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
@@ -126,56 +127,8 @@ pub(crate) fn accepted_job(
     res
 }
 
-use crate::config::Config;
-use crate::jobs::JobRunner;
-
-/// Everything a handler may need; cheap to clone.
-#[derive(Clone, Debug)]
-pub struct AppState {
-    pub db: SqlitePool,
-    pub config: Arc<Config>,
-    pub jobs: JobRunner,
-    /// Loaded arm-hand systems by id (see [`robots::system`]).
-    pub robots: robots::RobotCache,
-    /// Connected bridge workers and the execution dispatcher.
-    pub bridges: crate::bridge::Hub,
-    /// Robots whose default model the first-start seeding is still preparing.
-    pub seed: crate::seed::SeedStatus,
-    /// Resolves when the service starts shutting down (ends long-lived streams).
-    pub shutdown: Shutdown,
-}
-
-/// A shutdown signal that many tasks can wait on.
-#[derive(Clone, Debug)]
-pub struct Shutdown(watch::Receiver<bool>);
-
-/// The trigger side of [`Shutdown`].
-#[derive(Debug)]
-pub struct ShutdownTrigger(watch::Sender<bool>);
-
-impl Shutdown {
-    pub fn new() -> (ShutdownTrigger, Shutdown) {
-        let (tx, rx) = watch::channel(false);
-        (ShutdownTrigger(tx), Shutdown(rx))
-    }
-
-    /// Resolves once shutdown has been triggered (at once if it already was).
-    pub async fn wait(&self) {
-        let mut rx = self.0.clone();
-        // An error means the trigger was dropped, which also means the service is stopping.
-        let _ = rx.wait_for(|stopping| *stopping).await;
-    }
-
-    pub fn is_triggered(&self) -> bool {
-        *self.0.borrow()
-    }
-}
-
-impl ShutdownTrigger {
-    pub fn trigger(&self) {
-        self.0.send_replace(true);
-    }
-}
+/// The handlers' state is the service context: a handler parses, calls a use case, renders.
+pub use crate::service::Context as AppState;
 
 /// The OpenAPI document's static part; paths and schemas come from the routers.
 #[derive(OpenApi)]
@@ -225,13 +178,14 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
     openapi_router().split_for_parts().1
 }
 
-/// The complete application: documented routes, `/openapi.json`, Swagger UI at `/docs`,
-/// problem+json fallbacks, and the request layers (request id, tracing, panic catching,
-/// timeout, body limit, problem+json safety net).
-pub fn router(state: AppState) -> Router {
+/// The complete application: documented routes, `/openapi.json`, Swagger UI at `/docs`, the
+/// `pages` of another edge (the dashboard; the caller composes them so that this layer does not
+/// import its sibling), problem+json fallbacks, and the request layers (request id, tracing,
+/// panic catching, timeout, body limit, problem+json safety net).
+pub fn router(state: AppState, pages: Router<AppState>) -> Router {
     let (mut router, api) = openapi_router().split_for_parts();
     router = router.merge(SwaggerUi::new("/docs").url("/openapi.json", api));
-    router = router.merge(crate::dashboard::router());
+    router = router.merge(pages);
     if state.config.test_jobs {
         tracing::warn!("TEST-ONLY job routes are enabled (REACHGRASP_TEST_JOBS)");
         router = router.merge(testing::router());

@@ -28,6 +28,8 @@ use crate::motion::{
     KChoice, MAX_DIM, MotionError, MotionModel, TensorBSpline, TrainOptions, TrainReport,
     Trajectory, TrajectoryOptions, TrajectoryPoint, train,
 };
+use crate::store::library::LibraryError;
+use crate::store::trajectories::TrajectoryDraft;
 use crate::store::{grasps as grasp_repo, mappings as mapping_repo, models as repo, trajectories};
 
 /// Largest spline resolution (knot intervals per PCA axis) a request may ask for.
@@ -940,16 +942,7 @@ async fn create_model(
     State(state): State<AppState>,
     Json(body): Json<CreateModel>,
 ) -> Result<Response, ApiError> {
-    let system = match super::robots::system(&state, &body.robot).await {
-        Ok(s) => s,
-        Err(e) if e.status() == StatusCode::NOT_FOUND => {
-            return Err(ApiError::invalid_field(
-                "$.robot",
-                format!("unknown robot '{}'", body.robot),
-            ));
-        }
-        Err(e) => return Err(e),
-    };
+    let system = super::robots::robot_field(&state, &body.robot, "$.robot").await?;
     let v = validate_training(&body, &system)?;
     if body.mappings.is_empty() {
         return Err(ApiError::invalid_field(
@@ -1380,12 +1373,46 @@ pub(crate) async fn check_start(
     Ok(l.robot.clone())
 }
 
-/// Generates and stores one trajectory (the work of `POST /v1/trajectories`, shared with
-/// `/v1/plans`).
-pub(crate) async fn generate_trajectory(
+/// Why no trajectory was computed.
+#[derive(Debug)]
+pub(crate) enum Rejected {
+    /// The goal is none the model can reach with its convergence guarantee (outside its joint
+    /// limits or its certified goal region, or no goal of this model): a plan whose grasp this
+    /// is becomes infeasible, the request is not bad.
+    Goal(ApiError),
+    /// Anything else.
+    Other(ApiError),
+}
+
+impl From<ApiError> for Rejected {
+    fn from(e: ApiError) -> Self {
+        Rejected::Other(e)
+    }
+}
+
+impl From<Rejected> for ApiError {
+    fn from(r: Rejected) -> Self {
+        match r {
+            Rejected::Goal(e) | Rejected::Other(e) => e,
+        }
+    }
+}
+
+/// Generates and stores one trajectory (the work of `POST /v1/trajectories`).
+async fn generate_trajectory(
     state: &AppState,
     body: &CreateTrajectory,
 ) -> Result<TrajectoryDto, ApiError> {
+    let draft = compute_trajectory(state, body).await?;
+    trajectory_dto(trajectories::insert_trajectory(&state.db, &draft.as_new()).await?)
+}
+
+/// Generates one trajectory, not yet stored (shared with `/v1/plans`, which stores it with its
+/// grasp).
+pub(crate) async fn compute_trajectory(
+    state: &AppState,
+    body: &CreateTrajectory,
+) -> Result<TrajectoryDraft, Rejected> {
     let requested = match &body.duration {
         None => None,
         Some(AutoOr::Auto(s)) if s == "auto" => None,
@@ -1394,7 +1421,8 @@ pub(crate) async fn generate_trajectory(
             return Err(ApiError::invalid_field(
                 "$.duration",
                 format!("must be \"auto\" or seconds in (0, {MAX_DURATION}], got {other:?}"),
-            ));
+            )
+            .into());
         }
     };
     let rate = body.rate.unwrap_or(100.0);
@@ -1402,18 +1430,24 @@ pub(crate) async fn generate_trajectory(
         return Err(ApiError::invalid_field(
             "$.rate",
             format!("must be in (0, {MAX_RATE}] Hz, got {rate}"),
-        ));
+        )
+        .into());
     }
     let l = loaded_model(state, &body.model, Some("$.model")).await?;
-    let system = super::robots::system(state, &l.robot).await.map_err(|e| {
-        if e.status() == StatusCode::NOT_FOUND {
-            ApiError::conflict(format!("the model's robot '{}' no longer exists", l.robot))
-        } else {
-            e
+    let system = match state.robots.system(&l.robot).await {
+        Err(LibraryError::UnknownRobot(_)) => {
+            return Err(ApiError::conflict(format!(
+                "the model's robot '{}' no longer exists",
+                l.robot
+            ))
+            .into());
         }
-    })?;
+        other => other.map_err(ApiError::from)?,
+    };
     let start = joint_values(&system, &body.start, "$.start")?;
-    let (goal, goal_names, grasp) = resolve_goal(state, &system, &l.robot, &body.goal).await?;
+    let (goal, goal_names, grasp) = resolve_goal(state, &system, &l.robot, &body.goal)
+        .await
+        .map_err(Rejected::Goal)?;
     check_limits(
         &l.model,
         &l.names,
@@ -1426,7 +1460,8 @@ pub(crate) async fn generate_trajectory(
     } else {
         "$.goal"
     };
-    check_limits(&l.model, &l.names, &goal, goal_names.as_deref(), goal_base)?;
+    check_limits(&l.model, &l.names, &goal, goal_names.as_deref(), goal_base)
+        .map_err(Rejected::Goal)?;
     let opts = TrajectoryOptions {
         duration: requested,
         rate,
@@ -1441,34 +1476,34 @@ pub(crate) async fn generate_trajectory(
             grasp.clone(),
         );
         tokio::task::spawn_blocking(move || {
-            let traj = l
-                .model
-                .trajectory(&start, &goal, &opts)
-                .map_err(|e| region_error(e, l.model.manifolds.len(), "$.start", goal_base))?;
+            let traj = l.model.trajectory(&start, &goal, &opts).map_err(|e| {
+                let outside = matches!(e, MotionError::GoalOutsideRegion { .. });
+                let e = region_error(e, l.model.manifolds.len(), "$.start", goal_base);
+                if outside {
+                    Rejected::Goal(e)
+                } else {
+                    Rejected::Other(e)
+                }
+            })?;
             let report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
-            Ok::<_, ApiError>((traj, report))
+            Ok::<_, Rejected>((traj, report))
         })
         .await
         .map_err(ApiError::internal)??
     };
     let request = serde_json::to_string(&body).map_err(ApiError::internal)?;
     let summary = serde_json::to_string(&report).map_err(ApiError::internal)?;
-    let stored = trajectories::insert_trajectory(
-        &state.db,
-        &trajectories::NewTrajectory {
-            model_id: Some(&body.model),
-            robot: &l.robot,
-            joint_names: &l.names,
-            points: &traj.points,
-            start: &start,
-            goal: &goal,
-            duration: traj.duration,
-            request: &request,
-            summary: &summary,
-        },
-    )
-    .await?;
-    trajectory_dto(stored)
+    Ok(TrajectoryDraft {
+        model_id: Some(body.model.clone()),
+        robot: l.robot.clone(),
+        joint_names: l.names.clone(),
+        points: traj.points,
+        start,
+        goal,
+        duration: traj.duration,
+        request,
+        summary,
+    })
 }
 
 /// One stored trajectory with its points and report.

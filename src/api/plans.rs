@@ -4,9 +4,9 @@
 //! A plan runs synchronously: the grasp optimisation (tens of milliseconds for the bundled
 //! systems) and one trajectory from the model (about a millisecond) fit well inside a request,
 //! and a client gets its answer without polling a job. Order of work, so that bad input stores
-//! nothing: the model and the start are checked first, then the grasp is computed (not yet
-//! stored), then the trajectory to it is generated; only then are the grasp and the plan
-//! stored and, when asked, the execution queued. An infeasible grasp, or one outside the
+//! nothing: the model and the start are checked first, then the grasp is computed, then the
+//! trajectory to it; nothing is stored until then. The grasp, trajectory, execution (when
+//! asked) and plan rows are then written in one transaction ([`crate::service::plans`]). An infeasible grasp, or one outside the
 //! model's certified goal region, is not bad input: the plan is stored with `feasible: false`,
 //! the reason, the grasp, and no trajectory.
 
@@ -20,13 +20,14 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::grasps::{GraspDto, GraspIn, compute_grasp, grasp_dto, store_grasp};
+use super::grasps::{GraspDto, GraspIn, compute_grasp, grasp_dto};
 use super::models::{
-    AutoOr, CreateTrajectory, GoalIn, JointValues, TrajectoryDto, check_start, generate_trajectory,
-    trajectory_dto,
+    AutoOr, CreateTrajectory, GoalIn, JointValues, Rejected, TrajectoryDto, check_start,
+    compute_trajectory, trajectory_dto,
 };
 use super::{ApiError, AppState, Json, Path, Problem, Query};
-use crate::bridge::{ExecutionPayload, Mode};
+use crate::bridge::{Mode, WorkerName};
+use crate::service;
 use crate::store::{grasps as grasp_repo, models as model_repo, plans as repo, trajectories};
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -199,27 +200,13 @@ fn resolve_start(state: &AppState, body: &PlanIn) -> Result<JointValues, ApiErro
 }
 
 /// Plans (and optionally queues) one grasping motion; the work of `POST /v1/plans` and
-/// `reachgrasp plan`.
+/// `reachgrasp plan`. Everything is computed first; the rows are then stored as one unit of
+/// work ([`service::plans::store`]).
 pub async fn plan(state: &AppState, body: &PlanIn) -> Result<PlanDto, ApiError> {
     let t0 = Instant::now();
     let robot = body.grasp.robot.clone();
-    if let Some(w) = &body.worker
-        && !crate::bridge::hub::valid_worker_name(w)
-    {
-        return Err(ApiError::invalid_field(
-            "$.worker",
-            format!("'{w}' is not a worker name (1-64 letters, digits, '-', '_', '.')"),
-        ));
-    }
-    if crate::store::robots::get(&state.db, &robot)
-        .await?
-        .is_none()
-    {
-        return Err(ApiError::invalid_field(
-            "$.robot",
-            format!("unknown robot '{robot}'"),
-        ));
-    }
+    let worker = body.worker.as_deref().map(WorkerName::parse).transpose()?;
+    super::robots::robot_field(state, &robot, "$.robot").await?;
     let model_id = resolve_model(state, body).await?;
     let start = resolve_start(state, body)?;
     let model_robot = check_start(state, &model_id, &start).await?;
@@ -257,85 +244,75 @@ pub async fn plan(state: &AppState, body: &PlanIn) -> Result<PlanDto, ApiError> 
             duration: body.duration.clone(),
             rate: body.rate,
         };
-        match generate_trajectory(state, &request).await {
+        match compute_trajectory(state, &request).await {
             Ok(t) => trajectory = Some(t),
             // The grasp is the goal: a goal the model cannot certify (outside its goal region
             // or its joint limits) makes the plan infeasible, not the request bad.
-            Err(e) if e.errors().iter().any(|f| f.path.starts_with("$.goal")) => {
+            Err(Rejected::Goal(e)) => {
                 let why: Vec<&str> = e.errors().iter().map(|f| f.message.as_str()).collect();
                 reason = Some(format!(
                     "the grasp is no goal the model can reach with its convergence guarantee: {}",
                     why.join("; ")
                 ));
             }
-            Err(e) => return Err(e),
+            Err(Rejected::Other(e)) => return Err(e),
         }
     }
     let trajectory_s = t0.elapsed().as_secs_f64() - grasp_s;
 
-    let grasp = store_grasp(state, &new_grasp).await?;
-    let mut execution_id = None;
-    if body.execute
-        && let Some(t) = &trajectory
-    {
-        let mode = body.mode.unwrap_or(Mode::OpenLoop);
-        let payload = match mode {
-            Mode::OpenLoop => {
-                let stored = trajectories::get_trajectory(&state.db, &t.id)
-                    .await?
-                    .ok_or_else(|| {
-                        ApiError::internal(anyhow::anyhow!("trajectory {} vanished", t.id))
-                    })?;
-                ExecutionPayload::Trajectory {
-                    trajectory_id: stored.id,
-                    joint_names: stored.joint_names,
-                    points: stored.points,
-                }
-            }
-            Mode::ClosedLoop => ExecutionPayload::Model {
-                model_id: model_id.clone(),
-                params: model_repo::load_params(&state.db, &model_id)
-                    .await?
-                    .ok_or_else(|| {
-                        ApiError::internal(anyhow::anyhow!("model {model_id} has no parameters"))
-                    })?,
-                goal: t.goal.clone(),
-            },
-        };
-        execution_id =
-            Some(crate::bridge::enqueue(state, &robot, mode, payload, body.worker.clone()).await?);
-    }
+    let execution = match (body.execute, &trajectory) {
+        (true, Some(_)) => {
+            let mode = body.mode.unwrap_or(Mode::OpenLoop);
+            let law = match mode {
+                Mode::OpenLoop => None,
+                Mode::ClosedLoop => Some((
+                    model_id.clone(),
+                    model_repo::load_params(&state.db, &model_id)
+                        .await?
+                        .ok_or_else(|| {
+                            ApiError::internal(anyhow::anyhow!(
+                                "model {model_id} has no parameters"
+                            ))
+                        })?,
+                )),
+            };
+            Some(service::plans::ExecutionRequest { mode, worker, law })
+        }
+        _ => None,
+    };
     let timings = PlanTimings {
         grasp_s,
         trajectory_s,
         total_s: t0.elapsed().as_secs_f64(),
     };
-    let row = repo::insert(
-        &state.db,
-        repo::NewPlan {
+    let rows = service::plans::PlanRows {
+        grasp: new_grasp,
+        trajectory,
+        execution,
+        plan: repo::NewPlan {
             robot: robot.clone(),
             model_id: Some(model_id.clone()),
-            grasp_id: grasp.id.clone(),
-            trajectory_id: trajectory.as_ref().map(|t| t.id.clone()),
-            execution_id: execution_id.clone(),
+            grasp_id: String::new(),
+            trajectory_id: None,
+            execution_id: None,
             feasible: reason.is_none(),
             reason: reason.clone(),
             request: request_json(body)?,
             timings: serde_json::to_string(&timings).map_err(ApiError::internal)?,
         },
-    )
-    .await?;
+    };
+    let stored = service::plans::store(state, rows).await?;
     Ok(PlanDto {
-        id: row.id,
+        id: stored.plan.id,
         robot,
         model_id: Some(model_id),
-        feasible: row.feasible,
+        feasible: stored.plan.feasible,
         reason,
-        grasp,
-        trajectory,
-        execution_id,
+        grasp: grasp_dto(stored.grasp)?,
+        trajectory: stored.trajectory.map(trajectory_dto).transpose()?,
+        execution_id: stored.execution_id,
         timings,
-        created_at: row.created_at,
+        created_at: stored.plan.created_at,
     })
 }
 

@@ -5,9 +5,8 @@
 //! once against the model ([`JointVector`]). Kinematic errors become 422 problem+json naming the
 //! field and the joint, link or frame.
 
-use std::collections::{BTreeMap, HashMap};
-use std::path::Path as FsPath;
-use std::sync::{Arc, RwLock};
+use std::collections::BTreeMap;
+use std::sync::Arc;
 use std::time::Duration;
 
 use axum::extract::State;
@@ -17,7 +16,6 @@ use nalgebra::{Isometry3, Matrix6xX, Quaternion, Translation3, UnitQuaternion, V
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use sqlx::SqlitePool;
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -25,19 +23,13 @@ use utoipa_axum::routes;
 use super::{ApiError, AppState, FieldError, Json, Path, Problem};
 use crate::kinematics::{
     self, Data, FrameId, IkOptions, IkSolver, IkTarget, JointKind, JointVector, KinematicsError,
-    MapMeshes, NoMeshes, System, SystemDescriptor, UrdfSources, forward_kinematics, frame_jacobian,
+    MapMeshes, System, SystemDescriptor, forward_kinematics, frame_jacobian,
 };
+use crate::store::library::{LibraryError, system_from_stored};
 use crate::store::{self, robots as repo};
 
 /// Longest IK time budget a request may ask for.
 pub const MAX_IK_BUDGET_MS: f64 = 2000.0;
-
-/// Loaded systems by id, rebuilt when the stored row changes (keyed by `updated_at`).
-#[derive(Clone, Debug, Default)]
-pub struct RobotCache(Arc<RwLock<HashMap<String, CachedSystem>>>);
-
-/// `(updated_at of the row it was built from, the system)`.
-type CachedSystem = (String, Arc<System>);
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -125,162 +117,25 @@ fn inf_to_none(v: f64) -> Option<f64> {
 
 // ------------------------------------------------------------------------------------ loading
 
-/// Builds the system of a stored row (URDF texts + descriptor; meshes are not stored, so
-/// registered systems use primitives).
-pub fn system_from_row(row: &repo::RobotRow) -> Result<System, KinematicsError> {
-    system_from_stored(row, &NoMeshes)
-}
+// ------------------------------------------------------------------------------------ loading
 
-/// [`system_from_row`] with the meshes uploaded with the system.
-fn system_from_stored(
-    row: &repo::RobotRow,
-    meshes: &dyn kinematics::MeshSource,
-) -> Result<System, KinematicsError> {
-    let desc: SystemDescriptor =
-        serde_json::from_str(&row.descriptor).map_err(|e| KinematicsError::Descriptor {
-            field: "descriptor".into(),
-            reason: e.to_string(),
-        })?;
-    match &row.hand_urdf {
-        Some(hand) => System::from_sources(
-            desc,
-            UrdfSources::ArmAndHand {
-                arm: &row.arm_urdf,
-                hand,
-            },
-            meshes,
-        ),
-        None => System::from_sources(desc, UrdfSources::Combined(&row.arm_urdf), meshes),
-    }
-}
-
-/// The one way every resource resolves a robot id: the loaded system `id`, bundled or
-/// registered through `POST /v1/robots` (404 problem+json if unknown), built from its stored row
-/// and kept in the state's cache until the row changes. Mappings, grasps, models and trajectories
-/// use this; a handler that takes the id from a request body can turn the 404 into a field error
-/// (see `api::grasps`).
-pub async fn resolve_system(state: &AppState, id: &str) -> Result<Arc<System>, ApiError> {
-    let row = repo::get(&state.db, id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("robot", id))?;
-    load_cached(state, row).await
-}
-
-/// [`resolve_system`] under its earlier name, kept for callers written against it.
+/// The loaded system `id` from the robot library (404 problem+json if unknown).
 pub async fn system(state: &AppState, id: &str) -> Result<Arc<System>, ApiError> {
-    resolve_system(state, id).await
+    Ok(state.robots.system(id).await?)
 }
 
-async fn load_cached(state: &AppState, row: repo::RobotRow) -> Result<Arc<System>, ApiError> {
-    let cache = &state.robots;
-    if let Some((stamp, s)) = cache.0.read().expect("robot cache lock").get(&row.id)
-        && *stamp == row.updated_at
-    {
-        return Ok(s.clone());
+/// The system of a robot named in a request body: an unknown id is bad input, a 422 naming
+/// `field`.
+pub async fn robot_field(state: &AppState, id: &str, field: &str) -> Result<Arc<System>, ApiError> {
+    match state.robots.system(id).await {
+        Err(LibraryError::UnknownRobot(_)) => Err(unknown_robot(field, id)),
+        other => Ok(other?),
     }
-    let meshes = if row.bundled {
-        Default::default()
-    } else {
-        repo::meshes(&state.db, &row.id)
-            .await?
-            .into_iter()
-            .collect()
-    };
-    let (id, stamp) = (row.id.clone(), row.updated_at.clone());
-    let built = tokio::task::spawn_blocking(move || system_from_stored(&row, &MapMeshes(meshes)))
-        .await
-        .map_err(ApiError::internal)?
-        // A stored row was validated when written; failing now is a bug, not bad input.
-        .map_err(|e| {
-            ApiError::internal(anyhow::anyhow!("stored robot {id} no longer loads: {e}"))
-        })?;
-    let s = Arc::new(built);
-    cache
-        .0
-        .write()
-        .expect("robot cache lock")
-        .insert(id, (stamp, s.clone()));
-    Ok(s)
 }
 
-/// Synchronises `robots/systems/*.toml` into the database at start: new files are inserted,
-/// changed ones updated, unchanged ones left alone. A file that does not load is logged and
-/// skipped (the service still starts).
-pub async fn sync_bundled(db: &SqlitePool, robots_dir: &FsPath) -> anyhow::Result<()> {
-    let dir = robots_dir.join("systems");
-    let Ok(entries) = std::fs::read_dir(&dir) else {
-        tracing::warn!(dir = %dir.display(), "no bundled systems folder");
-        return Ok(());
-    };
-    let mut files: Vec<_> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
-        .collect();
-    files.sort();
-    for path in files {
-        let Some(id) = path.file_stem().and_then(|s| s.to_str()).map(str::to_owned) else {
-            continue;
-        };
-        let loaded = tokio::task::spawn_blocking({
-            let path = path.clone();
-            move || bundled_texts(&path)
-        })
-        .await?;
-        let (desc, arm, hand) = match loaded {
-            Ok(t) => t,
-            Err(e) => {
-                tracing::warn!(file = %path.display(), error = %e, "bundled system does not load; skipped");
-                continue;
-            }
-        };
-        let descriptor = serde_json::to_string(&desc)?;
-        let outcome = repo::upsert_bundled(
-            db,
-            &repo::NewRobot {
-                id: &id,
-                name: &desc.name,
-                bundled: true,
-                descriptor: &descriptor,
-                arm_urdf: &arm,
-                hand_urdf: hand.as_deref(),
-            },
-        )
-        .await?;
-        tracing::info!(robot = %id, ?outcome, "bundled system");
-    }
-    Ok(())
-}
-
-/// Loads a bundled descriptor file, checks it builds from its texts alone, returns the texts.
-fn bundled_texts(
-    path: &FsPath,
-) -> Result<(SystemDescriptor, String, Option<String>), KinematicsError> {
-    let system = System::from_file(path)?;
-    let desc = system.descriptor.clone();
-    let dir = path.parent().unwrap_or(FsPath::new("."));
-    let read = |rel: &str| {
-        std::fs::read_to_string(dir.join(rel)).map_err(|e| KinematicsError::FileUnreadable {
-            path: dir.join(rel).display().to_string(),
-            reason: e.to_string(),
-        })
-    };
-    let (arm, hand) = match (&desc.arm_urdf, &desc.hand_urdf, &desc.urdf) {
-        (Some(a), Some(h), _) => (read(a)?, Some(read(h)?)),
-        (_, _, Some(c)) => (read(c)?, None),
-        _ => unreachable!("System::from_file checked the URDF fields"),
-    };
-    let row = repo::RobotRow {
-        id: String::new(),
-        name: desc.name.clone(),
-        bundled: true,
-        descriptor: serde_json::to_string(&desc).expect("descriptor serialises"),
-        arm_urdf: arm.clone(),
-        hand_urdf: hand.clone(),
-        created_at: String::new(),
-        updated_at: String::new(),
-    };
-    system_from_row(&row)?;
-    Ok((desc, arm, hand))
+/// The one "unknown robot" field error.
+pub fn unknown_robot(field: &str, id: &str) -> ApiError {
+    ApiError::invalid_field(field, format!("unknown robot '{id}'"))
 }
 
 // ------------------------------------------------------------------------------------ DTOs
@@ -679,7 +534,7 @@ async fn list_robots(State(state): State<AppState>) -> Result<Json<RobotList>, A
     let rows = repo::list(&state.db).await?;
     let mut items = Vec::with_capacity(rows.len());
     for row in rows {
-        let s = load_cached(&state, row.clone()).await?;
+        let s = state.robots.load_cached(row.clone()).await?;
         items.push(summary(&row, &s));
     }
     Ok(Json(RobotList { items }))
@@ -699,7 +554,7 @@ async fn get_robot(
     let row = repo::get(&state.db, &id)
         .await?
         .ok_or_else(|| ApiError::not_found("robot", &id))?;
-    let s = load_cached(&state, row.clone()).await?;
+    let s = state.robots.load_cached(row.clone()).await?;
     Ok(Json(detail(&row, &s)))
 }
 
@@ -820,12 +675,7 @@ async fn create_robot(
     )
     .await?;
     let s = Arc::new(system);
-    state
-        .robots
-        .0
-        .write()
-        .expect("robot cache lock")
-        .insert(id.clone(), (row.updated_at.clone(), s.clone()));
+    state.robots.remember(&id, &row.updated_at, s.clone());
     Ok(super::created(
         StatusCode::CREATED,
         format!("/v1/robots/{id}"),
@@ -887,12 +737,7 @@ async fn delete_robot(
     }
     match repo::delete(&state.db, &id).await {
         Ok(true) => {
-            state
-                .robots
-                .0
-                .write()
-                .expect("robot cache lock")
-                .remove(&id);
+            state.robots.forget(&id);
             Ok(StatusCode::NO_CONTENT)
         }
         Ok(false) => Err(ApiError::not_found("robot", &id)),
@@ -1301,35 +1146,4 @@ pub fn ik_batch(robot: &str, s: &System, file: IkBatchFile) -> Result<IkBatchRep
         },
         solutions,
     })
-}
-
-/// Resolves `--robot`: a descriptor file path, a bundled id (`robots/systems/<id>.toml`), or a
-/// registered id in the database.
-pub fn resolve_robot_for_cli(
-    config: &crate::config::Config,
-    robot: &str,
-) -> anyhow::Result<System> {
-    let as_path = FsPath::new(robot);
-    if as_path.is_file() {
-        return Ok(System::from_file(as_path)?);
-    }
-    let bundled = config.robots.join("systems").join(format!("{robot}.toml"));
-    if bundled.is_file() {
-        return Ok(System::from_file(&bundled)?);
-    }
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
-    let row = runtime.block_on(async {
-        let db = store::connect(&config.db).await?;
-        let row = repo::get(&db, robot).await?;
-        db.close().await;
-        anyhow::Ok(row)
-    })?;
-    let row = row.ok_or_else(|| {
-        anyhow::anyhow!(
-            "robot '{robot}' is neither a descriptor file, a bundled id nor a registered id"
-        )
-    })?;
-    Ok(system_from_row(&row)?)
 }

@@ -25,9 +25,11 @@ use super::protocol::{
     Capability, ErrorCode, ErrorReply, Execute, ExecutionPayload, ExecutionResult, Feedback, Hello,
     Mode, Outcome, PROTOCOL_VERSION, ServiceMessage, Welcome, WorkerMessage, decode_worker_message,
 };
-use crate::api::{ApiError, AppState, Shutdown};
+use super::{BridgeError, WorkerName};
+use crate::shutdown::Shutdown;
 use crate::store::executions as repo;
 use crate::store::feedback::{Chunk, History, Recorder};
+use crate::store::library::{LibraryError, RobotLibrary};
 
 /// Feedback, tracking and the new part of the feedback history are written to SQLite at most
 /// this often per execution (the live view in memory is always current).
@@ -122,13 +124,14 @@ struct State {
 
 struct Inner {
     db: SqlitePool,
+    robots: RobotLibrary,
     settings: HubSettings,
     state: Mutex<State>,
     wake: Notify,
     next_conn: AtomicU64,
 }
 
-/// The bridge hub (cheap to clone; lives in [`AppState`]).
+/// The bridge hub (cheap to clone; lives in the service context).
 #[derive(Clone)]
 pub struct Hub(Arc<Inner>);
 
@@ -147,13 +150,6 @@ fn same_token(a: &str, b: &str) -> bool {
     a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
-pub(crate) fn valid_worker_name(name: &str) -> bool {
-    (1..=64).contains(&name.len())
-        && name
-            .bytes()
-            .all(|c| c.is_ascii_alphanumeric() || matches!(c, b'-' | b'_' | b'.'))
-}
-
 fn error(code: ErrorCode, message: impl Into<String>, fatal: bool) -> ErrorReply {
     ErrorReply {
         code,
@@ -164,9 +160,10 @@ fn error(code: ErrorCode, message: impl Into<String>, fatal: bool) -> ErrorReply
 }
 
 impl Hub {
-    pub fn new(db: SqlitePool, settings: HubSettings) -> Hub {
+    pub fn new(db: SqlitePool, robots: RobotLibrary, settings: HubSettings) -> Hub {
         Hub(Arc::new(Inner {
             db,
+            robots,
             settings,
             state: Mutex::new(State::default()),
             wake: Notify::new(),
@@ -245,17 +242,46 @@ impl Hub {
 
     // ------------------------------------------------------------------ queue and dispatch
 
-    /// Queues a validated execution and wakes the dispatcher.
-    pub(crate) async fn insert(
+    /// Checks a payload against the robot (see [`super::validate_payload`]), queues it and
+    /// wakes the dispatcher; returns the execution id.
+    pub async fn enqueue(
+        &self,
+        robot: &str,
+        mode: Mode,
+        payload: ExecutionPayload,
+        worker: Option<WorkerName>,
+    ) -> Result<String, BridgeError> {
+        self.check(robot, mode, &payload).await?;
+        let worker = worker.as_ref().map(WorkerName::as_str);
+        let row = repo::insert(&self.0.db, robot, mode.as_str(), &payload, worker).await?;
+        self.wake();
+        Ok(row.id)
+    }
+
+    /// [`super::validate_payload`] against the robot's system from the library.
+    pub async fn check(
         &self,
         robot: &str,
         mode: Mode,
         payload: &ExecutionPayload,
-        worker: Option<&str>,
-    ) -> Result<String, ApiError> {
-        let row = repo::insert(&self.0.db, robot, mode.as_str(), payload, worker).await?;
-        self.wake();
-        Ok(row.id)
+    ) -> Result<(), BridgeError> {
+        let system = self.0.robots.system(robot).await?;
+        super::validate_payload(payload, mode, &system, robot)
+    }
+
+    /// Queues an execution already checked with [`Hub::check`] inside the caller's
+    /// transaction; the caller calls [`Hub::wake`] once it has committed.
+    pub async fn insert_in(
+        conn: &mut sqlx::SqliteConnection,
+        robot: &str,
+        mode: Mode,
+        payload: &ExecutionPayload,
+        worker: Option<&WorkerName>,
+    ) -> Result<String, BridgeError> {
+        let worker = worker.map(WorkerName::as_str);
+        Ok(repo::insert_in(conn, robot, mode.as_str(), payload, worker)
+            .await?
+            .id)
     }
 
     /// Starts the dispatcher task; it stops at shutdown.
@@ -405,15 +431,15 @@ impl Hub {
 
     /// Cancels a live execution: a queued one at once, a running one by asking its worker
     /// (it becomes `cancelled` when the worker confirms). Errors: unknown id, already final.
-    pub async fn cancel(&self, id: &str) -> Result<(), ApiError> {
+    pub async fn cancel(&self, id: &str) -> Result<(), BridgeError> {
         let row = repo::get(&self.0.db, id)
             .await?
-            .ok_or_else(|| ApiError::not_found("execution", id))?;
+            .ok_or_else(|| BridgeError::UnknownExecution(id.to_owned()))?;
         if repo::is_final(&row.state) {
-            return Err(ApiError::conflict(format!(
-                "execution {id} has already finished ({})",
-                row.state
-            )));
+            return Err(BridgeError::AlreadyFinished {
+                id: id.to_owned(),
+                state: row.state,
+            });
         }
         if row.state == repo::QUEUED
             && repo::finish(
@@ -451,7 +477,7 @@ impl Hub {
     // ------------------------------------------------------------------ connections
 
     /// Checks a hello against the robot library; returns the refusal to send otherwise.
-    async fn check_hello(&self, state: &AppState, hello: &Hello) -> Result<(), ErrorReply> {
+    async fn check_hello(&self, hello: &Hello) -> Result<(), ErrorReply> {
         if hello.protocol_version != PROTOCOL_VERSION {
             return Err(error(
                 ErrorCode::UnsupportedVersion,
@@ -463,7 +489,7 @@ impl Hub {
             ));
         }
         let refuse = |m: String| Err(error(ErrorCode::HelloRefused, m, true));
-        if !valid_worker_name(&hello.worker) {
+        if WorkerName::parse(&hello.worker).is_err() {
             return refuse(format!(
                 "worker name '{}' must be 1-64 letters, digits, '-', '_' or '.'",
                 hello.worker
@@ -472,17 +498,18 @@ impl Hub {
         if hello.capabilities.is_empty() {
             return refuse("capabilities must not be empty (open_loop, closed_loop)".into());
         }
-        match crate::store::robots::get(&self.0.db, &hello.robot).await {
-            Ok(Some(_)) => {}
-            Ok(None) => return refuse(format!("unknown robot '{}'", hello.robot)),
-            Err(e) => {
+        let system = match self.0.robots.system(&hello.robot).await {
+            Ok(s) => s,
+            Err(e @ LibraryError::UnknownRobot(_)) => return refuse(e.to_string()),
+            Err(LibraryError::Store(e)) => {
                 tracing::error!(error = %e, "cannot read robots");
                 return Err(error(ErrorCode::HelloRefused, "database unavailable", true));
             }
-        }
-        let system = crate::api::robots::system(state, &hello.robot)
-            .await
-            .map_err(|e| error(ErrorCode::HelloRefused, e.detail().to_string(), true))?;
+            Err(e) => {
+                tracing::error!(error = %e, "cannot load a robot for a worker");
+                return refuse(format!("robot '{}' cannot be loaded", hello.robot));
+            }
+        };
         let expected = system.model.joint_names();
         if hello.joint_names != expected {
             let detail = match expected
@@ -750,9 +777,8 @@ impl Hub {
     }
 
     /// Serves one authenticated WebSocket connection until it closes.
-    pub async fn serve(self, state: AppState, socket: WebSocket) {
+    pub async fn serve(self, shutdown: Shutdown, socket: WebSocket) {
         let (mut sink, mut stream) = socket.split();
-        let shutdown = state.shutdown.clone();
         let send = |m: &ServiceMessage| {
             Message::Text(
                 serde_json::to_string(m)
@@ -805,7 +831,7 @@ impl Hub {
             }
         };
         let (tx, mut rx) = mpsc::channel(OUTBOX);
-        let checked = match self.check_hello(&state, &hello).await {
+        let checked = match self.check_hello(&hello).await {
             Ok(()) => self.register(&hello, tx),
             Err(e) => Err(e),
         };
@@ -954,9 +980,9 @@ mod tests {
 
     #[test]
     fn worker_names_are_checked() {
-        assert!(valid_worker_name("sim-1.lab_a"));
-        assert!(!valid_worker_name(""));
-        assert!(!valid_worker_name("a b"));
-        assert!(!valid_worker_name(&"x".repeat(65)));
+        assert!(WorkerName::parse("sim-1.lab_a").is_ok());
+        assert!(WorkerName::parse("").is_err());
+        assert!(WorkerName::parse("a b").is_err());
+        assert!(WorkerName::parse(&"x".repeat(65)).is_err());
     }
 }

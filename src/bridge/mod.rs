@@ -16,25 +16,94 @@ pub mod worker;
 pub use hub::{Hub, HubSettings, TrackingSummary, WorkerSnapshot};
 pub use protocol::{ExecutionPayload, Mode};
 
-use crate::api::{ApiError, AppState, FieldError};
+use crate::store::library::LibraryError;
 
 /// Most points an execution's trajectory may have (10 min at 100 Hz + margin).
 pub const MAX_POINTS: usize = 100_000;
 
-/// Where the parts of a payload came from, for error paths (`$.trajectory.points`, ...).
-#[derive(Debug, Clone)]
-pub struct PayloadPaths {
-    pub joint_names: String,
-    pub points: String,
-    pub goal: String,
+/// A bridge worker's name: 1-64 letters, digits, `-`, `_` or `.` (checked once, here).
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct WorkerName(String);
+
+impl WorkerName {
+    pub fn parse(name: &str) -> Result<WorkerName, BridgeError> {
+        let ok = (1..=64).contains(&name.len())
+            && name
+                .bytes()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, b'-' | b'_' | b'.'));
+        if ok {
+            Ok(WorkerName(name.to_owned()))
+        } else {
+            Err(BridgeError::InvalidWorkerName(name.to_owned()))
+        }
+    }
+
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
 }
 
-impl Default for PayloadPaths {
-    fn default() -> Self {
-        PayloadPaths {
-            joint_names: "$.payload.joint_names".into(),
-            points: "$.payload.points".into(),
-            goal: "$.payload.goal".into(),
+impl std::fmt::Display for WorkerName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+/// The part of a payload a [`PayloadIssue`] is about; the caller knows where that part came
+/// from in its own input and names it there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PayloadPart {
+    /// The execution mode asked for.
+    Mode,
+    JointNames,
+    Points,
+    Goal,
+}
+
+/// One problem with a payload: its part, where inside it (`[3].positions[2]`, or empty), and
+/// what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PayloadIssue {
+    pub part: PayloadPart,
+    pub at: String,
+    pub message: String,
+}
+
+impl PayloadIssue {
+    fn new(part: PayloadPart, at: impl Into<String>, message: impl Into<String>) -> Self {
+        PayloadIssue {
+            part,
+            at: at.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// What the bridge layer reports; the API turns it into problem+json.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BridgeError {
+    #[error("unknown robot '{0}'")]
+    UnknownRobot(String),
+    #[error("'{0}' is not a worker name (1-64 letters, digits, '-', '_', '.')")]
+    InvalidWorkerName(String),
+    #[error("the payload does not fit the robot: {}", .0.first().map_or("", |i| i.message.as_str()))]
+    InvalidPayload(Vec<PayloadIssue>),
+    #[error("no execution '{0}'")]
+    UnknownExecution(String),
+    #[error("execution {id} has already finished ({state})")]
+    AlreadyFinished { id: String, state: String },
+    #[error(transparent)]
+    Store(#[from] sqlx::Error),
+    #[error(transparent)]
+    Library(LibraryError),
+}
+
+impl From<LibraryError> for BridgeError {
+    fn from(e: LibraryError) -> Self {
+        match e {
+            LibraryError::UnknownRobot(id) => BridgeError::UnknownRobot(id),
+            other => BridgeError::Library(other),
         }
     }
 }
@@ -46,16 +115,17 @@ pub fn validate_payload(
     mode: Mode,
     system: &crate::kinematics::System,
     robot: &str,
-    paths: &PayloadPaths,
-) -> Result<(), ApiError> {
+) -> Result<(), BridgeError> {
+    use PayloadPart as P;
     let model = &system.model;
     let names = model.joint_names();
     let n = names.len();
     let (lo, hi) = (model.lower_limits(), model.upper_limits());
     let mut errors = Vec::new();
     if payload.mode() != mode {
-        errors.push(FieldError::new(
-            "$.mode",
+        errors.push(PayloadIssue::new(
+            P::Mode,
+            "",
             format!(
                 "a {} payload runs in {}, not {}",
                 payload.kind(),
@@ -65,14 +135,15 @@ pub fn validate_payload(
         ));
     }
     if payload.joint_names() != names {
-        errors.push(FieldError::new(
-            &paths.joint_names,
+        errors.push(PayloadIssue::new(
+            P::JointNames,
+            "",
             format!(
                 "must be robot '{robot}''s joints in model order {names:?}, got {:?}",
                 payload.joint_names()
             ),
         ));
-        return Err(ApiError::validation(errors));
+        return Err(BridgeError::InvalidPayload(errors));
     }
     let outside = |q: &[f64]| {
         q.iter()
@@ -82,8 +153,9 @@ pub fn validate_payload(
     match payload {
         ExecutionPayload::Trajectory { points, .. } => {
             if points.is_empty() || points.len() > MAX_POINTS {
-                errors.push(FieldError::new(
-                    &paths.points,
+                errors.push(PayloadIssue::new(
+                    P::Points,
+                    "",
                     format!("must have 1 to {MAX_POINTS} points, got {}", points.len()),
                 ));
             }
@@ -91,31 +163,35 @@ pub fn validate_payload(
                 if errors.len() > 20 {
                     break;
                 }
-                let at = format!("{}[{i}]", paths.points);
+                let at = format!("[{i}]");
                 for (field, v) in [
                     ("positions", &p.positions),
                     ("velocities", &p.velocities),
                     ("accelerations", &p.accelerations),
                 ] {
                     if v.len() != n {
-                        errors.push(FieldError::new(
+                        errors.push(PayloadIssue::new(
+                            P::Points,
                             format!("{at}.{field}"),
                             format!("must have {n} values (one per joint), got {}", v.len()),
                         ));
                     } else if let Some(j) = v.iter().position(|x| !x.is_finite()) {
-                        errors.push(FieldError::new(
+                        errors.push(PayloadIssue::new(
+                            P::Points,
                             format!("{at}.{field}[{j}]"),
                             "must be a finite number",
                         ));
                     }
                 }
                 if !p.t.is_finite() || p.t < 0.0 {
-                    errors.push(FieldError::new(
+                    errors.push(PayloadIssue::new(
+                        P::Points,
                         format!("{at}.t"),
                         "must be finite and >= 0",
                     ));
                 } else if i > 0 && p.t <= points[i - 1].t {
-                    errors.push(FieldError::new(
+                    errors.push(PayloadIssue::new(
+                        P::Points,
                         format!("{at}.t"),
                         format!("times must increase: {} after {}", p.t, points[i - 1].t),
                     ));
@@ -123,7 +199,8 @@ pub fn validate_payload(
                 if p.positions.len() == n
                     && let Some(j) = outside(&p.positions)
                 {
-                    errors.push(FieldError::new(
+                    errors.push(PayloadIssue::new(
+                        P::Points,
                         format!("{at}.positions[{j}]"),
                         format!(
                             "{} is outside joint '{}' limits [{}, {}]",
@@ -135,8 +212,9 @@ pub fn validate_payload(
         }
         ExecutionPayload::Model { params, goal, .. } => {
             if params.n_joints() != n {
-                errors.push(FieldError::new(
-                    &paths.joint_names,
+                errors.push(PayloadIssue::new(
+                    P::JointNames,
+                    "",
                     format!(
                         "the model's law covers {} joints, the robot has {n}",
                         params.n_joints()
@@ -144,18 +222,21 @@ pub fn validate_payload(
                 ));
             }
             if goal.len() != n {
-                errors.push(FieldError::new(
-                    &paths.goal,
+                errors.push(PayloadIssue::new(
+                    P::Goal,
+                    "",
                     format!("must have {n} values (one per joint), got {}", goal.len()),
                 ));
             } else if let Some(j) = goal.iter().position(|x| !x.is_finite()) {
-                errors.push(FieldError::new(
-                    format!("{}[{j}]", paths.goal),
+                errors.push(PayloadIssue::new(
+                    P::Goal,
+                    format!("[{j}]"),
                     "must be a finite number",
                 ));
             } else if let Some(j) = outside(goal) {
-                errors.push(FieldError::new(
-                    format!("{}[{j}]", paths.goal),
+                errors.push(PayloadIssue::new(
+                    P::Goal,
+                    format!("[{j}]"),
                     format!(
                         "{} is outside joint '{}' limits [{}, {}]",
                         goal[j], names[j], lo[j], hi[j]
@@ -167,64 +248,18 @@ pub fn validate_payload(
     if errors.is_empty() {
         Ok(())
     } else {
-        Err(ApiError::validation(errors))
+        Err(BridgeError::InvalidPayload(errors))
     }
 }
 
-/// Resolves a robot id for an execution (422 naming `$.robot` when unknown).
-pub async fn robot_system(
-    state: &AppState,
-    robot: &str,
-) -> Result<std::sync::Arc<crate::kinematics::System>, ApiError> {
-    if crate::store::robots::get(&state.db, robot).await?.is_none() {
-        return Err(ApiError::invalid_field(
-            "$.robot",
-            format!("unknown robot '{robot}'"),
-        ));
-    }
-    crate::api::robots::system(state, robot).await
-}
-
-/// Checks and queues an execution with error paths of `paths`; returns its id.
-pub async fn enqueue_checked(
-    state: &AppState,
-    robot: &str,
-    mode: Mode,
-    payload: ExecutionPayload,
-    worker: Option<String>,
-    paths: &PayloadPaths,
-) -> Result<String, ApiError> {
-    if let Some(w) = &worker
-        && !hub::valid_worker_name(w)
-    {
-        return Err(ApiError::invalid_field(
-            "$.worker",
-            format!("'{w}' is not a worker name (1-64 letters, digits, '-', '_', '.')"),
-        ));
-    }
-    let system = robot_system(state, robot).await?;
-    validate_payload(&payload, mode, &system, robot, paths)?;
-    state
-        .bridges
-        .insert(robot, mode, &payload, worker.as_deref())
-        .await
-}
-
-/// Queue an execution (stored in SQLite, dispatched when a worker is free); returns its id.
+/// Checks and queues an execution (stored in SQLite, dispatched when a worker is free);
+/// returns its id. `hub` is anything that holds the hub (the service context does).
 pub async fn enqueue(
-    state: &AppState,
+    hub: &impl AsRef<Hub>,
     robot: &str,
     mode: Mode,
     payload: ExecutionPayload,
-    worker: Option<String>,
-) -> Result<String, ApiError> {
-    enqueue_checked(
-        state,
-        robot,
-        mode,
-        payload,
-        worker,
-        &PayloadPaths::default(),
-    )
-    .await
+    worker: Option<WorkerName>,
+) -> Result<String, BridgeError> {
+    hub.as_ref().enqueue(robot, mode, payload, worker).await
 }

@@ -6,10 +6,11 @@ use serde::Deserialize;
 use uuid::Uuid;
 
 use super::html::{self, esc, facts, field, figure, form, link, num, progress, table};
+use crate::api::ApiError;
 use crate::api::grasps::GraspSettingsDto;
-use crate::api::{ApiError, AppState};
 use crate::grasp::{GraspResult, ObjectSpec, ShapeSpec};
 use crate::jobs::JobRecord;
+use crate::service::Context as AppState;
 use crate::store::demonstrations::{self as demo_repo, DemonstrationFilter};
 use crate::store::grasps as grasp_repo;
 use crate::store::jobs::JobFilter;
@@ -248,7 +249,7 @@ pub async fn robots(State(state): State<AppState>) -> Page {
     let rows = robot_repo::list(&state.db).await?;
     let mut cards = String::new();
     for r in &rows {
-        let s = crate::api::robots::system(&state, &r.id).await?;
+        let s = state.robots.system(&r.id).await?;
         cards.push_str(&format!(
             "<a class=\"thumb\" href=\"/ui/robots/{id}\"><img loading=\"lazy\" \
              src=\"/v1/robots/{id}/plot.svg\" alt=\"{id} posture\" width=\"400\" height=\"300\">\
@@ -271,7 +272,7 @@ pub async fn robot(State(state): State<AppState>, Path(id): Path<String>) -> Pag
     if robot_repo::get(&state.db, &id).await?.is_none() {
         return Ok(html::not_found("robot", &id, "/ui/robots", "robots"));
     }
-    let s = crate::api::robots::system(&state, &id).await?;
+    let s = state.robots.system(&id).await?;
     let m = &s.model;
     let names = m.joint_names();
     let rows: Vec<Vec<String>> = (0..m.nq())

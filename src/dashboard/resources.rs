@@ -5,7 +5,9 @@ use axum::extract::{Path, Query, State};
 use serde::Deserialize;
 
 use super::html::{self, esc, facts, field, figure, form, link, num, progress, table};
-use crate::api::{ApiError, AppState};
+use crate::api::ApiError;
+use crate::bridge::Mode;
+use crate::service::Context as AppState;
 use crate::store::executions as execution_repo;
 use crate::store::grasps as grasp_repo;
 use crate::store::mappings as mapping_repo;
@@ -57,7 +59,7 @@ fn train_form(robot: &str, mapping: &str) -> String {
 }
 
 async fn trajectory_form(state: &AppState, model: &str, robot: &str) -> Result<String, ApiError> {
-    let system = crate::api::robots::system(state, robot).await?;
+    let system = state.robots.system(robot).await?;
     let m = &system.model;
     let neutral: Vec<String> = m.neutral().iter().map(|v| num(*v, 4)).collect();
     let grasps = grasp_repo::list_grasps(&state.db, 200).await?;
@@ -524,13 +526,15 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
             "executions",
         ));
     };
-    let dto = crate::api::executions::view(&state, row).await;
-    let fraction = match (&dto.last_feedback, dto.state.as_str()) {
+    let view = crate::service::executions::view(&state, row);
+    let mode = Mode::parse(&view.row.mode).unwrap_or(Mode::OpenLoop);
+    let dto = &view.row;
+    let fraction = match (&view.last_feedback, dto.state.as_str()) {
         (_, "succeeded") => 1.0,
         (Some(f), _) => f.progress,
         _ => 0.0,
     };
-    let tracking = dto
+    let tracking = view
         .tracking
         .as_ref()
         .map(|t| {
@@ -556,7 +560,7 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
             ("robot", esc(&dto.robot)),
             (
                 "mode",
-                esc(serde_json::to_value(dto.mode)
+                esc(serde_json::to_value(mode)
                     .ok()
                     .and_then(|v| v.as_str().map(str::to_owned))
                     .as_deref()
@@ -574,7 +578,7 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
                 "measured history",
                 format!(
                     "{} samples ({})",
-                    dto.feedback_samples,
+                    view.feedback_samples,
                     link(&format!("/v1/executions/{id}/feedback"), "JSON")
                 )
             ),
@@ -584,7 +588,7 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
         ]),
         figure(
             &format!("/v1/executions/{id}/plot.svg"),
-            if dto.mode == crate::bridge::Mode::ClosedLoop {
+            if mode == Mode::ClosedLoop {
                 "Measured joint positions over time (closed loop: no planned trajectory)"
             } else {
                 "Planned (dashed) vs measured joint positions over time"

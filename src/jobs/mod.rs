@@ -51,122 +51,19 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use futures::future::BoxFuture;
-use serde::{Deserialize, Serialize};
 use sqlx::{Sqlite, SqlitePool, Transaction};
 use tokio::sync::{Notify, Semaphore, watch};
 use tracing::Instrument;
-use utoipa::ToSchema;
 use uuid::Uuid;
 
 use crate::store;
+// The job records are stored rows; they live with their table so that the store needs no
+// type of the runner.
+pub(crate) use crate::store::jobs::Finish;
+pub use crate::store::jobs::{JobFailure, JobProgress, JobRecord, JobStatus, ResultRef};
 
 /// How often the progress of a running job is copied to the database (SSE sees every update).
 pub const PROGRESS_PERSIST_INTERVAL: Duration = Duration::from_millis(500);
-
-/// Lifecycle state of a job.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
-#[serde(rename_all = "lowercase")]
-pub enum JobStatus {
-    Queued,
-    Running,
-    Succeeded,
-    Failed,
-    Cancelled,
-}
-
-impl JobStatus {
-    pub const ALL: [JobStatus; 5] = [
-        JobStatus::Queued,
-        JobStatus::Running,
-        JobStatus::Succeeded,
-        JobStatus::Failed,
-        JobStatus::Cancelled,
-    ];
-
-    pub fn as_str(self) -> &'static str {
-        match self {
-            JobStatus::Queued => "queued",
-            JobStatus::Running => "running",
-            JobStatus::Succeeded => "succeeded",
-            JobStatus::Failed => "failed",
-            JobStatus::Cancelled => "cancelled",
-        }
-    }
-
-    pub fn parse(s: &str) -> Option<JobStatus> {
-        JobStatus::ALL.into_iter().find(|x| x.as_str() == s)
-    }
-
-    /// True for `succeeded`, `failed` and `cancelled`: the job will not change again.
-    pub fn is_final(self) -> bool {
-        matches!(
-            self,
-            JobStatus::Succeeded | JobStatus::Failed | JobStatus::Cancelled
-        )
-    }
-}
-
-impl fmt::Display for JobStatus {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-/// Progress of a job: a fraction in [0, 1] and an optional message.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
-pub struct JobProgress {
-    /// Completed fraction, 0 to 1.
-    pub fraction: f64,
-    pub message: Option<String>,
-}
-
-/// Why a job failed.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
-pub struct JobFailure {
-    /// Stable reason: `interrupted` (the process stopped while the job was queued or running),
-    /// `failed` (the computation reported an error) or `internal` (a bug; see the server logs).
-    pub reason: String,
-    pub message: String,
-}
-
-/// Where a job's result lives: a resource collection and an id.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
-pub struct ResultRef {
-    /// Resource collection under `/v1`, e.g. `mappings`.
-    pub resource: String,
-    pub id: String,
-    /// `/v1/{resource}/{id}`.
-    pub href: String,
-}
-
-impl ResultRef {
-    pub fn new(resource: impl Into<String>, id: impl fmt::Display) -> Self {
-        let resource = resource.into();
-        let id = id.to_string();
-        let href = format!("/v1/{resource}/{id}");
-        ResultRef { resource, id, href }
-    }
-}
-
-/// A job as stored and as served by the API.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
-pub struct JobRecord {
-    pub id: Uuid,
-    /// What the job computes, e.g. `mapping`.
-    pub kind: String,
-    pub status: JobStatus,
-    pub progress: JobProgress,
-    /// Set when `status` is `failed`.
-    pub error: Option<JobFailure>,
-    /// Set when `status` is `succeeded` and the job stored a result.
-    pub result: Option<ResultRef>,
-    /// A cancellation was requested (the job stops at its next check).
-    pub cancel_requested: bool,
-    /// RFC 3339 UTC.
-    pub created_at: String,
-    pub started_at: Option<String>,
-    pub finished_at: Option<String>,
-}
 
 /// How a job's closure ends without output.
 #[derive(Debug, thiserror::Error)]
@@ -558,36 +455,6 @@ impl JobRunner {
                 "jobs still running at shutdown; they will be marked interrupted at the next start"
             );
         }
-    }
-}
-
-/// The final state a driver writes.
-pub(crate) struct Finish {
-    pub status: JobStatus,
-    pub reason: Option<&'static str>,
-    pub message: Option<String>,
-}
-
-impl Finish {
-    fn cancelled() -> Self {
-        Finish {
-            status: JobStatus::Cancelled,
-            reason: None,
-            message: None,
-        }
-    }
-    fn failed(reason: &'static str, message: impl Into<String>) -> Self {
-        Finish {
-            status: JobStatus::Failed,
-            reason: Some(reason),
-            message: Some(message.into()),
-        }
-    }
-    fn interrupted() -> Self {
-        Finish::failed(
-            "interrupted",
-            "the service shut down while the job was running",
-        )
     }
 }
 

@@ -10,8 +10,8 @@ use uuid::Uuid;
 
 use super::feedback::{self, Chunk};
 use super::{blob, now};
-use crate::bridge::ExecutionPayload;
 use crate::motion::TrajectoryPoint;
+use crate::store::payload::ExecutionPayload;
 
 /// Execution states. `queued` and `running` are live; the others are final.
 pub const QUEUED: &str = "queued";
@@ -138,6 +138,18 @@ pub async fn insert(
     payload: &ExecutionPayload,
     worker: Option<&str>,
 ) -> Result<ExecutionRow, sqlx::Error> {
+    let mut conn = pool.acquire().await?;
+    insert_in(&mut conn, robot, mode, payload, worker).await
+}
+
+/// [`insert`] on a connection or inside a transaction (`&mut *tx`).
+pub async fn insert_in(
+    conn: &mut sqlx::SqliteConnection,
+    robot: &str,
+    mode: &str,
+    payload: &ExecutionPayload,
+    worker: Option<&str>,
+) -> Result<ExecutionRow, sqlx::Error> {
     let (json, points) = split_payload(payload)?;
     let row = ExecutionRow {
         id: Uuid::new_v4().to_string(),
@@ -171,7 +183,7 @@ pub async fn insert(
     .bind(&row.worker)
     .bind(&row.state)
     .bind(&row.created_at)
-    .execute(pool)
+    .execute(conn)
     .await?;
     Ok(row)
 }

@@ -393,7 +393,7 @@ mod tests {
         let pool = super::super::connect(&dir.path().join("t.db"))
             .await
             .unwrap();
-        let p = crate::bridge::ExecutionPayload::Trajectory {
+        let p = crate::store::payload::ExecutionPayload::Trajectory {
             trajectory_id: "inline".into(),
             joint_names: vec!["a".into(), "b".into()],
             points: vec![crate::motion::TrajectoryPoint {

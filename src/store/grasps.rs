@@ -98,7 +98,9 @@ pub async fn delete_object(pool: &SqlitePool, id: &str) -> Result<bool, sqlx::Er
     Ok(r.rows_affected() > 0)
 }
 
-async fn insert_grasp_in(
+/// Stores one grasp inside the caller's transaction (a plan stores its grasp with its other
+/// rows); `batch` places it in a batch.
+pub async fn insert_grasp_in(
     tx: &mut Transaction<'_, Sqlite>,
     g: &NewGrasp,
     batch: Option<(&str, i64)>,

@@ -36,6 +36,15 @@ pub struct NewPlan {
 }
 
 pub async fn insert(pool: &SqlitePool, p: NewPlan) -> Result<PlanRow, sqlx::Error> {
+    let mut conn = pool.acquire().await?;
+    insert_in(&mut conn, p).await
+}
+
+/// [`insert`] inside the caller's transaction (`&mut *tx`).
+pub async fn insert_in(
+    conn: &mut sqlx::SqliteConnection,
+    p: NewPlan,
+) -> Result<PlanRow, sqlx::Error> {
     let row = PlanRow {
         id: Uuid::new_v4().to_string(),
         robot: p.robot,
@@ -64,7 +73,7 @@ pub async fn insert(pool: &SqlitePool, p: NewPlan) -> Result<PlanRow, sqlx::Erro
     .bind(&row.request)
     .bind(&row.timings)
     .bind(&row.created_at)
-    .execute(pool)
+    .execute(conn)
     .await?;
     Ok(row)
 }

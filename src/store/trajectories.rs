@@ -43,6 +43,37 @@ pub struct NewTrajectory<'a> {
     pub summary: &'a str,
 }
 
+/// An owned [`NewTrajectory`]: a trajectory computed now and stored later (a plan stores it
+/// with its grasp in one transaction).
+#[derive(Debug, Clone)]
+pub struct TrajectoryDraft {
+    pub model_id: Option<String>,
+    pub robot: String,
+    pub joint_names: Vec<String>,
+    pub points: Vec<TrajectoryPoint>,
+    pub start: Vec<f64>,
+    pub goal: Vec<f64>,
+    pub duration: f64,
+    pub request: String,
+    pub summary: String,
+}
+
+impl TrajectoryDraft {
+    pub fn as_new(&self) -> NewTrajectory<'_> {
+        NewTrajectory {
+            model_id: self.model_id.as_deref(),
+            robot: &self.robot,
+            joint_names: &self.joint_names,
+            points: &self.points,
+            start: &self.start,
+            goal: &self.goal,
+            duration: self.duration,
+            request: &self.request,
+            summary: &self.summary,
+        }
+    }
+}
+
 #[derive(sqlx::FromRow)]
 struct Row {
     id: String,
@@ -144,13 +175,23 @@ pub async fn insert_trajectory(
     pool: &SqlitePool,
     t: &NewTrajectory<'_>,
 ) -> Result<StoredTrajectory, sqlx::Error> {
+    let mut tx = pool.begin().await?;
+    let stored = insert_trajectory_in(&mut tx, t).await?;
+    tx.commit().await?;
+    Ok(stored)
+}
+
+/// [`insert_trajectory`] inside the caller's transaction.
+pub async fn insert_trajectory_in(
+    tx: &mut sqlx::SqliteConnection,
+    t: &NewTrajectory<'_>,
+) -> Result<StoredTrajectory, sqlx::Error> {
     let n = t.joint_names.len();
     if t.start.len() != n || t.goal.len() != n {
         return Err(shape_error("start or goal"));
     }
     let id = Uuid::new_v4().to_string();
     let created_at = now();
-    let mut tx = pool.begin().await?;
     sqlx::query(
         "INSERT INTO trajectories (id, model_id, robot, joint_names, start, goal, points, duration, request, summary, created_at) \
          VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
@@ -168,7 +209,6 @@ pub async fn insert_trajectory(
     .bind(&created_at)
     .execute(&mut *tx)
     .await?;
-    tx.commit().await?;
     Ok(StoredTrajectory {
         id,
         model_id: t.model_id.map(str::to_owned),

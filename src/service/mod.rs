@@ -1,0 +1,206 @@
+//! The application layer: one module per use case, between the edges (HTTP handlers in
+//! [`crate::api`], the dashboard, the CLI, first-start seeding) and the pure numerics.
+//!
+//! A use case takes parsed domain inputs and a [`Context`], does its work (numerics off the
+//! async runtime, store writes in one transaction per unit of work) and returns domain results
+//! or an [`Error`]. It knows nothing of HTTP: the edge renders an [`Error`] as problem+json once
+//! ([`crate::api::ApiError`] implements `From<Error>`).
+//!
+//! Layers, lowest first (a module imports only from its own layer or below; the test
+//! `tests/layers.rs` enforces it):
+//! 1. numeric core: `kinematics`, `geometry`, `human`, `mapping`, `motion`, `grasp`, `optim`,
+//!    `figures` (pure computation, no I/O);
+//! 2. `store` (SQLite rows, the robot library) and `shutdown`;
+//! 3. `jobs` and `bridge` (the job runner, the bridge hub and its worker protocol);
+//! 4. `service` and `config` (this layer);
+//! 5. the edges: `api`, `dashboard`, `app`, the CLI (`main.rs`).
+
+pub mod demonstrations;
+pub mod executions;
+pub mod plans;
+pub mod seed;
+
+use std::fmt;
+use std::sync::Arc;
+
+use sqlx::SqlitePool;
+use uuid::Uuid;
+
+use crate::bridge::{BridgeError, Hub};
+use crate::config::Config;
+use crate::jobs::{JobRunner, RunnerError};
+use crate::shutdown::Shutdown;
+use crate::store::library::{LibraryError, RobotLibrary};
+
+/// Everything a use case may need; cheap to clone.
+#[derive(Clone, Debug)]
+pub struct Context {
+    pub db: SqlitePool,
+    pub config: Arc<Config>,
+    pub jobs: JobRunner,
+    /// Loaded arm-hand systems by id.
+    pub robots: RobotLibrary,
+    /// Connected bridge workers and the execution dispatcher.
+    pub bridges: Hub,
+    /// Robots whose default model the first-start seeding is still preparing.
+    pub seed: seed::SeedStatus,
+    /// Resolves when the service starts shutting down (ends long-lived streams).
+    pub shutdown: Shutdown,
+}
+
+impl AsRef<Hub> for Context {
+    fn as_ref(&self) -> &Hub {
+        &self.bridges
+    }
+}
+
+/// One bad input: the field as the request names it (a JSONPath into the request body, e.g.
+/// `$.start.positions[2]`, or a parameter name), and what is wrong with it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Invalid {
+    pub field: String,
+    pub message: String,
+}
+
+impl Invalid {
+    pub fn new(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Invalid {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// What a use case reports. Each edge renders it once (HTTP: problem+json; CLI: a message).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// Bad input; every offending field.
+    #[error("{}", summary(.0))]
+    Invalid(Vec<Invalid>),
+    /// The payload of an execution does not fit its robot (the caller knows where each part
+    /// came from).
+    #[error("the execution does not fit the robot")]
+    Payload(Vec<crate::bridge::PayloadIssue>),
+    /// An id the request is about does not exist.
+    #[error("{kind} {id} does not exist")]
+    NotFound { kind: &'static str, id: String },
+    /// The request conflicts with the stored state.
+    #[error("{0}")]
+    Conflict(String),
+    /// Job `job` is still preparing what the request needs.
+    #[error("{message}")]
+    NotReady { message: String, job: Uuid },
+    /// A dependency is down or the service is stopping.
+    #[error("{0}")]
+    Unavailable(String),
+    /// A bug or an unexpected failure below (logged, never detailed to a client).
+    #[error(transparent)]
+    Internal(anyhow::Error),
+}
+
+fn summary(errors: &[Invalid]) -> String {
+    match errors {
+        [one] => format!("{}: {}", one.field, one.message),
+        many => format!("{} fields are invalid", many.len()),
+    }
+}
+
+impl Error {
+    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Error::Invalid(vec![Invalid::new(field, message)])
+    }
+
+    pub fn not_found(kind: &'static str, id: impl fmt::Display) -> Self {
+        Error::NotFound {
+            kind,
+            id: id.to_string(),
+        }
+    }
+
+    pub fn internal(cause: impl Into<anyhow::Error>) -> Self {
+        Error::Internal(cause.into())
+    }
+}
+
+impl From<sqlx::Error> for Error {
+    fn from(e: sqlx::Error) -> Self {
+        if crate::store::is_unique_violation(&e) {
+            Error::Conflict("a resource with the same identity already exists".into())
+        } else {
+            Error::Internal(e.into())
+        }
+    }
+}
+
+impl From<RunnerError> for Error {
+    fn from(e: RunnerError) -> Self {
+        match e {
+            RunnerError::NotFound(id) => Error::not_found("job", id),
+            RunnerError::AlreadyFinished { id, status } => {
+                Error::Conflict(format!("job {id} is already {status}"))
+            }
+            RunnerError::ShuttingDown => Error::Unavailable("the service is shutting down".into()),
+            RunnerError::Store(e) => Error::internal(e),
+        }
+    }
+}
+
+impl From<LibraryError> for Error {
+    fn from(e: LibraryError) -> Self {
+        match e {
+            LibraryError::UnknownRobot(id) => Error::not_found("robot", id),
+            LibraryError::Store(e) => e.into(),
+            other => Error::internal(other),
+        }
+    }
+}
+
+impl From<BridgeError> for Error {
+    fn from(e: BridgeError) -> Self {
+        match e {
+            BridgeError::UnknownRobot(id) => {
+                Error::invalid("$.robot", format!("unknown robot '{id}'"))
+            }
+            BridgeError::InvalidWorkerName(_) => Error::invalid("$.worker", e.to_string()),
+            BridgeError::InvalidPayload(issues) => Error::Payload(issues),
+            BridgeError::UnknownExecution(id) => Error::not_found("execution", id),
+            BridgeError::AlreadyFinished { .. } => Error::Conflict(e.to_string()),
+            BridgeError::Store(e) => e.into(),
+            other => Error::internal(other),
+        }
+    }
+}
+
+/// A context over a fresh database in `dir` with the bundled robots, for the use cases' tests.
+#[cfg(test)]
+pub(crate) async fn test_context(dir: &std::path::Path) -> Context {
+    let robots_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots");
+    let config = Config {
+        db: dir.join("test.db"),
+        robots: robots_dir.clone(),
+        no_seed: true,
+        ..Config::default()
+    };
+    let db = crate::store::connect(&config.db).await.expect("database");
+    crate::store::library::sync_bundled(&db, &robots_dir)
+        .await
+        .expect("bundled robots");
+    let jobs = JobRunner::start(db.clone(), 1).await.expect("job runner");
+    let robots = RobotLibrary::new(db.clone());
+    let (_trigger, shutdown) = Shutdown::new();
+    let bridges = Hub::new(
+        db.clone(),
+        robots.clone(),
+        config.bridge_settings("t".into()),
+    );
+    Context {
+        db,
+        config: Arc::new(config),
+        jobs,
+        robots,
+        bridges,
+        seed: seed::SeedStatus::default(),
+        shutdown,
+    }
+}

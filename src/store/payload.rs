@@ -1,0 +1,102 @@
+//! What an execution carries (a trajectory or a model's control law), as queued in the
+//! `executions` table and sent to bridge workers in `execute` messages. It lives with the store
+//! because the queue persists it; [`crate::bridge::protocol`] re-exports it for the wire.
+
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::motion::{ControlParams, TrajectoryPoint};
+
+/// Execution mode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Follow the forwarded trajectory (feedforward velocity + proportional tracking).
+    OpenLoop,
+    /// Run the model's closed-loop law `u(q)` on the measured state until the goal is reached.
+    ClosedLoop,
+}
+
+impl Mode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Mode::OpenLoop => "open_loop",
+            Mode::ClosedLoop => "closed_loop",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Mode> {
+        match s {
+            "open_loop" => Some(Mode::OpenLoop),
+            "closed_loop" => Some(Mode::ClosedLoop),
+            _ => None,
+        }
+    }
+}
+
+/// One timed point of a trajectory (the schema of `motion::TrajectoryPoint`): joint values in
+/// the order of the trajectory's `joint_names`, radians (metres for prismatic joints), seconds.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct TrajectoryPointSchema {
+    /// Time from the trajectory's start (s).
+    pub t: f64,
+    pub positions: Vec<f64>,
+    pub velocities: Vec<f64>,
+    pub accelerations: Vec<f64>,
+}
+
+/// What an execution runs: its own resolved copy, stored with the execution.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum ExecutionPayload {
+    /// A timed trajectory (open loop).
+    Trajectory {
+        /// Stored trajectory id, or `inline` for a trajectory given in the request.
+        trajectory_id: String,
+        joint_names: Vec<String>,
+        #[schema(value_type = Vec<TrajectoryPointSchema>)]
+        points: Vec<TrajectoryPoint>,
+    },
+    /// The model's closed-loop law and a goal (closed loop).
+    Model {
+        model_id: String,
+        /// `ControlParams` of the model (as `GET /v1/models/{id}/params` returns them).
+        #[schema(value_type = Object)]
+        params: ControlParams,
+        /// Goal joint values in the order of `params.joint_names`.
+        goal: Vec<f64>,
+    },
+}
+
+impl ExecutionPayload {
+    pub fn joint_names(&self) -> &[String] {
+        match self {
+            ExecutionPayload::Trajectory { joint_names, .. } => joint_names,
+            ExecutionPayload::Model { params, .. } => &params.joint_names,
+        }
+    }
+
+    /// The mode this payload can run in.
+    pub fn mode(&self) -> Mode {
+        match self {
+            ExecutionPayload::Trajectory { .. } => Mode::OpenLoop,
+            ExecutionPayload::Model { .. } => Mode::ClosedLoop,
+        }
+    }
+
+    /// `trajectory` or `model`.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            ExecutionPayload::Trajectory { .. } => "trajectory",
+            ExecutionPayload::Model { .. } => "model",
+        }
+    }
+
+    /// The stored trajectory or model id (`inline` for an inline trajectory).
+    pub fn source_id(&self) -> &str {
+        match self {
+            ExecutionPayload::Trajectory { trajectory_id, .. } => trajectory_id,
+            ExecutionPayload::Model { model_id, .. } => model_id,
+        }
+    }
+}
