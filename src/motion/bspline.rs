@@ -392,6 +392,70 @@ impl TensorBSpline {
         best
     }
 
+    /// Bounds of the derivatives over one knot cell (`cell[i]` in `0..intervals`): `lo[i] ≤ ∂_i s
+    /// ≤ hi[i]` and `|∂_i∂_j s| ≤ hess[i][j]`. Inside a cell the first derivative along `i` is
+    /// a combination with non-negative weights summing to one (quadratic B-splines along `i`,
+    /// cubic along the others) of the cell's coefficient differences `Δ_i c / h_i`, the second
+    /// derivatives likewise of `Δ_i² c / h_i²` and `Δ_iΔ_j c / (h_i h_j)`, so each lies within
+    /// the extremes of those differences over the cell's `4^d` coefficients.
+    pub(crate) fn cell_derivative_bounds(
+        &self,
+        cell: &[usize],
+        lo: &mut [f64; MAX_DIM],
+        hi: &mut [f64; MAX_DIM],
+        hess: &mut [[f64; MAX_DIM]; MAX_DIM],
+    ) {
+        let d = self.dim;
+        let mut strides = [0usize; MAX_DIM];
+        let mut base = 0;
+        for i in 0..d {
+            strides[i] = self.stride(i);
+            base += cell[i] * strides[i];
+        }
+        *lo = [f64::INFINITY; MAX_DIM];
+        *hi = [f64::NEG_INFINITY; MAX_DIM];
+        *hess = [[0.0; MAX_DIM]; MAX_DIM];
+        let c = &self.coefficients;
+        let mut digit = [0usize; MAX_DIM];
+        for _ in 0..(1usize << (2 * d)) {
+            let mut off = base;
+            for i in 0..d {
+                off += digit[i] * strides[i];
+            }
+            for i in 0..d {
+                if digit[i] >= 3 {
+                    continue;
+                }
+                let si = strides[i];
+                let diff = (c[off + si] - c[off]) / self.spacing[i];
+                lo[i] = lo[i].min(diff);
+                hi[i] = hi[i].max(diff);
+                if digit[i] < 2 {
+                    let dd = (c[off + 2 * si] - 2.0 * c[off + si] + c[off])
+                        / (self.spacing[i] * self.spacing[i]);
+                    hess[i][i] = hess[i][i].max(dd.abs());
+                }
+                for j in i + 1..d {
+                    if digit[j] >= 3 {
+                        continue;
+                    }
+                    let sj = strides[j];
+                    let m = (c[off + si + sj] - c[off + si] - c[off + sj] + c[off])
+                        / (self.spacing[i] * self.spacing[j]);
+                    hess[i][j] = hess[i][j].max(m.abs());
+                    hess[j][i] = hess[i][j];
+                }
+            }
+            for dg in digit.iter_mut().take(d) {
+                *dg += 1;
+                if *dg < 4 {
+                    break;
+                }
+                *dg = 0;
+            }
+        }
+    }
+
     /// Multiply every coefficient (shrinks the field).
     pub fn scale(&mut self, factor: f64) {
         self.coefficients.iter_mut().for_each(|c| *c *= factor);

@@ -1,9 +1,37 @@
-//! The closed-loop law `u(q) = W(−K_p ∇_y φ) + K_⊥ (I − W Wᵀ)(q_d − q)` (eq. 8 in PCA
-//! coordinates, DESIGN §5), in a compact serialisable form a bridge worker runs locally.
+//! The closed-loop law a bridge worker runs locally (eq. 8 in PCA coordinates, DESIGN §5), in a
+//! compact serialisable form.
+//!
+//! Two laws:
+//! - [`ControlLaw::PhiDecay`] (models trained since the navigation-function certificate): per
+//!   joint group, with `λ = 2·rate`,
+//!   `ẏ = −λ φ ∇_y φ/‖∇_y φ‖²` (the flow's direction, at the speed that makes `φ̇ = −λφ`) and
+//!   `u = W ẏ + J_R(y) ẏ − λ (z − δ_g)`, `z = r − R(y)` the state's offset from the learned
+//!   curved manifold (`r = (I − W Wᵀ)(q − μ)`, `R` the learned curvature, zero without one) and
+//!   `δ_g` the goal's. `φ` and the offset then decay at one rate, so the offset's remaining share
+//!   is `φ(y)/φ(y_start)` and every group's `φ` ratio is the same: exactly the open-loop path of
+//!   [`super::MotionModel::trajectory`] (the same flow, the same back-projection, the same
+//!   coupling of the groups), from wherever the state is, also after a push. When the command
+//!   exceeds a velocity limit it is scaled down as a whole, which changes the speed and keeps
+//!   the path.
+//! - [`ControlLaw::Gradient`] (stored parameters from before): `u = W(−K_p ∇_y φ) +
+//!   K_⊥ (I − W Wᵀ)(q_d − q)`; on-manifold it follows the same flow lines, off-manifold it decays
+//!   at its own rate, so its path differs from the open-loop one.
 
 use serde::{Deserialize, Serialize};
 
+use super::curvature::Curvature;
 use super::{MAX_DIM, NavigationFunction, Pca};
+
+/// Which law [`ControlParams::control`] evaluates.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ControlLaw {
+    /// `u = W(−K_p ∇φ) + K_⊥(I − W Wᵀ)(q_d − q)` (parameters stored before `phi_decay`).
+    #[default]
+    Gradient,
+    /// `φ̇ = −λφ` along the flow, the off-manifold offset decaying at the same `λ`.
+    PhiDecay,
+}
 
 /// One manifold's share of the law.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -14,25 +42,40 @@ pub struct ControlGroup {
     pub mean: Vec<f64>,
     pub components: Vec<f64>,
     pub nf: NavigationFunction,
-    /// `K_p` of this group.
+    /// `K_p` of this group (the `gradient` law).
     pub kp: f64,
+    /// Learned curvature of the manifold (the `phi_decay` law; absent: none).
+    #[serde(default)]
+    pub curvature: Option<Curvature>,
 }
 
 /// Everything a worker needs to evaluate `u(q)` for a goal `q_d` (joint order of the model).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ControlParams {
     pub joint_names: Vec<String>,
+    /// `K_⊥` of the `gradient` law.
     pub k_perp: f64,
     pub groups: Vec<ControlGroup>,
+    #[serde(default)]
+    pub law: ControlLaw,
+    /// `λ` of the `phi_decay` law (1/s): `φ` and the off-manifold offset decay as `e^{−λt}`,
+    /// the on-manifold distance near the goal as `e^{−λt/2}`.
+    #[serde(default)]
+    pub lambda: f64,
+    /// Joint velocity limits (model order) the `phi_decay` command is scaled into as a whole;
+    /// empty: no scaling.
+    #[serde(default)]
+    pub velocity_limits: Vec<f64>,
 }
 
 impl ControlGroup {
     /// `K_p = rate·L²/2` so that near the goal, where `∇_y φ ≈ 2β^{-1/k}(y − y_d)/L²`, the
-    /// on-manifold error decays at about `rate` (1/s).
+    /// on-manifold error of the `gradient` law decays at about `rate` (1/s).
     pub(crate) fn from_parts(
         joints: &[usize],
         pca: &Pca,
         nf: &NavigationFunction,
+        curvature: Option<&Curvature>,
         rate: f64,
     ) -> Self {
         ControlGroup {
@@ -41,9 +84,13 @@ impl ControlGroup {
             mean: pca.mean.clone(),
             components: pca.components.clone(),
             nf: nf.clone(),
+            curvature: curvature.cloned(),
         }
     }
 }
+
+/// Largest group size the allocation-free law handles.
+pub const MAX_GROUP_JOINTS: usize = 64;
 
 impl ControlParams {
     pub fn n_joints(&self) -> usize {
@@ -52,9 +99,87 @@ impl ControlParams {
 
     /// Joint velocity command `u` (into `u[..n]`) for the measured `q` and the goal `q_d`.
     /// Allocation-free. Outside the workspace ball (a large perturbation) `∇_y φ` is not
-    /// defined; there the on-manifold part falls back to the plain attractor `∇γ`, which
-    /// brings the state back inside where the NF takes over.
+    /// defined; there the on-manifold part falls back to the plain attractor, which brings the
+    /// state back inside where the NF takes over.
     pub fn control(&self, q: &[f64], q_d: &[f64], u: &mut [f64]) {
+        match self.law {
+            ControlLaw::Gradient => self.gradient_law(q, q_d, u),
+            ControlLaw::PhiDecay => self.phi_decay_law(q, q_d, u),
+        }
+    }
+
+    fn phi_decay_law(&self, q: &[f64], q_d: &[f64], u: &mut [f64]) {
+        let lambda = self.lambda;
+        for g in &self.groups {
+            let d = g.nf.dim();
+            let ng = g.joints.len().min(MAX_GROUP_JOINTS);
+            let mut y = [0.0; MAX_DIM];
+            let mut yd = [0.0; MAX_DIM];
+            for (i, &ji) in g.joints.iter().enumerate().take(ng) {
+                let e = q[ji] - g.mean[i];
+                let ed = q_d[ji] - g.mean[i];
+                for j in 0..d {
+                    let w = g.components[i * d + j];
+                    y[j] += w * e;
+                    yd[j] += w * ed;
+                }
+            }
+            let mut r2 = 0.0;
+            for j in 0..d {
+                r2 += (y[j] - g.nf.center[j]).powi(2);
+            }
+            let mut v = [0.0; MAX_DIM];
+            if r2 < g.nf.radius * g.nf.radius {
+                g.nf.phi_decay_velocity(&y[..d], &yd[..d], &mut v);
+                for x in v.iter_mut().take(d) {
+                    *x *= lambda;
+                }
+            } else {
+                for j in 0..d {
+                    v[j] = -0.5 * lambda * (y[j] - yd[j]);
+                }
+            }
+            // off-manifold offsets of the state and the goal from the (curved) manifold
+            let mut z = [0.0; MAX_GROUP_JOINTS];
+            let mut jr = [0.0; MAX_GROUP_JOINTS];
+            let (mut ry, mut ryd) = ([0.0; MAX_GROUP_JOINTS], [0.0; MAX_GROUP_JOINTS]);
+            if let Some(c) = &g.curvature {
+                c.eval(&y[..d], &mut ry[..ng]);
+                c.eval(&yd[..d], &mut ryd[..ng]);
+                c.directional(&y[..d], &v[..d], &mut jr[..ng]);
+            }
+            for (i, &ji) in g.joints.iter().enumerate().take(ng) {
+                let (mut on, mut on_d) = (g.mean[i], g.mean[i]);
+                for j in 0..d {
+                    on += g.components[i * d + j] * y[j];
+                    on_d += g.components[i * d + j] * yd[j];
+                }
+                // (z − δ_g): (q − on − R(y)) − (q_d − on_d − R(y_d))
+                z[i] = (q[ji] - on - ry[i]) - (q_d[ji] - on_d - ryd[i]);
+            }
+            for (i, &ji) in g.joints.iter().enumerate().take(ng) {
+                let mut s = jr[i] - lambda * z[i];
+                for j in 0..d {
+                    s += g.components[i * d + j] * v[j];
+                }
+                u[ji] = s;
+            }
+        }
+        // one factor for all joints keeps the direction, hence the path
+        let mut over: f64 = 1.0;
+        for (j, &lim) in self.velocity_limits.iter().enumerate() {
+            if lim > 0.0 {
+                over = over.max(u[j].abs() / lim);
+            }
+        }
+        if over > 1.0 {
+            for x in u.iter_mut().take(self.velocity_limits.len()) {
+                *x /= over;
+            }
+        }
+    }
+
+    fn gradient_law(&self, q: &[f64], q_d: &[f64], u: &mut [f64]) {
         for g in &self.groups {
             let d = g.nf.dim();
             let mut y = [0.0; MAX_DIM];

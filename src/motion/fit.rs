@@ -5,13 +5,11 @@ use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::bspline::Local;
+use super::critical::{CriticalBudget, check_critical_free};
 use super::{Certificate, MAX_DIM, MotionError, NavigationFunction, TensorBSpline};
 
 /// Largest spline the dense normal equations accept (a Cholesky of this size takes ~1 s).
 pub const MAX_COEFFICIENTS: usize = 3000;
-
-/// Certificate safety margin: require `bound ≤ 2k(1 − MARGIN)`.
-pub const MARGIN: f64 = 0.05;
 
 /// The fit, split by linearity: with rows multiplied by `k`, the fitted coefficients are
 /// `k·c_a + c_b`, `c_a` matching `λv + ∇γ` and `c_b` matching `−(γ/k)∇log β_0`
@@ -185,10 +183,10 @@ pub(crate) fn fit_spline(
     })
 }
 
-/// Set the spline to `α(k·c_a + c_b)` and return its radial bound (positively homogeneous in
-/// `α`, which makes the shrink factor a closed form).
+/// Whether the navigation-function certificate holds for `s = α(k·c_a + c_b)` (the spline is
+/// left holding that field).
 #[allow(clippy::too_many_arguments)] // the fit, the candidate and the two balls
-fn spline_bound(
+fn holds_for(
     template: &mut TensorBSpline,
     fit: &SplineFit,
     k: f64,
@@ -197,7 +195,7 @@ fn spline_bound(
     radius: f64,
     goal_center: &[f64],
     goal_radius: f64,
-) -> f64 {
+) -> bool {
     for ((c, a), b) in template
         .coefficients_mut()
         .iter_mut()
@@ -206,13 +204,31 @@ fn spline_bound(
     {
         *c = alpha * (k * a + b);
     }
-    super::nf::refined_radial_bound(template, center, radius, goal_center, goal_radius)
+    let nf = NavigationFunction {
+        k,
+        length_scale: 2.0 * radius,
+        center: center.to_vec(),
+        radius,
+        spline: template.clone(),
+    };
+    check_critical_free(&nf, goal_center, goal_radius, &CriticalBudget::default()).holds
 }
 
-/// Choose `k` (given, or automatically) and the shrink `α ≤ 1` so that the certificate holds with
-/// margin: `α·S(k c_a + c_b) + B_0 ≤ 2k(1 − MARGIN)`, `S` the radial bound. Automatic `k`: the flow depends on
-/// `s/k ≈ α c_a`, so the learned shaping is kept best by the largest admissible `α`; take the
-/// smallest `k` (from 2 up) whose `α` is within 5 % of the best.
+/// `k` candidates of the automatic choice (ascending).
+const K_CANDIDATES: [f64; 8] = [2., 3., 4., 6., 8., 16., 32., 64.];
+
+/// Bisection steps for the shrink factor when the unshrunk field is not certified.
+const SHRINK_BISECTIONS: usize = 10;
+
+/// Choose `k` (given, or automatically) and the shrink `α ≤ 1` so that the navigation-function
+/// certificate holds for the field `s = α(k c_a + c_b)`. The flow depends on `s/k ≈ α c_a`, so
+/// the learned shaping is kept whole at `α = 1`. Automatic `k`: the smallest candidate at which
+/// the unshrunk field is certified (Rimon and Koditschek tune `k` upwards until the function is
+/// a navigation function); when none is, the field is shrunk by bisection on `α` (the bare
+/// workspace ball, `α = 0`, is a navigation function for every `k ≥ 1`: a critical point `y ≠ y_d`
+/// of `γ/(γ^k + β_0)^{1/k}` needs `y_d = y + (kβ_0/ρ²)(y − c)`, at distance
+/// `ρ + k(R² − ρ²)/ρ ≥ R` from the centre, outside the workspace). A given `k` keeps the field
+/// whole if certified and shrinks it otherwise.
 #[allow(clippy::too_many_arguments)] // the fit, the two balls, k and the group for errors
 pub(crate) fn certify(
     mut template: TensorBSpline,
@@ -238,72 +254,68 @@ pub(crate) fn certify(
             bound: f64::INFINITY,
         });
     }
-    let b0 = reach * reach / (2.0 * (radius * radius - reach * reach));
-    let alpha_for = |k: f64, template: &mut TensorBSpline| -> Option<f64> {
-        let room = 2.0 * k * (1.0 - MARGIN) - b0;
-        if room <= 0.0 {
+    let mut holds = |k: f64, alpha: f64, t: &mut TensorBSpline| {
+        holds_for(t, fit, k, alpha, &center, radius, goal_center, goal_radius)
+    };
+    let shrink_at = |k: f64,
+                     t: &mut TensorBSpline,
+                     holds: &mut dyn FnMut(f64, f64, &mut TensorBSpline) -> bool|
+     -> Option<f64> {
+        if !holds(k, 0.0, t) {
             return None;
         }
-        let g = spline_bound(
-            template,
-            fit,
-            k,
-            1.0,
-            &center,
-            radius,
-            goal_center,
-            goal_radius,
-        );
-        Some(if g <= room { 1.0 } else { room / g })
-    };
-    let chosen_k = match k {
-        Some(k) => k,
-        None => {
-            const CANDIDATES: [f64; 14] = [
-                2., 3., 4., 5., 6., 8., 10., 12., 16., 20., 24., 32., 48., 64.,
-            ];
-            let alphas: Vec<f64> = CANDIDATES
-                .iter()
-                .map(|&k| alpha_for(k, &mut template).unwrap_or(0.0))
-                .collect();
-            let best = alphas.iter().cloned().fold(0.0, f64::max);
-            CANDIDATES
-                .iter()
-                .zip(&alphas)
-                .find(|(_, a)| **a >= 0.95 * best)
-                .map(|(k, _)| *k)
-                .unwrap_or(64.0)
+        let (mut lo, mut hi) = (0.0, 1.0);
+        for _ in 0..SHRINK_BISECTIONS {
+            let mid = 0.5 * (lo + hi);
+            if holds(k, mid, t) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
         }
+        Some(lo)
     };
-    let alpha = alpha_for(chosen_k, &mut template).ok_or(MotionError::CertificateUnattainable {
-        group,
+    let (chosen_k, alpha) = match k {
+        Some(k) => {
+            if holds(k, 1.0, &mut template) {
+                (k, 1.0)
+            } else {
+                let a = shrink_at(k, &mut template, &mut holds).ok_or(
+                    MotionError::CertificateUnattainable {
+                        group,
+                        k,
+                        bound: f64::NAN,
+                    },
+                )?;
+                (k, a)
+            }
+        }
+        None => match K_CANDIDATES.iter().find(|&&k| holds(k, 1.0, &mut template)) {
+            Some(&k) => (k, 1.0),
+            None => {
+                let mut best: Option<(f64, f64)> = None;
+                for &k in &[2.0, 8.0, 32.0] {
+                    if let Some(a) = shrink_at(k, &mut template, &mut holds)
+                        && best.is_none_or(|(_, b)| a > b)
+                    {
+                        best = Some((k, a));
+                    }
+                }
+                best.ok_or(MotionError::CertificateUnattainable {
+                    group,
+                    k: 0.0,
+                    bound: f64::NAN,
+                })?
+            }
+        },
+    };
+    holds(chosen_k, alpha, &mut template);
+    let nf = NavigationFunction {
         k: chosen_k,
-        bound: b0,
-    })?;
-    // Guard the rounding of `room / g` so the stored certificate holds as computed.
-    let mut alpha = alpha;
-    let nf = loop {
-        spline_bound(
-            &mut template,
-            fit,
-            chosen_k,
-            alpha,
-            &center,
-            radius,
-            goal_center,
-            goal_radius,
-        );
-        let nf = NavigationFunction {
-            k: chosen_k,
-            length_scale: 2.0 * radius,
-            center: center.clone(),
-            radius,
-            spline: template.clone(),
-        };
-        if nf.certificate(goal_center, goal_radius, alpha).bound < 2.0 * chosen_k || alpha == 0.0 {
-            break nf;
-        }
-        alpha *= 0.999;
+        length_scale: 2.0 * radius,
+        center,
+        radius,
+        spline: template,
     };
     let cert = nf.certificate(goal_center, goal_radius, alpha);
     Ok((nf, cert))

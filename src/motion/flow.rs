@@ -53,19 +53,26 @@ impl FlowPath {
     }
 }
 
-/// `dy/ds = f/(2(2 − p))`: the flow `f = −(∇γ − (γ/k)∇log β)` reparametrised so that
-/// `dγ/ds = −γ` exactly (since `∇γ·f = −2γ(2 − p)`), i.e. `γ(s) = γ_0 e^{−s}`. The certificate
-/// keeps `2 − p` above `2·MARGIN`, so the field is bounded and the integration length known.
+/// `dy/ds = ‖y − y_d‖ f/‖f‖`: the flow `f = −(∇γ − (γ/k)∇log β)` (the direction of `−∇φ`)
+/// at a speed equal to the distance to the goal. The orbits are those of `−∇φ`; `‖f‖ > 0`
+/// away from the goal is what the navigation-function certificate guarantees, and near the goal
+/// `f ≈ −2(y − y_d)`, so the distance decays like `e^{−s}` there. Nothing asks `γ` to fall on
+/// the way (the old parametrisation `f/(2(2 − p))` did, and failed where `γ` rises).
 #[inline]
 fn rhs(nf: &NavigationFunction, y: &[f64], y_d: &[f64], out: &mut [f64]) -> bool {
     let d = nf.dim();
-    let p = nf.flow(y, y_d, out);
-    let den = 2.0 * (2.0 - p);
-    if den.is_nan() || den <= 0.0 || !den.is_finite() {
+    nf.flow(y, y_d, out);
+    let (mut fn2, mut e2) = (0.0, 0.0);
+    for i in 0..d {
+        fn2 += out[i] * out[i];
+        e2 += (y[i] - y_d[i]).powi(2);
+    }
+    let scale = (e2 / fn2).sqrt();
+    if !scale.is_finite() {
         return false;
     }
     for o in out.iter_mut().take(d) {
-        *o /= den;
+        *o *= scale;
     }
     true
 }
@@ -120,7 +127,7 @@ const B4: [f64; 7] = [
     1.0 / 40.0,
 ];
 
-/// Integrate the flow from `y0` to `y_d` (adaptive Dormand–Prince in the `γ`-decay parameter),
+/// Integrate the flow from `y0` to `y_d` (adaptive Dormand–Prince in the distance-scaled parameter),
 /// writing into `out` (its buffers are reused). Steps are bounded by `opts.max_steps`.
 pub fn integrate_flow(
     nf: &NavigationFunction,

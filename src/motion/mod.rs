@@ -41,8 +41,11 @@
 // chains over 3-5 zipped arrays read worse than the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+pub mod baselines;
 mod bspline;
 mod control;
+pub mod critical;
+pub mod curvature;
 mod error;
 mod fit;
 mod flow;
@@ -56,15 +59,15 @@ mod tests;
 mod timing;
 
 pub use bspline::{MAX_DIM, TensorBSpline};
-pub use control::ControlParams;
+pub use control::{ControlGroup, ControlLaw, ControlParams};
 pub use error::MotionError;
 pub use fit::{MAX_COEFFICIENTS as MAX_SPLINE_COEFFICIENTS, SplineFit};
 pub use flow::{FlowOptions, FlowPath, integrate_flow};
 pub use model::{
-    Baseline, DEFAULT_PROFILE_RIDGE, DurationModel, HeldOutReport, JointLimits, JointTrajectory,
-    KChoice, ManifoldFit, ManifoldModel, MotionModel, PhaseMap, ProfileInputs, ResidualProfile,
-    TrainOptions, TrainReport, Trajectory, TrajectoryOptions, TrajectoryPoint,
-    arc_length_deviation, train,
+    Baseline, DEFAULT_CURVATURE_RIDGE, DEFAULT_PROFILE_RIDGE, DurationModel, HeldOutReport,
+    JointLimits, JointTrajectory, KChoice, ManifoldFit, ManifoldModel, MotionModel, PhaseMap,
+    ProfileInputs, ResidualProfile, TrainOptions, TrainReport, Trajectory, TrajectoryOptions,
+    TrajectoryPoint, arc_length_deviation, train,
 };
 pub use nf::{Certificate, NavigationFunction};
 pub use pca::{Components, Pca};

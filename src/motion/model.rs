@@ -2,7 +2,9 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::control::ControlGroup;
+use super::baselines::{Dmp, ProMp};
+use super::control::{ControlGroup, ControlLaw};
+use super::curvature::Curvature;
 use super::fit::{DemoY, MAX_COEFFICIENTS, certify, fit_spline};
 use super::{
     Certificate, Components, ControlParams, FlowOptions, FlowPath, MAX_DIM, MinimumJerk,
@@ -134,6 +136,17 @@ pub struct TrainOptions {
     /// What the residual profile is linear in.
     #[serde(default)]
     pub profile_inputs: ProfileInputs,
+    /// Ridge (relative to the mean diagonal of the normal matrix) of the learned manifold
+    /// curvature ([`Curvature`]); `None` keeps the linear PCA back-projection.
+    #[serde(default = "default_curvature_ridge")]
+    pub curvature_ridge: Option<f64>,
+}
+
+/// Default ridge of the learned curvature.
+pub const DEFAULT_CURVATURE_RIDGE: f64 = 1e-3;
+
+fn default_curvature_ridge() -> Option<f64> {
+    Some(DEFAULT_CURVATURE_RIDGE)
 }
 
 /// Default ridge of the residual profile: chosen on a study with another seed (2) than the
@@ -157,6 +170,7 @@ impl Default for TrainOptions {
             flow: FlowOptions::default(),
             profile_ridge: None,
             profile_inputs: ProfileInputs::default(),
+            curvature_ridge: default_curvature_ridge(),
         }
     }
 }
@@ -171,6 +185,10 @@ pub struct ManifoldModel {
     /// Learned residual profile added to the NF path (absent in models trained without one).
     #[serde(default)]
     pub profile: Option<ResidualProfile>,
+    /// Learned curvature of the manifold (off-manifold residual as a function of `y`); absent
+    /// in models stored before it existed or trained without one.
+    #[serde(default)]
+    pub curvature: Option<Curvature>,
 }
 
 /// The part of the demonstrated paths the NF flow cannot carry, as a goal-conditioned profile
@@ -319,17 +337,33 @@ pub struct ManifoldFit {
 }
 
 /// Humanlikeness on held-out demonstrations: mean arc-length-resampled joint-space deviation
-/// from the demonstrated path, for the NF model and the two baselines.
+/// (rad) from the demonstrated path, for the NF model and the baselines, all on the same
+/// demonstrations (those the NF model planned).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HeldOutReport {
     pub demonstrations: usize,
     /// Held-out demonstrations whose start or goal the model refused (outside its regions).
     pub refused: usize,
+    /// The model's path (with its residual profile when it has one).
     pub nf: f64,
+    /// The NF path alone (no residual profile; equals `nf` for a model without one).
+    #[serde(default)]
+    pub nf_plain: f64,
     pub joint_line: f64,
+    /// Straight line in PCA coordinates, back-projected with the learned curvature (the
+    /// off-manifold residual as a function of `y`); without a curvature it is the joint line.
     pub pca_line: f64,
-    /// `nf / joint_line` (the goal: ≤ 0.7).
+    /// Goal-conditioned DMP per joint.
+    #[serde(default)]
+    pub dmp: f64,
+    /// ProMP over all joints conditioned on start and goal.
+    #[serde(default)]
+    pub promp: f64,
+    /// `nf / joint_line`.
     pub ratio_to_joint_line: f64,
+    /// `nf_plain / joint_line` (the goal: ≤ 0.7).
+    #[serde(default)]
+    pub plain_ratio_to_joint_line: f64,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -348,10 +382,10 @@ pub enum Baseline {
     NavigationFunction,
     /// Straight line in joint space.
     JointLine,
-    /// Straight line in PCA space (`k → ∞`), back-projected like the NF path. With the
-    /// exact-endpoint back-projection this coincides with the joint line (linear residual
-    /// interpolation along a straight PCA segment is the joint-space segment); kept as the
-    /// issue's baseline (c) and for models whose back-projection changes.
+    /// Straight line in PCA space (`k → ∞`), back-projected like the NF path: with the learned
+    /// curvature `R(y)` the off-manifold part follows the curved manifold (`μ + W y + R(y)`
+    /// plus the ends' offsets blended linearly), so it differs from the joint line; without a
+    /// curvature it coincides with the joint line.
     PcaLine,
 }
 
@@ -413,6 +447,8 @@ const PROFILE_SMOOTHING_PASSES: usize = 6;
 
 struct GroupPath {
     spline: NaturalCubic,
+    /// This group's path progress as a function of the first group's.
+    phase: Pchip,
     converged: bool,
     error: f64,
     steps: usize,
@@ -629,6 +665,15 @@ pub fn train(
             reason: "must be positive",
         });
     }
+    if let Some(r) = opts.curvature_ridge
+        && !(r > 0.0 && r.is_finite())
+    {
+        return Err(MotionError::InvalidOption {
+            field: "curvature_ridge",
+            value: r,
+            reason: "must be positive",
+        });
+    }
     if let KChoice::Value(k) = opts.k
         && !(k >= 1.0 && k.is_finite())
     {
@@ -669,6 +714,12 @@ pub fn train(
                 reason: "empty group",
             });
         }
+        if g.len() > super::control::MAX_GROUP_JOINTS {
+            return Err(MotionError::InvalidGroup {
+                group: gi,
+                reason: "more joints than the closed-loop law supports (64)",
+            });
+        }
         for &j in g {
             if j >= n || seen[j] {
                 return Err(MotionError::InvalidGroup {
@@ -703,6 +754,20 @@ pub fn train(
         }
         let pca = Pca::fit(&samples, ng, opts.components, MAX_DIM.min(ng))?;
         let d = pca.d();
+        let curvature = opts.curvature_ridge.map(|ridge| {
+            let rows = samples.len() / ng;
+            let (mut cy, mut cr) = (vec![0.0; rows * d], vec![0.0; rows * ng]);
+            let mut y = [0.0; MAX_DIM];
+            for s in 0..rows {
+                pca.residual(
+                    &samples[s * ng..(s + 1) * ng],
+                    &mut y,
+                    &mut cr[s * ng..(s + 1) * ng],
+                );
+                cy[s * d..(s + 1) * d].copy_from_slice(&y[..d]);
+            }
+            Curvature::fit(&cy, &cr, d, ng, &pca.components, ridge)
+        });
         let ys: Vec<Vec<f64>> = demos
             .iter()
             .map(|dm| {
@@ -826,6 +891,7 @@ pub fn train(
             nf,
             certificate,
             profile: None,
+            curvature,
         });
         projected.push(ys);
     }
@@ -935,30 +1001,33 @@ pub fn train(
             demonstrations: held_idx.len(),
             refused: 0,
             nf: 0.0,
+            nf_plain: 0.0,
             joint_line: 0.0,
             pca_line: 0.0,
+            dmp: 0.0,
+            promp: 0.0,
             ratio_to_joint_line: 0.0,
+            plain_ratio_to_joint_line: 0.0,
         };
+        let dmp = Dmp::fit(demos, &train_idx, n);
+        let promp = ProMp::fit(demos, &train_idx, n);
         let mut used = 0;
         for &di in &held_idx {
             let dm = &demos[di];
             let start = dm.frame(0, n);
             let goal = dm.frame(dm.frames() - 1, n);
-            let mut dev = [0.0; 3];
+            let mut dev = [0.0; 4];
             let mut ok = true;
-            for (slot, planner) in [
-                Baseline::NavigationFunction,
-                Baseline::JointLine,
-                Baseline::PcaLine,
+            for (slot, (planner, with_profile)) in [
+                (Baseline::NavigationFunction, true),
+                (Baseline::NavigationFunction, false),
+                (Baseline::JointLine, false),
+                (Baseline::PcaLine, false),
             ]
             .iter()
             .enumerate()
             {
-                let o = TrajectoryOptions {
-                    planner: *planner,
-                    ..TrajectoryOptions::default()
-                };
-                match model.path_positions(start, goal, &o) {
+                match model.path_positions_with(start, goal, *planner, *with_profile) {
                     Ok(p) => dev[slot] = arc_length_deviation(&p, &dm.positions, n, 100),
                     Err(_) => ok = false,
                 }
@@ -969,14 +1038,27 @@ pub fn train(
             }
             used += 1;
             report.nf += dev[0];
-            report.joint_line += dev[1];
-            report.pca_line += dev[2];
+            report.nf_plain += dev[1];
+            report.joint_line += dev[2];
+            report.pca_line += dev[3];
+            report.dmp += arc_length_deviation(&dmp.path(start, goal), &dm.positions, n, 100);
+            report.promp += arc_length_deviation(&promp.path(start, goal), &dm.positions, n, 100);
         }
         if used > 0 {
-            report.nf /= used as f64;
-            report.joint_line /= used as f64;
-            report.pca_line /= used as f64;
-            report.ratio_to_joint_line = report.nf / report.joint_line.max(f64::MIN_POSITIVE);
+            let u = used as f64;
+            for v in [
+                &mut report.nf,
+                &mut report.nf_plain,
+                &mut report.joint_line,
+                &mut report.pca_line,
+                &mut report.dmp,
+                &mut report.promp,
+            ] {
+                *v /= u;
+            }
+            let jl = report.joint_line.max(f64::MIN_POSITIVE);
+            report.ratio_to_joint_line = report.nf / jl;
+            report.plain_ratio_to_joint_line = report.nf_plain / jl;
         }
         Some(report)
     };
@@ -990,7 +1072,15 @@ pub fn train(
 }
 
 /// One group's path nodes (`PATH_NODES × n_g`, into `nodes`) from `qs` to `qg` (the group's
-/// joints) for `planner`, without the residual profile; returns (converged, final error, steps).
+/// joints) for `planner`, without the residual profile, and each node's remaining share `w` of
+/// the start's off-manifold offset (into `weights`, 1 → 0); returns (converged, final error,
+/// steps).
+///
+/// Back-projection: `q = μ + W y + R(y) + δ_g + w (δ_s − δ_g)`, `R` the learned curvature (zero
+/// without one), `δ = r − R(y)` the ends' offsets from the curved manifold, so the exact start and
+/// goal are kept. On the NF path `w = φ(y)/φ(y_s)`, the share the closed-loop law leaves when it
+/// makes `φ` and the offset decay at the same rate ([`ControlParams::control`]): the law then
+/// runs this very path. On the PCA line `w = 1 − σ` (arc-length progress).
 #[allow(clippy::too_many_arguments)] // reusable buffers passed explicitly
 fn base_nodes(
     m: &ManifoldModel,
@@ -1001,14 +1091,17 @@ fn base_nodes(
     flow: &mut FlowPath,
     ypath: &mut Vec<f64>,
     nodes: &mut Vec<f64>,
+    weights: &mut Vec<f64>,
 ) -> (bool, f64, usize) {
     let ng = m.joints.len();
     let d = m.pca.d();
     nodes.clear();
+    weights.clear();
     if planner == Baseline::JointLine {
         for j in 0..PATH_NODES {
             let s = j as f64 / (PATH_NODES - 1) as f64;
             nodes.extend(qs.iter().zip(qg).map(|(a, b)| a * (1.0 - s) + b * s));
+            weights.push(1.0 - s);
         }
         return (true, 0.0, 0);
     }
@@ -1016,7 +1109,15 @@ fn base_nodes(
     let (mut rs, mut rg) = (vec![0.0; ng], vec![0.0; ng]);
     m.pca.residual(qs, &mut ys, &mut rs);
     m.pca.residual(qg, &mut yg, &mut rg);
-    if planner == Baseline::NavigationFunction {
+    let mut curved = vec![0.0; ng];
+    if let Some(c) = &m.curvature {
+        c.eval(&ys[..d], &mut curved);
+        rs.iter_mut().zip(&curved).for_each(|(a, b)| *a -= b);
+        c.eval(&yg[..d], &mut curved);
+        rg.iter_mut().zip(&curved).for_each(|(a, b)| *a -= b);
+    }
+    let nf_path = planner == Baseline::NavigationFunction;
+    if nf_path {
         integrate_flow(&m.nf, &ys[..d], &yg[..d], flow_opts, flow);
         // The flow converged to within tolerance; the exact goal closes the path.
         flow.points.extend_from_slice(&yg[..d]);
@@ -1029,14 +1130,27 @@ fn base_nodes(
         flow.steps = 0;
     }
     resample(&flow.points, d, PATH_NODES, ypath);
+    let log_phi0 = m.nf.log_phi(&ys[..d], &yg[..d]);
     let mut q = vec![0.0; ng];
     for j in 0..PATH_NODES {
-        // q = μ + W y + (1−σ) r_start + σ r_goal, σ the arc-length progress:
-        // the exact start and goal are kept (DESIGN §5).
         let s = j as f64 / (PATH_NODES - 1) as f64;
-        m.pca.back_project(&ypath[j * d..(j + 1) * d], &mut q);
+        let y = &ypath[j * d..(j + 1) * d];
+        let w = if j == 0 {
+            1.0
+        } else if j == PATH_NODES - 1 {
+            0.0
+        } else if nf_path {
+            (m.nf.log_phi(y, &yg[..d]) - log_phi0).exp().clamp(0.0, 1.0)
+        } else {
+            1.0 - s
+        };
+        m.pca.back_project(y, &mut q);
+        if let Some(c) = &m.curvature {
+            c.eval(y, &mut curved);
+            q.iter_mut().zip(&curved).for_each(|(a, b)| *a += b);
+        }
         for i in 0..ng {
-            q[i] += (1.0 - s) * rs[i] + s * rg[i];
+            q[i] += rg[i] + w * (rs[i] - rg[i]);
         }
         if j == 0 {
             q.copy_from_slice(qs);
@@ -1044,8 +1158,50 @@ fn base_nodes(
             q.copy_from_slice(qg);
         }
         nodes.extend_from_slice(&q);
+        weights.push(w);
     }
     (flow.converged, flow.final_error, flow.steps)
+}
+
+/// Nodes of a per-trajectory phase map.
+const COUPLING_NODES: usize = 41;
+
+/// The phase map `σ_g(σ_0)` that keeps two groups' remaining shares equal, `w_g(σ_g) = w_0(σ_0)`
+/// (`first`, `other`: the shares at the equally spaced path nodes, non-increasing from 1 to 0).
+fn equal_weight_phase(first: &[f64], other: &[f64]) -> Pchip {
+    let interp = |w: &[f64], x: f64| -> f64 {
+        let t = x * (w.len() - 1) as f64;
+        let j = (t.floor() as usize).min(w.len() - 2);
+        let f = t - j as f64;
+        w[j] * (1.0 - f) + w[j + 1] * f
+    };
+    // first σ at which `w` falls to `target` (linear between nodes)
+    let inverse = |w: &[f64], target: f64| -> f64 {
+        let len = w.len();
+        for j in 0..len - 1 {
+            if w[j + 1] <= target {
+                let span = w[j] - w[j + 1];
+                let f = if span > 0.0 {
+                    ((w[j] - target) / span).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                return (j as f64 + f) / (len - 1) as f64;
+            }
+        }
+        1.0
+    };
+    let mut vals = Vec::with_capacity(COUPLING_NODES);
+    for m in 0..COUPLING_NODES {
+        let x = m as f64 / (COUPLING_NODES - 1) as f64;
+        vals.push(inverse(other, interp(first, x)));
+    }
+    vals[0] = 0.0;
+    vals[COUPLING_NODES - 1] = 1.0;
+    for m in 1..COUPLING_NODES {
+        vals[m] = vals[m].max(vals[m - 1]);
+    }
+    Pchip::new(vals)
 }
 
 /// A polyline's values `q` (`len × n_g`) at `count` points equally spaced in the arc length of
@@ -1100,6 +1256,7 @@ fn fit_profile(
     let (mut flow, mut ypath, mut nodes, mut demo_nodes) =
         (FlowPath::default(), Vec::new(), Vec::new(), Vec::new());
     let mut qpath = Vec::new();
+    let mut weights = Vec::new();
     let mut buf = vec![0.0; ng];
     for &di in train_idx {
         let dm = &demos[di];
@@ -1119,6 +1276,7 @@ fn fit_profile(
             &mut flow,
             &mut ypath,
             &mut nodes,
+            &mut weights,
         );
         resample_along(&ys[di], d, &qpath, ng, PATH_NODES, &mut demo_nodes);
         let x0 = xs.len();
@@ -1176,9 +1334,9 @@ fn fit_profile(
 }
 
 impl MotionModel {
-    /// The closed-loop law's parameters (see [`ControlParams::control`]): `rate` (1/s) sets each
-    /// group's `K_p` (on-manifold convergence rate near the goal), `k_perp` the off-manifold
-    /// gain `K_⊥`.
+    /// The closed-loop law's parameters (see [`ControlParams::control`]): the `phi_decay` law,
+    /// `λ = 2·rate` (so the on-manifold distance near the goal decays at about `rate`, 1/s), the
+    /// model's velocity limits. `k_perp` is kept for the `gradient` law of older parameters.
     pub fn control_params(
         &self,
         joint_names: Vec<String>,
@@ -1191,8 +1349,13 @@ impl MotionModel {
             groups: self
                 .manifolds
                 .iter()
-                .map(|m| ControlGroup::from_parts(&m.joints, &m.pca, &m.nf, rate))
+                .map(|m| {
+                    ControlGroup::from_parts(&m.joints, &m.pca, &m.nf, m.curvature.as_ref(), rate)
+                })
                 .collect(),
+            law: ControlLaw::PhiDecay,
+            lambda: 2.0 * rate,
+            velocity_limits: self.limits.velocity.clone(),
         }
     }
 
@@ -1238,6 +1401,7 @@ impl MotionModel {
         start: &[f64],
         goal: &[f64],
         planner: Baseline,
+        with_profile: bool,
     ) -> Result<Vec<GroupPath>, MotionError> {
         check_vector("start", start, &self.limits)?;
         check_vector("goal", goal, &self.limits)?;
@@ -1247,16 +1411,41 @@ impl MotionModel {
         let mut out = Vec::with_capacity(self.manifolds.len());
         let mut flow = FlowPath::default();
         let mut ypath = Vec::new();
-        for m in &self.manifolds {
+        let mut first_weights = Vec::new();
+        let mut weights = Vec::new();
+        for (g, m) in self.manifolds.iter().enumerate() {
             let ng = m.joints.len();
             let (mut qs, mut qg) = (vec![0.0; ng], vec![0.0; ng]);
             gather(start, &m.joints, &mut qs);
             gather(goal, &m.joints, &mut qg);
             let mut nodes = Vec::with_capacity(PATH_NODES * ng);
             let (converged, error, steps) = base_nodes(
-                m, &qs, &qg, planner, &self.flow, &mut flow, &mut ypath, &mut nodes,
+                m,
+                &qs,
+                &qg,
+                planner,
+                &self.flow,
+                &mut flow,
+                &mut ypath,
+                &mut nodes,
+                &mut weights,
             );
+            // NF paths: the groups move on one clock that keeps their `φ` ratios equal, as the
+            // closed-loop law does (every group's `φ` and offset decay at the same rate), so
+            // open and closed loop are one motion. The baselines and the residual profile (an
+            // open-loop option the law does not run) keep the learned phase maps.
+            let phase = if g == 0 {
+                first_weights.clone_from(&weights);
+                Pchip::identity()
+            } else if planner == Baseline::NavigationFunction
+                && !(with_profile && self.manifolds.iter().any(|m| m.profile.is_some()))
+            {
+                equal_weight_phase(&first_weights, &weights)
+            } else {
+                self.phase[g].map.clone()
+            };
             if planner == Baseline::NavigationFunction
+                && with_profile
                 && let Some(profile) = &m.profile
             {
                 let (mut lo, mut hi) = (vec![0.0; ng], vec![0.0; ng]);
@@ -1268,6 +1457,7 @@ impl MotionModel {
             }
             out.push(GroupPath {
                 spline: NaturalCubic::new(nodes, ng),
+                phase,
                 converged,
                 error,
                 steps,
@@ -1284,15 +1474,27 @@ impl MotionModel {
         goal: &[f64],
         opts: &TrajectoryOptions,
     ) -> Result<Vec<f64>, MotionError> {
-        let paths = self.group_paths(start, goal, opts.planner)?;
+        self.path_positions_with(start, goal, opts.planner, true)
+    }
+
+    /// [`Self::path_positions`], with the residual profile left out when `with_profile` is
+    /// false (the plain NF path of a model trained with one).
+    pub fn path_positions_with(
+        &self,
+        start: &[f64],
+        goal: &[f64],
+        planner: Baseline,
+        with_profile: bool,
+    ) -> Result<Vec<f64>, MotionError> {
+        let paths = self.group_paths(start, goal, planner, with_profile)?;
         let n = self.n_joints;
         let samples = 200;
         let mut out = vec![0.0; samples * n];
         let mut scratch = vec![0.0; 3 * n];
         for s in 0..samples {
             let a = s as f64 / (samples - 1) as f64;
-            for (g, (m, p)) in self.manifolds.iter().zip(&paths).enumerate() {
-                let (sig, _, _) = self.phase[g].map.eval(a);
+            for (m, p) in self.manifolds.iter().zip(&paths) {
+                let (sig, _, _) = p.phase.eval(a);
                 let ng = m.joints.len();
                 let (pp, rest) = scratch.split_at_mut(ng);
                 let (dp, ddp) = rest.split_at_mut(ng);
@@ -1329,8 +1531,8 @@ impl MotionModel {
         scratch: &mut [f64],
     ) {
         let (m0, m1, m2) = MinimumJerk::eval(tau);
-        for (g, (m, path)) in self.manifolds.iter().zip(paths).enumerate() {
-            let (sig, h1, h2) = self.phase[g].map.eval(m0);
+        for (m, path) in self.manifolds.iter().zip(paths) {
+            let (sig, h1, h2) = path.phase.eval(m0);
             let sd = h1 * m1 / t_total;
             let sdd = h2 * (m1 / t_total).powi(2) + h1 * m2 / (t_total * t_total);
             let ng = m.joints.len();
@@ -1372,7 +1574,7 @@ impl MotionModel {
                 reason: "must be in (0, 10000] Hz",
             });
         }
-        let paths = self.group_paths(start, goal, opts.planner)?;
+        let paths = self.group_paths(start, goal, opts.planner, true)?;
         let n = self.n_joints;
         let learned = self.learned_duration(start, goal);
         let requested = opts.duration.unwrap_or(learned);

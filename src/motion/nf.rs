@@ -3,6 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::critical::{CriticalBudget, check_critical_free};
 use super::{MAX_DIM, TensorBSpline};
 
 /// `φ = γ/(γ^k + β)^{1/k}` (eq. 9) with `γ = ‖y − y_d‖²` and `β = β_0·exp(s(y))`, where
@@ -23,13 +24,17 @@ pub struct NavigationFunction {
     pub spline: TensorBSpline,
 }
 
-/// Closed-form convergence certificate. Along the flow,
-/// `γ̇ = −2γ(2 − (y − y_d)·∇log β / k)`, so `γ` strictly decreases whenever
-/// `bound ≥ sup (y − y_d)·∇log β` over the workspace ball and the goal region is below `2k`.
+/// The convergence certificate stored with every manifold model: the navigation-function
+/// property of [`super::critical`] (no critical point of `φ` in the workspace ball but the goal,
+/// for every goal in the goal region; the boundary repels), which gives convergence from every
+/// start in the workspace to every goal in the region while `γ` may rise on the way.
+///
+/// The older, stronger condition (`γ` falls monotonically: `sup (y − y_d)·∇log β < 2k`) is still
+/// evaluated and reported (`gamma_monotone`, `bound`, `decay_rate`) but no longer required.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Certificate {
     pub k: f64,
-    /// The spline's share: `sup (y − y_d)·∇s`, bounded cell by cell from the coefficient
+    /// The spline's share of `sup (y − y_d)·∇log β`, bounded cell by cell from the coefficient
     /// differences ([`TensorBSpline::radial_bound`]).
     pub spline_bound: f64,
     /// `ρ_g²/(2(R² − ρ_g²))`, `ρ_g = ‖g − c‖ + r_g`: the workspace ball's share
@@ -37,18 +42,33 @@ pub struct Certificate {
     pub workspace_bound: f64,
     /// `spline_bound + workspace_bound`.
     pub bound: f64,
-    /// `bound < 2k`.
+    /// The navigation-function certificate holds: no critical point of `φ` in the workspace
+    /// ball but the goal, for every goal in the goal region.
     pub holds: bool,
-    /// Guaranteed decay rate: `γ̇ ≤ −rate·γ` with `rate = 2(2 − bound/k)`.
+    /// `bound < 2k`: `γ` also falls monotonically along every flow (not required). Models stored
+    /// before the navigation-function certificate existed were certified this way.
+    #[serde(default = "yes")]
+    pub gamma_monotone: bool,
+    /// `2(2 − bound/k)`: when positive, `γ̇ ≤ −decay_rate·γ` along the flow.
     pub decay_rate: f64,
     /// Factor the fitted spline was multiplied by to satisfy the certificate (1 = unshrunk).
     pub shrink: f64,
+    /// Radius `R_s` beyond which the field points outward analytically (the repelling shell).
+    #[serde(default)]
+    pub shell_radius: f64,
+    /// Boxes the branch and bound examined (deterministic).
+    #[serde(default)]
+    pub boxes: usize,
     /// Goal region: ball with this centre and radius (the certificate holds for goals in it).
     pub goal_center: Vec<f64>,
     pub goal_radius: f64,
     /// Workspace ball (starts must lie strictly inside).
     pub workspace_center: Vec<f64>,
     pub workspace_radius: f64,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// Coefficient budget for refining the spline before bounding it.
@@ -127,6 +147,65 @@ impl NavigationFunction {
         (lg - lse / k).exp()
     }
 
+    /// `log φ(y)` (scaled coordinates, as [`Self::value_gradient`]); `-inf` at the goal.
+    #[inline]
+    pub fn log_phi(&self, y: &[f64], y_d: &[f64]) -> f64 {
+        let d = self.dim();
+        let mut glb = [0.0; MAX_DIM];
+        let l2 = self.length_scale * self.length_scale;
+        let lb = self.log_beta(y, &mut glb) - l2.ln();
+        let gamma = (0..d).map(|i| (y[i] - y_d[i]).powi(2)).sum::<f64>() / l2;
+        let lg = gamma.ln();
+        let a = self.k * lg;
+        let (hi, lo) = if a > lb { (a, lb) } else { (lb, a) };
+        let lse = if lo == f64::NEG_INFINITY {
+            hi
+        } else {
+            hi + (lo - hi).exp().ln_1p()
+        };
+        lg - lse / self.k
+    }
+
+    /// The velocity `v = −φ ∇φ/‖∇φ‖²` (into `v[..d]`), along which `φ̇ = −φ`: the flow's
+    /// direction at the speed that makes `φ` decay exponentially (the closed-loop law's
+    /// on-manifold part, times its rate). Evaluated in log space; zero at the goal.
+    #[inline]
+    pub fn phi_decay_velocity(&self, y: &[f64], y_d: &[f64], v: &mut [f64]) {
+        let d = self.dim();
+        let mut glb = [0.0; MAX_DIM];
+        let l2 = self.length_scale * self.length_scale;
+        let lb = self.log_beta(y, &mut glb) - l2.ln();
+        let mut gamma = 0.0;
+        for i in 0..d {
+            gamma += (y[i] - y_d[i]).powi(2);
+        }
+        let gamma = gamma / l2;
+        if gamma <= 0.0 || !lb.is_finite() {
+            v[..d].iter_mut().for_each(|x| *x = 0.0);
+            return;
+        }
+        let k = self.k;
+        let lg = gamma.ln();
+        let a = k * lg;
+        let (hi, lo) = if a > lb { (a, lb) } else { (lb, a) };
+        let lse = hi + (lo - hi).exp().ln_1p();
+        // ∇φ = e^{lb − (1+1/k)lse}·F, φ = e^{lg − lse/k}: φ∇φ/‖∇φ‖² = e^{lg + lse − lb} F/‖F‖²
+        let mut f = [0.0; MAX_DIM];
+        let mut f2 = 0.0;
+        for i in 0..d {
+            f[i] = 2.0 * (y[i] - y_d[i]) / l2 - gamma / k * glb[i];
+            f2 += f[i] * f[i];
+        }
+        let scale = (lg + lse - lb).exp() / f2;
+        for i in 0..d {
+            v[i] = if scale.is_finite() {
+                -scale * f[i]
+            } else {
+                0.0
+            };
+        }
+    }
+
     /// The flow `f = −(∇γ − (γ/k)∇log β)` (direction of `−∇φ`) into `f[..d]`; returns
     /// `p = (y − y_d)·∇log β / k`, so that `∇γ·f = −2γ(2 − p)`.
     #[inline]
@@ -147,12 +226,12 @@ impl NavigationFunction {
         dot / self.k
     }
 
-    /// Closed-form bound on `sup (y − y_d)·∇log β` for `y` in the workspace ball and `y_d` in the
-    /// goal ball `(goal_center, goal_radius)` (inside the workspace), and the resulting
-    /// certificate.
+    /// The certificate for goals in the ball `(goal_center, goal_radius)` (inside the
+    /// workspace): the navigation-function property ([`check_critical_free`]) decides `holds`;
+    /// the monotone-`γ` bound is reported alongside.
     ///
-    /// Spline part: [`TensorBSpline::radial_bound`] (per knot cell, from the coefficient
-    /// differences, on a refined grid; never worse than `(R + r_g)·sqrt(Σ D_i²)`). Workspace part:
+    /// Monotone-`γ` bound. Spline part: [`TensorBSpline::radial_bound`] (per knot cell, from the
+    /// coefficient differences, on a refined grid). Workspace part:
     /// `(y − y_d)·∇log β_0 = −2(y − y_d)·(y − c)/(R² − ρ²)` with `ρ = ‖y − c‖`; since
     /// `‖y_d − c‖ ≤ ρ_g = ‖g − c‖ + r_g` the numerator is at most `2(ρ_g ρ − ρ²)`, positive only
     /// for `ρ < ρ_g`, where it is at most `ρ_g²/2` and the denominator at least `R² − ρ_g²`.
@@ -169,15 +248,18 @@ impl NavigationFunction {
         let spline_bound = refined_radial_bound(&self.spline, &self.center, r, goal_center, rg);
         let workspace_bound = reach * reach / (2.0 * (r * r - reach * reach));
         let bound = spline_bound + workspace_bound;
-        let holds = reach < r && bound < 2.0 * self.k;
+        let check = check_critical_free(self, goal_center, rg, &CriticalBudget::default());
         Certificate {
             k: self.k,
             spline_bound,
             workspace_bound,
             bound,
-            holds,
+            holds: reach < r && check.holds,
+            gamma_monotone: reach < r && bound < 2.0 * self.k,
             decay_rate: 2.0 * (2.0 - bound / self.k),
             shrink,
+            shell_radius: check.shell_radius,
+            boxes: check.boxes,
             goal_center: goal_center.to_vec(),
             goal_radius: rg,
             workspace_center: self.center.clone(),

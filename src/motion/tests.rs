@@ -74,7 +74,7 @@ fn joint_vector(
 }
 
 #[test]
-fn certified_flow_converges_for_1000_random_start_goal_pairs() {
+fn certified_flow_converges_for_10000_random_start_goal_pairs_while_gamma_may_rise() {
     let data = small_study(3);
     let (model, report) = train(&data.demos, &data.limits, &options(&data, None)).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(9);
@@ -82,7 +82,7 @@ fn certified_flow_converges_for_1000_random_start_goal_pairs() {
     let mut path = FlowPath::default();
     for (m, fit) in model.manifolds.iter().zip(&report.manifolds) {
         let c = &m.certificate;
-        assert!(c.holds && c.bound < 2.0 * c.k, "{c:?}");
+        assert!(c.holds, "{c:?}");
         assert_eq!(fit.certificate, *c);
         // the largest joint-space effect of a PCA-space error: ‖W e‖∞ ≤ max row norm · ‖e‖
         let d = m.pca.d();
@@ -92,8 +92,8 @@ fn certified_flow_converges_for_1000_random_start_goal_pairs() {
             .chunks_exact(d)
             .map(|r| r.iter().map(|x| x * x).sum::<f64>().sqrt())
             .fold(0.0, f64::max);
-        let mut steps = 0;
-        for _ in 0..1000 {
+        let (mut steps, mut rises) = (0, 0);
+        for _ in 0..10_000 {
             let y0 = ball_sample(&mut rng, &m.nf.center, 0.98 * m.nf.radius);
             let yd = ball_sample(&mut rng, &c.goal_center, c.goal_radius);
             integrate_flow(&m.nf, &y0, &yd, &flow_opts, &mut path);
@@ -102,14 +102,20 @@ fn certified_flow_converges_for_1000_random_start_goal_pairs() {
                 "steps {} error {}",
                 path.steps, path.final_error
             );
-            assert!(w_row * path.final_error < 1e-3);
-            for w in path.gamma.windows(2) {
-                assert!(w[1] < w[0], "γ rose from {} to {}", w[0], w[1]);
+            assert!(w_row * path.final_error <= 1e-6);
+            if path.gamma.windows(2).any(|w| w[1] > w[0]) {
+                rises += 1;
             }
             assert!(path.steps < flow_opts.max_steps);
             steps += path.steps;
         }
-        println!("group {}: mean flow steps {}", fit.group, steps / 1000);
+        println!(
+            "group {}: k {}, shrink {}, mean flow steps {}, γ rose on the way in {rises} of 10000",
+            fit.group,
+            c.k,
+            c.shrink,
+            steps / 10_000
+        );
     }
 }
 
@@ -505,36 +511,38 @@ fn bad_input_is_refused_with_the_offending_field() {
 }
 
 #[test]
-fn a_given_k_is_certified_by_shrinking_the_field() {
+fn a_given_k_is_certified_by_shrinking_the_field_if_need_be() {
     let data = small_study(8);
     let auto = train(&data.demos, &data.limits, &options(&data, None))
         .unwrap()
         .1;
-    let given = TrainOptions {
-        k: KChoice::Value(4.0),
-        ..options(&data, None)
-    };
-    let (model, report) = train(&data.demos, &data.limits, &given).unwrap();
-    for (m, a) in model.manifolds.iter().zip(&auto.manifolds) {
-        let c = &m.certificate;
-        assert_eq!(c.k, 4.0);
-        assert!(c.holds && c.bound < 8.0 && c.shrink <= 1.0 && c.shrink > 0.0);
-        // the stored certificate is the one recomputed from the stored field
-        assert_eq!(
-            m.nf.certificate(&c.goal_center, c.goal_radius, c.shrink),
-            *c
-        );
-        assert!(a.certificate.holds);
+    for k in [1.0, 4.0] {
+        let given = TrainOptions {
+            k: KChoice::Value(k),
+            ..options(&data, None)
+        };
+        let (model, report) = train(&data.demos, &data.limits, &given).unwrap();
+        for (m, a) in model.manifolds.iter().zip(&auto.manifolds) {
+            let c = &m.certificate;
+            assert_eq!(c.k, k);
+            assert!(c.holds && c.shrink <= 1.0 && c.shrink > 0.0, "{c:?}");
+            // the stored certificate is the one recomputed from the stored field
+            assert_eq!(
+                m.nf.certificate(&c.goal_center, c.goal_radius, c.shrink),
+                *c
+            );
+            assert!(a.certificate.holds);
+        }
+        assert_eq!(report.manifolds.len(), 2);
     }
-    assert_eq!(report.manifolds.len(), 2);
-    // a k too small for the workspace ball's own share cannot be certified: refused
+    // below 1 the bare workspace ball is no longer a navigation function: refused
     let tiny = TrainOptions {
-        k: KChoice::Value(1.0),
+        k: KChoice::Value(0.5),
         ..options(&data, None)
     };
     assert!(matches!(
         train(&data.demos, &data.limits, &tiny),
-        Err(MotionError::CertificateUnattainable { group: 0, .. })
+        Err(MotionError::InvalidOption { field: "k", .. })
     ));
 }
 
@@ -601,4 +609,139 @@ fn a_profile_stored_before_profile_inputs_existed_reads_as_group_delta() {
     let b = all_ends.path_positions(&start, &goal, &o).unwrap();
     assert_eq!(ProfileInputs::default(), ProfileInputs::AllEnds);
     assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 1e-9));
+}
+
+/// Distance from `p` to the polyline `path` (`len × n`).
+fn distance_to_polyline(p: &[f64], path: &[f64], n: usize) -> f64 {
+    let mut best = f64::INFINITY;
+    for seg in path.chunks_exact(n).collect::<Vec<_>>().windows(2) {
+        let (a, b) = (seg[0], seg[1]);
+        let (mut ab2, mut apab) = (0.0, 0.0);
+        for j in 0..n {
+            ab2 += (b[j] - a[j]).powi(2);
+            apab += (p[j] - a[j]) * (b[j] - a[j]);
+        }
+        let t = if ab2 > 0.0 {
+            (apab / ab2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let d2: f64 = (0..n)
+            .map(|j| (p[j] - a[j] - t * (b[j] - a[j])).powi(2))
+            .sum();
+        best = best.min(d2.sqrt());
+    }
+    best
+}
+
+/// The "one motion" claim on the reference worker's simulated robot
+/// (`bridge::sim::SimRobot`: velocity and acceleration limits, 100 Hz): 100 closed-loop runs
+/// with two pushes each converge, and between pushes the executed path follows the open-loop
+/// path planned from the state the segment starts in (an independent computation: flow
+/// integration and back-projection, not the law) far more closely than the straight line.
+/// The robot's per-joint acceleration limit bends the path while the joints speed up (from rest,
+/// and after a push), so single segments can stray further; the figures are printed.
+#[test]
+fn closed_loop_runs_the_open_loop_path_also_after_pushes() {
+    use crate::bridge::sim::{SimLimits, SimRobot};
+    let data = small_study(5);
+    let (model, _) = train(&data.demos, &data.limits, &options(&data, None)).unwrap();
+    let n = model.n_joints;
+    let limits = SimLimits::new(
+        &model.limits.lower,
+        &model.limits.upper,
+        &model.limits.velocity,
+        5.0,
+    );
+    for rate in [1.0, 2.0] {
+        let params = model.control_params((0..n).map(|j| format!("j{j}")).collect(), rate, 2.0);
+        let mut rng = ChaCha8Rng::seed_from_u64(31);
+        let dt = 0.01;
+        let pushes = [40usize, 90];
+        let (mut converged, mut sum, mut straight_sum) = (0, 0.0, 0.0);
+        let mut all: Vec<f64> = Vec::new();
+        let mut u = vec![0.0; n];
+        for _run in 0..100 {
+            let ys: Vec<Vec<f64>> = model
+                .manifolds
+                .iter()
+                .map(|m| ball_sample(&mut rng, &m.nf.center, 0.7 * m.nf.radius))
+                .collect();
+            let gs: Vec<Vec<f64>> = model
+                .manifolds
+                .iter()
+                .map(|m| {
+                    ball_sample(
+                        &mut rng,
+                        &m.certificate.goal_center,
+                        m.certificate.goal_radius,
+                    )
+                })
+                .collect();
+            let start = joint_vector(&model, &ys, &mut rng, 0.02);
+            let goal = joint_vector(&model, &gs, &mut rng, 0.02);
+            let mut robot = SimRobot::new(limits.clone(), start);
+            let mut segment: Vec<f64> = Vec::new();
+            let mut seg_start = robot.q.clone();
+            let finish = |segment: &mut Vec<f64>, from: &[f64]| {
+                let planned = model
+                    .path_positions(from, &goal, &TrajectoryOptions::default())
+                    .expect("segment start inside the certified regions");
+                let rms = |path: &[f64]| {
+                    (segment
+                        .chunks_exact(n)
+                        .map(|p| distance_to_polyline(p, path, n).powi(2))
+                        .sum::<f64>()
+                        / (segment.len() / n) as f64)
+                        .sqrt()
+                };
+                let out = (rms(&planned), rms(&[from, &goal[..]].concat()));
+                segment.clear();
+                out
+            };
+            let mut done = false;
+            for step in 0..3000 {
+                if pushes.contains(&step) {
+                    let (a, b) = finish(&mut segment, &seg_start);
+                    all.push(a);
+                    sum += a;
+                    straight_sum += b;
+                    robot.kick(&mut rng, 0.05);
+                    seg_start = robot.q.clone();
+                }
+                params.control(&robot.q, &goal, &mut u);
+                robot.step(&u, dt);
+                segment.extend_from_slice(&robot.q);
+                let err = robot
+                    .q
+                    .iter()
+                    .zip(&goal)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                let speed = robot.qd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                if step > pushes[1] && err <= 0.01 && speed <= 0.05 {
+                    done = true;
+                    break;
+                }
+            }
+            let (a, b) = finish(&mut segment, &seg_start);
+            all.push(a);
+            sum += a;
+            straight_sum += b;
+            converged += usize::from(done);
+        }
+        all.sort_by(f64::total_cmp);
+        let segs = all.len() as f64;
+        let within = all.iter().filter(|&&x| x <= 0.05).count();
+        println!(
+            "closed loop, rate {rate}: {converged}/100 converged; path RMS from the open-loop path per segment: mean {:.4}, median {:.4}, worst {:.4} rad, {within}/{} within 0.05 (from the straight joint line: mean {:.4})",
+            sum / segs,
+            all[all.len() / 2],
+            all[all.len() - 1],
+            all.len(),
+            straight_sum / segs
+        );
+        assert_eq!(converged, 100);
+        assert!(sum / segs <= 0.05 && sum < 0.5 * straight_sum);
+    }
 }

@@ -1,8 +1,14 @@
-"""The closed-loop law `u(q) = W(-K_p grad_y phi) + K_perp (I - W W^T)(q_d - q)` (paper eq. 8 in
-PCA coordinates) of the service's `ControlParams`, as the `execute` message carries it, in NumPy.
+"""The closed-loop law of the service's `ControlParams` (paper eq. 8 in PCA coordinates), as the
+`execute` message carries it, in NumPy. Two laws (`params["law"]`):
 
-A port of `src/motion/control.rs`, `nf.rs` and `bspline.rs` (`ControlParams::control`,
-`NavigationFunction::value_gradient`, `TensorBSpline::value_gradient`); the tests compare it
+- `phi_decay` (current models): per joint group, with `lam = params["lambda"]`,
+  `ydot = -lam * phi * grad_y phi / |grad_y phi|^2` (the flow's direction at the speed that makes
+  `phi` decay as `exp(-lam t)`), `u = W ydot + J_R(y) ydot - lam (z - delta_g)`, `z` the state's
+  offset from the learned curved manifold `mu + W y + R(y)` and `delta_g` the goal's; the command
+  is scaled as a whole into `velocity_limits`. This runs the open-loop humanlike path.
+- `gradient` (parameters stored before): `u = W(-K_p grad_y phi) + K_perp (I - W W^T)(q_d - q)`.
+
+A port of `src/motion/control.rs`, `nf.rs`, `curvature.rs` and `bspline.rs`; the tests compare it
 with the service's own evaluation, `POST /v1/models/{id}/control`.
 """
 
@@ -79,6 +85,23 @@ class NF:
         g = g - 2.0 * (y - self.center) / beta0
         return math.log(beta0) + s, g
 
+    def phi_decay_velocity(self, y, yd):
+        """-phi grad phi / |grad phi|^2 (phi decays at rate 1 along it), in log space."""
+        l2 = self.length_scale**2
+        lb, glb = self.log_beta(y)
+        lb -= math.log(l2)
+        gamma = float(np.sum((y - yd) ** 2)) / l2
+        if gamma <= 0 or not math.isfinite(lb):
+            return np.zeros(len(y))
+        k = self.k
+        lg = math.log(gamma)
+        a = k * lg
+        hi, lo = (a, lb) if a > lb else (lb, a)
+        lse = hi + math.log1p(math.exp(lo - hi))
+        f = 2.0 * (y - yd) / l2 - gamma / k * glb
+        scale = math.exp(lg + lse - lb) / float(f @ f)
+        return -scale * f if math.isfinite(scale) else np.zeros(len(y))
+
     def gradient(self, y, yd):
         l2 = self.length_scale**2
         lb, glb = self.log_beta(y)
@@ -93,12 +116,33 @@ class NF:
         return factor * (2.0 * (y - yd) / l2 - gamma / k * glb)
 
 
+class Curvature:
+    """`R(y) = C [1, y_i y_j (i <= j)]` (the learned off-manifold residual)."""
+
+    def __init__(self, d: dict):
+        self.dim = int(d["dim"])
+        self.n = int(d["n"])
+        self.C = np.asarray(d["coefficients"], float).reshape(self.n, -1)
+        self.pairs = [(i, j) for i in range(self.dim) for j in range(i, self.dim)]
+
+    def eval(self, y):
+        f = np.array([1.0] + [y[i] * y[j] for i, j in self.pairs])
+        return self.C @ f
+
+    def directional(self, y, v):
+        f = np.array([0.0] + [v[i] * y[j] + y[i] * v[j] for i, j in self.pairs])
+        return self.C @ f
+
+
 class Law:
     """`ControlParams` (the `params` of a `kind: model` payload)."""
 
     def __init__(self, params: dict):
         self.joint_names = list(params["joint_names"])
         self.k_perp = float(params["k_perp"])
+        self.law = params.get("law", "gradient")
+        self.lam = float(params.get("lambda", 0.0))
+        self.vmax = np.asarray(params.get("velocity_limits", []), float)
         self.groups = []
         for g in params["groups"]:
             joints = np.asarray(g["joints"], int)
@@ -106,14 +150,47 @@ class Law:
             nf = NF(g["nf"])
             dim = len(nf.center)
             W = np.asarray(g["components"], float).reshape(len(joints), dim)
-            self.groups.append((joints, mean, W, nf, float(g["kp"])))
+            curv = Curvature(g["curvature"]) if g.get("curvature") else None
+            self.groups.append((joints, mean, W, nf, float(g["kp"]), curv))
         self.n = sum(len(g[0]) for g in self.groups)
 
     def control(self, q, qd_goal):
+        if self.law == "phi_decay":
+            return self._phi_decay(q, qd_goal)
+        return self._gradient(q, qd_goal)
+
+    def _phi_decay(self, q, qd_goal):
         q = np.asarray(q, float)
         qg = np.asarray(qd_goal, float)
         u = np.zeros(len(q))
-        for joints, mean, W, nf, kp in self.groups:
+        lam = self.lam
+        for joints, mean, W, nf, _kp, curv in self.groups:
+            y = W.T @ (q[joints] - mean)
+            yd = W.T @ (qg[joints] - mean)
+            if float(np.sum((y - nf.center) ** 2)) < nf.radius**2:
+                v = lam * nf.phi_decay_velocity(y, yd)
+            else:
+                v = -0.5 * lam * (y - yd)
+            off = q[joints] - mean - W @ y
+            off_d = qg[joints] - mean - W @ yd
+            jr = np.zeros(len(joints))
+            if curv is not None:
+                off = off - curv.eval(y)
+                off_d = off_d - curv.eval(yd)
+                jr = curv.directional(y, v)
+            u[joints] = W @ v + jr - lam * (off - off_d)
+        if self.vmax.size:
+            m = len(self.vmax)
+            lim = np.where(self.vmax > 0, self.vmax, np.inf)
+            over = max(1.0, float(np.max(np.abs(u[:m]) / lim)))
+            u[:m] /= over
+        return u
+
+    def _gradient(self, q, qd_goal):
+        q = np.asarray(q, float)
+        qg = np.asarray(qd_goal, float)
+        u = np.zeros(len(q))
+        for joints, mean, W, nf, kp, _curv in self.groups:
             y = W.T @ (q[joints] - mean)
             yd = W.T @ (qg[joints] - mean)
             z = W.T @ (qg[joints] - q[joints])
