@@ -119,8 +119,10 @@ pub struct CreateModel {
     pub default: bool,
 }
 
-/// A convergence certificate (DESIGN §5): `γ` strictly decreases along the flow for every goal in
-/// the goal region and start in the workspace ball, since `bound < 2k`.
+/// A convergence certificate (DESIGN §5): the navigation-function property — `φ` has no
+/// critical point in the workspace ball but the goal, for every goal in the goal region, and the
+/// boundary repels — so the flow converges from every start in the workspace to every goal in the
+/// region; `γ` may rise on the way.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct CertificateDto {
     /// `arm` or `hand`.
@@ -130,11 +132,18 @@ pub struct CertificateDto {
     pub workspace_bound: f64,
     /// `spline_bound + workspace_bound`, the closed-form bound of `sup (y − y_d)·∇log β`.
     pub bound: f64,
+    /// The navigation-function certificate holds.
     pub holds: bool,
-    /// Guaranteed decay: `γ̇ ≤ −decay_rate·γ` (per unit flow time).
+    /// `bound < 2k`: `γ` also falls monotonically along every flow (not required).
+    pub gamma_monotone: bool,
+    /// `2(2 − bound/k)`: when positive, `γ̇ ≤ −decay_rate·γ` (per unit flow time).
     pub decay_rate: f64,
     /// Factor the fitted field was multiplied by to satisfy the certificate (1 = unshrunk).
     pub shrink: f64,
+    /// Radius beyond which the field points outward analytically (the repelling shell).
+    pub shell_radius: f64,
+    /// Boxes the certificate's branch and bound examined.
+    pub boxes: usize,
     /// Workspace ball in PCA coordinates (starts must lie strictly inside).
     pub workspace_center: Vec<f64>,
     pub workspace_radius: f64,
@@ -181,18 +190,29 @@ pub struct ManifoldDto {
 }
 
 /// Humanlikeness on held-out data: mean arc-length-resampled joint-space deviation (rad) from the
-/// held-out mapped trajectory, for the NF model, the straight joint line and the straight line in
-/// PCA space (`k → ∞`).
+/// held-out mapped trajectory, on the same demonstrations, for the NF model (with and without the
+/// residual profile) and the baselines: straight joint line, straight line in PCA space on the
+/// curved manifold, DMP, ProMP.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct HeldOutDto {
     pub demonstrations: usize,
     /// Held-out demonstrations outside the fold model's goal region or workspace (refused).
     pub refused: usize,
+    /// The model's path (with the residual profile when trained with one).
     pub nf: f64,
+    /// The NF path alone (no residual profile).
+    pub nf_plain: f64,
     pub joint_line: f64,
+    /// Straight line in PCA coordinates on the learned curved manifold.
     pub pca_line: f64,
-    /// `nf / joint_line` (the goal: ≤ 0.7).
+    /// Goal-conditioned dynamic movement primitive per joint.
+    pub dmp: f64,
+    /// Probabilistic movement primitive conditioned on start and goal.
+    pub promp: f64,
+    /// `nf / joint_line`.
     pub ratio_to_joint_line: f64,
+    /// `nf_plain / joint_line` (the goal: ≤ 0.7).
+    pub plain_ratio_to_joint_line: f64,
 }
 
 /// One held-out fold: trained without one object position, tested on it.
@@ -444,8 +464,11 @@ fn certificate_dto(group: String, c: &Certificate) -> CertificateDto {
         workspace_bound: c.workspace_bound,
         bound: c.bound,
         holds: c.holds,
+        gamma_monotone: c.gamma_monotone,
         decay_rate: c.decay_rate,
         shrink: c.shrink,
+        shell_radius: c.shell_radius,
+        boxes: c.boxes,
         workspace_center: c.workspace_center.clone(),
         workspace_radius: c.workspace_radius,
     }
@@ -456,9 +479,13 @@ fn held_out_dto(h: &HeldOutReport) -> HeldOutDto {
         demonstrations: h.demonstrations,
         refused: h.refused,
         nf: h.nf,
+        nf_plain: h.nf_plain,
         joint_line: h.joint_line,
         pca_line: h.pca_line,
+        dmp: h.dmp,
+        promp: h.promp,
         ratio_to_joint_line: h.ratio_to_joint_line,
+        plain_ratio_to_joint_line: h.plain_ratio_to_joint_line,
     }
 }
 
@@ -872,7 +899,8 @@ pub fn held_out_folds(
         return None;
     }
     let mut folds = Vec::new();
-    let (mut sum_nf, mut sum_jl, mut sum_pl) = (0.0, 0.0, 0.0);
+    // nf, nf_plain, joint line, PCA line, DMP, ProMP
+    let mut sums = [0.0; 6];
     let (mut total, mut used, mut refused) = (0usize, 0usize, 0usize);
     for (f, &p) in distinct.iter().enumerate() {
         progress(f, distinct.len());
@@ -892,9 +920,16 @@ pub fn held_out_folds(
                 total += h.demonstrations;
                 refused += h.refused;
                 used += n;
-                sum_nf += h.nf * n as f64;
-                sum_jl += h.joint_line * n as f64;
-                sum_pl += h.pca_line * n as f64;
+                for (acc, v) in sums.iter_mut().zip([
+                    h.nf,
+                    h.nf_plain,
+                    h.joint_line,
+                    h.pca_line,
+                    h.dmp,
+                    h.promp,
+                ]) {
+                    *acc += v * n as f64;
+                }
                 folds.push(FoldDto {
                     position_index: p,
                     result: Some(held_out_dto(&h)),
@@ -915,10 +950,14 @@ pub fn held_out_folds(
         HeldOutDto {
             demonstrations: total,
             refused,
-            nf: sum_nf / u,
-            joint_line: sum_jl / u,
-            pca_line: sum_pl / u,
-            ratio_to_joint_line: sum_nf / sum_jl.max(f64::MIN_POSITIVE),
+            nf: sums[0] / u,
+            nf_plain: sums[1] / u,
+            joint_line: sums[2] / u,
+            pca_line: sums[3] / u,
+            dmp: sums[4] / u,
+            promp: sums[5] / u,
+            ratio_to_joint_line: sums[0] / sums[2].max(f64::MIN_POSITIVE),
+            plain_ratio_to_joint_line: sums[1] / sums[2].max(f64::MIN_POSITIVE),
         }
     });
     Some(HeldOutSummaryDto { folds, overall })

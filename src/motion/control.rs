@@ -224,3 +224,70 @@ impl ControlParams {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::motion::synthetic::{SyntheticStudy, curved_study};
+    use crate::motion::{Components, TrainOptions, train};
+
+    /// The `phi_decay` law's two defining rates, checked by finite differences along the
+    /// commanded velocity (independently of how the law computes them): `φ̇ = −λφ` per group,
+    /// and the off-manifold offset `z = (I − WWᵀ)(q − μ) − R(y)` approaches the goal's at rate `λ`.
+    #[test]
+    fn phi_and_the_offset_decay_at_the_commanded_rate() {
+        let data = curved_study(&SyntheticStudy {
+            seed: 2,
+            trials_per_position: 4,
+            frames: 50,
+            ..SyntheticStudy::default()
+        });
+        let opts = TrainOptions {
+            groups: data.groups.clone(),
+            components: Components::VarianceThreshold(0.97),
+            ..TrainOptions::default()
+        };
+        let (model, _) = train(&data.demos, &data.limits, &opts).unwrap();
+        let n = model.n_joints;
+        let mut params = model.control_params(vec![String::new(); n], 1.5, 2.0);
+        params.velocity_limits.clear(); // no scaling: the raw law
+        let lambda = params.lambda;
+        let q = data.demos[1].frame(10, n).to_vec();
+        let goal = data.demos[7].frame(49, n).to_vec();
+        let mut u = vec![0.0; n];
+        params.control(&q, &goal, &mut u);
+        let eps = 1e-6;
+        let q2: Vec<f64> = q.iter().zip(&u).map(|(a, b)| a + eps * b).collect();
+        for m in &model.manifolds {
+            let d = m.pca.d();
+            let ng = m.joints.len();
+            let gather = |v: &[f64]| m.joints.iter().map(|&j| v[j]).collect::<Vec<_>>();
+            let offset = |v: &[f64]| {
+                let mut y = vec![0.0; d];
+                let mut r = vec![0.0; ng];
+                m.pca.residual(&gather(v), &mut y, &mut r);
+                let mut c = vec![0.0; ng];
+                if let Some(curv) = &m.curvature {
+                    curv.eval(&y, &mut c);
+                }
+                (y, r.iter().zip(&c).map(|(a, b)| a - b).collect::<Vec<_>>())
+            };
+            let (y1, z1) = offset(&q);
+            let (y2, z2) = offset(&q2);
+            let (yd, zd) = offset(&goal);
+            let (p1, p2) = (m.nf.log_phi(&y1, &yd), m.nf.log_phi(&y2, &yd));
+            let rate = (p2 - p1) / eps;
+            assert!(
+                (rate + lambda).abs() < 1e-4 * lambda,
+                "dlogφ/dt {rate} vs −{lambda}"
+            );
+            for i in 0..ng {
+                let dz = (z2[i] - z1[i]) / eps;
+                let want = -lambda * (z1[i] - zd[i]);
+                assert!(
+                    (dz - want).abs() < 1e-5 + 1e-4 * want.abs(),
+                    "{dz} vs {want}"
+                );
+            }
+        }
+    }
+}

@@ -360,7 +360,10 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
         );
         let c = &m["certificate"];
         assert_eq!(c["holds"], true);
-        assert!(c["bound"].as_f64().unwrap() < 2.0 * c["k"].as_f64().unwrap());
+        // the navigation-function certificate: no monotone γ required, a field shrunk at most
+        let shrink = c["shrink"].as_f64().unwrap();
+        assert!(shrink > 0.0 && shrink <= 1.0, "{c}");
+        assert!(c["boxes"].as_u64().unwrap() > 0 && c["shell_radius"].as_f64().unwrap() > 0.0);
         assert!(m["goal_region"]["radius"].as_f64().unwrap() > 0.0);
         assert!(m["train_alignment"].as_f64().unwrap() > 0.5);
     }
@@ -371,6 +374,9 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
         overall["nf"].as_f64().unwrap() < overall["joint_line"].as_f64().unwrap(),
         "{overall}"
     );
+    for baseline in ["nf_plain", "pca_line", "dmp", "promp"] {
+        assert!(overall[baseline].as_f64().unwrap() > 0.0, "{overall}");
+    }
 
     // listed, and the robot's default (the only succeeded model)
     let list: Value = app
