@@ -398,6 +398,50 @@ impl CollisionChecker {
         }
     }
 
+    /// The broad-phase bound of a pair as a [`SignedDistance`] between its bounding spheres
+    /// (the support: the sphere against the plane), at the last [`Self::update`]. Its distance is
+    /// [`Self::sphere_bound`], a lower bound of the exact one, and its witnesses and normal give
+    /// that bound's exact gradient through [`Self::add_distance_gradient`] (optimisers use it for
+    /// pairs too far apart to need an exact query).
+    pub fn sphere_distance(&self, data: &CheckData, pair: usize) -> SignedDistance {
+        let p = &self.pairs[pair];
+        let s = &self.robot.shapes()[p.shape];
+        let (c, r) = (data.centers[p.shape], s.solid.bound);
+        let between = |o: Point3<f64>, ro: f64| {
+            let dir = (o - c)
+                .try_normalize(1e-12)
+                .unwrap_or_else(nalgebra::Vector3::z);
+            SignedDistance {
+                distance: (o - c).norm() - r - ro,
+                point_a: c + dir * r,
+                point_b: o - dir * ro,
+                normal: dir,
+            }
+        };
+        match p.other {
+            Target::Object => {
+                let o = self.scene.object.as_ref().expect("object pair");
+                between(o.center, o.solid.bound)
+            }
+            Target::Obstacle(k) => {
+                let o = &self.scene.obstacles[k];
+                between(o.center, o.solid.bound)
+            }
+            Target::Shape(j) => between(data.centers[j], self.robot.shapes()[j].solid.bound),
+            Target::Support => {
+                let pl = self.scene.support.expect("support pair");
+                let n = pl.normal().into_inner();
+                let h = pl.height(&c);
+                SignedDistance {
+                    distance: h - r,
+                    point_a: c - n * r,
+                    point_b: c - n * h,
+                    normal: -n,
+                }
+            }
+        }
+    }
+
     /// Exact signed distance of a pair at the last [`Self::update`] (the robot shape first).
     pub fn pair_distance(&self, data: &mut CheckData, pair: usize) -> SignedDistance {
         data.exact_queries += 1;

@@ -5,16 +5,34 @@
 //! Cost (eq. 22) `w_TC·TC + w_GC·GC + w_Q·Q̂ + w_D·D` with `Q̂` the chosen quality measure made
 //! dimensionless by the object's bounding radius ρ (`Q_DC/ρ`, or `−Q_AGP/ρ²` since the area is
 //! maximised). Constraints: joint limits (25) as bounds; fingertip contact spheres tangent to
-//! the surface (27) as equalities `sd(p_i) − r_i = 0`; spread ordering (28) and link spheres
-//! outside the object and above the support plane (29) as inequalities; and fingertip contact
-//! spheres of different fingers disjoint, `r_i + r_j + δ − ‖c_i − c_j‖ ≤ 0`, and likewise every
-//! link sphere of a finger (beyond its first link) and every link or contact sphere of another
-//! ([`super::system::LinkPair`]). The paper has no such rows, but without them nothing keeps
-//! fingers apart: 70 of the 90 seeded grasps had two fingers' links overlapping by 1-17 mm (the
-//! T42's fingers crossed each other around the ball), and under GC the optimiser put two
+//! the surface (27) as equalities `sd(p_i) − r_i = 0`; spread ordering (28); each contact on
+//! its finger's pad: the pad normal (the tip frame's `z`, the flexion side, as the hand
+//! descriptors state) opposing the object's outward normal within [`PAD_CONE_DEG`],
+//! `cos θ_max + n·z ≤ 0`, so that closing the hand presses into the object; and (29) as exact
+//! signed distances ([`crate::geometry::CollisionChecker`], parry GJK/EPA) between every link's
+//! URDF collision shape and the object, the support half-space and every non-adjacent link of
+//! the whole system (arm links, palm, every finger link, first links included), each a row
+//! `margin − d ≤ 0`. Pairs whose bounding spheres are [`EXACT_CUTOFF`] or more apart enter with
+//! their sphere gap, a lower bound of the exact distance, and no query. The contact spheres of
+//! different fingers are also kept disjoint, `r_i + r_j + δ − ‖c_i − c_j‖ ≤ 0`. The paper has no
+//! such rows, but without them nothing keeps fingers apart: under GC the optimiser put two
 //! of them on the same spot, where the grasp matrix turns rank-deficient, its pseudo-inverse
 //! blows up and the hand's "velocity ratio" reaches 20-135 m/s per rad/s — an artefact of the
 //! numerics, not a grasp.
+//!
+//! Where this differs from the paper: eq. 29 keeps a discrete point set `S_i` out of the object;
+//! here the whole collision shape of every link is kept out (exactly), because with inscribed
+//! spheres 18 of 21 grasps had a link more than 5 mm inside the object or the table while the
+//! point set reported clear. The same exact distances decide `feasible` and are reported.
+//!
+//! Determinism: every start is budgeted in solver iterations (never wall time) and seeded from
+//! its index, starts run in any order on any number of threads and are sorted by index before
+//! the best is chosen, so the same request gives a bit-identical answer on an idle and on a
+//! loaded machine. A per-start wall-clock limit remains only as a safety net and is reported as
+//! `timed_out`.
+//!
+//! TC (eq. 16) is evaluated at the grasp point, the object's centroid as carried by the hand
+//! (`J_v − [r]× J_ω`), not at the flange: the task is the object's motion or force.
 //!
 //! In the cost the quality measures are evaluated on the contact-sphere centres, i.e. on the
 //! object's surface offset by the sphere radius, where (27) keeps them; this keeps their
@@ -30,6 +48,10 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::geometry::{
+    Category, CheckData, Clearance, CollisionChecker, Plane, Scene, SceneShape, SignedDistance,
+    Target,
+};
 use crate::kinematics::{Data, add_point_jacobian_transpose, forward_kinematics, frame_jacobian};
 use crate::optim::{Constraints, Problem, Settings, SolveReport, SolveStatus, Solver};
 
@@ -40,11 +62,32 @@ use super::system::{HandArm, LinkPair};
 
 /// Fingertip surface-distance tolerance for a feasible grasp (m).
 pub const SURFACE_TOLERANCE: f64 = 1e-3;
-/// Largest accepted penetration of a link sphere into the object or support plane (m).
-pub const PENETRATION_TOLERANCE: f64 = 5e-4;
+/// Largest exact penetration of any link's collision shape into the object or the support for a
+/// feasible grasp (m). The fingertip pads touch the object, so their links may press this much.
+pub const PENETRATION_TOLERANCE: f64 = 1e-3;
+/// Penetration into the object or the support the optimiser's rows allow (m): half the verdict's
+/// tolerance, so a start converged to the solver's constraint tolerance passes the exact check.
+const OPT_PENETRATION: f64 = 5e-4;
+/// Exact clearance the optimiser keeps between two non-adjacent links (m); a feasible grasp has
+/// no two links intersecting (exact distance ≥ 0).
+const SELF_CLEARANCE: f64 = 5e-4;
+/// Largest angle between a finger's pad normal and the object's inward surface normal at its
+/// contact (deg): within it, closing the finger presses into the object.
+pub const PAD_CONE_DEG: f64 = 30.0;
+/// The pad-cone rows are relaxed by the contact sphere's distance from the surface over this
+/// length (m), `cos θ_max + n·z − (sd − r)/L ≤ 0`: exact at contact (eq. 27 holds in a feasible
+/// grasp, so the verdict's cone is the plain one), void 10 mm away. Without it the cone turned
+/// distant fingers towards the object from the first iterate, curling them into the palm.
+const CONE_RELAX: f64 = 0.01;
+/// Pairs whose bounding spheres are at least this far apart (m) enter the optimiser's rows with
+/// the sphere gap (a lower bound of the exact distance) instead of an exact query.
+const EXACT_CUTOFF: f64 = 0.005;
 /// Clearance `δ` the optimiser keeps between the contact spheres of two fingers (m). A feasible
-/// grasp may eat up to [`PENETRATION_TOLERANCE`] of it, so contact spheres never overlap.
+/// grasp may eat up to half of it, so contact spheres never overlap.
 pub const FINGER_CLEARANCE: f64 = 1e-3;
+/// Safety net only: wall time after which a start stops (reported as `timed_out`). The
+/// iteration budget ends every start long before it on a working machine.
+const START_WALL_LIMIT: Duration = Duration::from_secs(5);
 
 /// The grasp quality measure of eq. 20-21.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -196,6 +239,10 @@ pub struct Contact {
     pub normal: [f64; 3],
     /// Signed distance of the contact sphere from the surface (0 = touching; eq. 27 residual).
     pub surface_distance: f64,
+    /// Angle between the finger's pad normal and the inward surface normal (deg): 0 is a
+    /// contact square on the pad, above [`PAD_CONE_DEG`] the contact is not on the pad (90+:
+    /// the side or the back of the finger).
+    pub pad_angle_deg: f64,
 }
 
 /// Every term of eq. 22 and the indexes behind it.
@@ -203,7 +250,7 @@ pub struct Contact {
 pub struct Terms {
     /// Total cost (eq. 22).
     pub cost: f64,
-    /// Task compatibility index of the arm (eq. 16).
+    /// Task compatibility index of the arm (eq. 16) at the grasp point (the object's centroid).
     pub tc: f64,
     /// Grasp compatibility index of the hand (eq. 19).
     pub gc: f64,
@@ -217,7 +264,8 @@ pub struct Terms {
     pub d: f64,
     /// Arm manipulability at the grasp frame (eq. 12, full 6-D Jacobian of the arm joints).
     pub manipulability: f64,
-    /// Arm ratio (α or β per direction's kind) along each task direction (eq. 14-15).
+    /// Arm ratio (α or β per direction's kind) along each task direction (eq. 14-15), at the
+    /// grasp point.
     pub arm_ratios: Vec<f64>,
     /// Hand ratio along each task direction (eq. 17-18).
     pub hand_ratios: Vec<f64>,
@@ -228,10 +276,18 @@ pub struct Terms {
 pub struct Residuals {
     /// Largest |signed distance| of a contact sphere from the surface (eq. 27), m.
     pub max_surface_distance: f64,
-    /// Largest penetration of a link sphere into the object (eq. 29), m (≤ 0: clear).
+    /// Largest exact penetration of any link's collision shape into the object (eq. 29), m
+    /// (≤ 0: clear by that much; −1 without a pair).
     pub max_object_penetration: f64,
-    /// Largest penetration of a link sphere into the support plane, m (≤ 0: clear).
+    /// The link of `max_object_penetration`.
+    pub object_link: Option<String>,
+    /// Largest exact penetration of any moving link into the support half-space, m (≤ 0:
+    /// clear; −1 without a support).
     pub max_support_penetration: f64,
+    /// The link of `max_support_penetration`.
+    pub support_link: Option<String>,
+    /// Largest angle between a pad normal and the inward surface normal at its contact, deg.
+    pub max_pad_angle_deg: f64,
     /// Smallest distance of a joint to its limits (eq. 25), rad or m (≥ 0 by construction).
     pub min_limit_margin: f64,
     /// Largest spread-order violation `q_a − q_b` (eq. 28; ≤ 0 holds).
@@ -241,10 +297,12 @@ pub struct Residuals {
     /// Smallest gap `‖c_i − c_j‖ − r_i − r_j` between the contact spheres of two different
     /// fingers, m (≥ 0: disjoint; the optimiser keeps 1 mm). 1 for a one-finger hand.
     pub min_finger_separation: f64,
-    /// Smallest gap between a link sphere of one finger (beyond its first link) and a link or
-    /// contact sphere of another, m (≥ 0: disjoint, fingers do not pass through each other; the
-    /// optimiser keeps 1 mm). 1 when the hand has no such pairs.
+    /// Smallest exact distance between two non-adjacent links of the system (arm and hand, every
+    /// finger link included), m (≥ 0: no two links intersect; the optimiser keeps 0.5 mm). 1
+    /// when the system has no such pairs.
     pub min_link_separation: f64,
+    /// The two links of `min_link_separation`, "a / b".
+    pub closest_links: Option<String>,
 }
 
 /// The solver report of the returned start, in plain units.
@@ -297,7 +355,7 @@ pub struct GraspResult {
     pub terms: Terms,
     /// Constraint residuals.
     pub residuals: Residuals,
-    /// Velocity/force ellipsoids of the arm at the grasp frame (eq. 10-11).
+    /// Velocity/force ellipsoids of the arm at the grasp point (eq. 10-11).
     pub arm_ellipsoids: Ellipsoids,
     /// Velocity/force ellipsoids of the hand-object Jacobian.
     pub hand_ellipsoids: Ellipsoids,
@@ -309,6 +367,9 @@ pub struct GraspResult {
     pub starts_used: usize,
     /// Starts that ended feasible.
     pub starts_feasible: usize,
+    /// A start was cut short by the wall-clock safety net instead of its iteration budget: this
+    /// answer may differ on a less loaded machine.
+    pub timed_out: bool,
 }
 
 /// Per-worker evaluation state: FK once per distinct `u`, shared by cost, gradient, residuals
@@ -332,9 +393,28 @@ struct Eval<'a> {
     tip_p: Vec<Point3<f64>>,
     tip_q: Vec<SurfaceQuery>,
     tip_j: Vec<Matrix6xX<f64>>,
+    /// Pad normals (tip frame `z`, world).
+    tip_z: Vec<Vector3<f64>>,
+    /// World centres of the link spheres (finger-finger rows).
     s_p: Vec<Point3<f64>>,
-    s_q: Vec<SurfaceQuery>,
     elbow_p: Point3<f64>,
+    /// Exact geometry: every link against the object, the support and every non-adjacent link.
+    checker: CollisionChecker,
+    cd: CheckData,
+    /// The checker pairs that are rows: every pair with a hand link except two different
+    /// fingers' links (arm-arm pairs are left to the exact verdict: they cost an exact query per
+    /// evaluation and a grasp posture hardly folds the arm onto itself). Two fingers are kept
+    /// apart by sphere rows ([`HandArm::crossing_pairs`], first links included) instead: once
+    /// two box phalanges cross, the penetration depth's direction is often across the finger
+    /// width, which no joint can follow, and the starts ended with crossed fingers.
+    rows: Vec<usize>,
+    /// Per row at the current `u`: its distance (exact where `gexact`, else the bounding-sphere
+    /// bound), valid while `geom_fresh`.
+    gd: Vec<SignedDistance>,
+    gexact: Vec<bool>,
+    geom_fresh: bool,
+    /// Per-pair gradient scratch (nq).
+    pair_grad: Vec<f64>,
     tmp_j: Matrix6xX<f64>,
     hand_gj: Matrix6xX<f64>,
     point_grad: Vec<Vector3<f64>>,
@@ -342,9 +422,24 @@ struct Eval<'a> {
     grad_arm: Vec<f64>,
     rho: f64,
     n_spread: usize,
-    plane: bool,
     /// Finger pairs `(i, j)`, `i < j`, whose contact spheres must stay disjoint.
     pairs: Vec<(usize, usize)>,
+    /// `cos` of the optimiser's pad cone (a degree inside [`PAD_CONE_DEG`]).
+    cos_cone: f64,
+}
+
+/// The grasp's scene for the exact checker: the object and its support half-space.
+fn grasp_checker(sys: &HandArm, req: &GraspRequest) -> CollisionChecker {
+    let (shape, pose) = req.object.shape();
+    let mut scene = Scene::new().with_object(SceneShape::new(
+        req.object.spec().name.clone(),
+        shape.clone(),
+        *pose,
+    ));
+    if let Some(p) = req.object.support().and_then(|sp| Plane::try_from(sp).ok()) {
+        scene = scene.with_support(p);
+    }
+    CollisionChecker::new(sys.geometry.clone(), scene)
 }
 
 impl<'a> Eval<'a> {
@@ -365,7 +460,43 @@ impl<'a> Eval<'a> {
             .map(|q| chain.iter().position(|c| c == q).unwrap_or(usize::MAX))
             .collect();
         let m = sys.fingers.len();
-        let s = sys.link_spheres.len();
+        let checker = grasp_checker(sys, req);
+        let cd = checker.data();
+        let on_hand = |shape: usize| {
+            let f = sys.geometry.shapes()[shape].frame;
+            model
+                .supporting_q(f)
+                .iter()
+                .any(|q| sys.hand_joints.contains(q))
+        };
+        let rows: Vec<usize> = checker
+            .pairs()
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| match p.other {
+                Target::Shape(j) => {
+                    let (fa, fb) = (
+                        sys.geometry.shapes()[p.shape].finger,
+                        sys.geometry.shapes()[j].finger,
+                    );
+                    let two_fingers = matches!((fa, fb), (Some(a), Some(b)) if a != b);
+                    (on_hand(p.shape) || on_hand(j)) && !two_fingers
+                }
+                _ => true,
+            })
+            .map(|(i, _)| i)
+            .collect();
+        #[cfg(test)]
+        let rows: Vec<usize> = if std::env::var_os("G_NOGEOM").is_some() {
+            Vec::new()
+        } else {
+            rows
+        };
+        #[cfg(test)]
+        let cone_off = std::env::var_os("G_NOCONE").is_some();
+        #[cfg(not(test))]
+        let cone_off = false;
+        let np = rows.len();
         Eval {
             sys,
             req,
@@ -390,16 +521,24 @@ impl<'a> Eval<'a> {
                 m
             ],
             tip_j: vec![Matrix6xX::zeros(nq); m],
-            s_p: vec![Point3::origin(); s],
-            s_q: vec![
-                SurfaceQuery {
-                    signed_distance: 0.0,
-                    point: Point3::origin(),
-                    normal: Vector3::z()
-                };
-                s
-            ],
+            tip_z: vec![Vector3::z(); m],
+            s_p: vec![Point3::origin(); sys.link_spheres.len()],
             elbow_p: Point3::origin(),
+            checker,
+            cd,
+            rows,
+            gd: vec![
+                SignedDistance {
+                    distance: 0.0,
+                    point_a: Point3::origin(),
+                    point_b: Point3::origin(),
+                    normal: Vector3::z(),
+                };
+                np
+            ],
+            gexact: vec![false; np],
+            geom_fresh: false,
+            pair_grad: vec![0.0; nq],
             tmp_j: Matrix6xX::zeros(nq),
             hand_gj: Matrix6xX::zeros(sys.hand_joints.len()),
             point_grad: vec![Vector3::zeros(); m],
@@ -407,10 +546,15 @@ impl<'a> Eval<'a> {
             grad_arm: vec![0.0; na],
             rho: req.object.bounding_radius(),
             n_spread: sys.spread_pairs.len(),
-            plane: req.object.support().is_some(),
             pairs: (0..m)
                 .flat_map(|i| (i + 1..m).map(move |j| (i, j)))
                 .collect(),
+            // A degree inside the verdict's cone, as the penetration rows keep half its tolerance.
+            cos_cone: if cone_off {
+                -2.0
+            } else {
+                (PAD_CONE_DEG - 1.0).to_radians().cos()
+            },
         }
     }
 
@@ -422,23 +566,34 @@ impl<'a> Eval<'a> {
         self.sys.fingers.len()
     }
 
+    /// Rows: `[eq. 27 per finger | spread | pad cone per finger | contact-sphere pairs |
+    /// geometry pairs]`.
     fn n_ineq(&self) -> usize {
-        let s = self.sys.link_spheres.len();
         self.n_spread
-            + s
-            + if self.plane { s } else { 0 }
+            + self.n_eq()
             + self.pairs.len()
-            + self.sys.link_pairs.len()
+            + self.sys.crossing_pairs.len()
+            + self.gd.len()
     }
 
-    /// Index of the first fingertip-pair row in the residual vector.
+    /// Index of the first pad-cone row.
+    fn cone_row(&self) -> usize {
+        self.n_eq() + self.n_spread
+    }
+
+    /// Index of the first contact-sphere pair row.
     fn pair_row(&self) -> usize {
-        self.link_pair_row() - self.pairs.len()
+        self.cone_row() + self.n_eq()
     }
 
-    /// Index of the first link-pair row (the last rows).
+    /// Index of the first finger-finger sphere row.
     fn link_pair_row(&self) -> usize {
-        self.n_eq() + self.n_ineq() - self.sys.link_pairs.len()
+        self.pair_row() + self.pairs.len()
+    }
+
+    /// Index of the first geometry row (the last rows, in `rows` order).
+    fn geom_row(&self) -> usize {
+        self.link_pair_row() + self.sys.crossing_pairs.len()
     }
 
     /// World centre and radius of the other sphere of a link pair.
@@ -446,6 +601,33 @@ impl<'a> Eval<'a> {
         match pair {
             LinkPair::Links(a, b) => (a, self.s_p[b], self.sys.link_spheres[b].radius),
             LinkPair::Tip(a, f) => (a, self.tip_p[f], self.sys.fingers[f].radius),
+        }
+    }
+
+    /// The margin of a geometry row: `margin − d ≤ 0`.
+    fn geom_margin(&self, row: usize) -> f64 {
+        match self.checker.pairs()[self.rows[row]].category {
+            Category::SelfCollision => SELF_CLEARANCE,
+            _ => -OPT_PENETRATION,
+        }
+    }
+
+    /// Distances of every checker pair at the current `u`: exact below [`EXACT_CUTOFF`], the
+    /// bounding-sphere gap (a lower bound) above it.
+    fn geometry(&mut self) {
+        if self.geom_fresh {
+            return;
+        }
+        self.geom_fresh = true;
+        for (i, &p) in self.rows.iter().enumerate() {
+            let b = self.checker.sphere_distance(&self.cd, p);
+            if b.distance >= EXACT_CUTOFF {
+                self.gd[i] = b;
+                self.gexact[i] = false;
+            } else {
+                self.gd[i] = self.checker.pair_distance(&mut self.cd, p);
+                self.gexact[i] = true;
+            }
         }
     }
 
@@ -474,27 +656,42 @@ impl<'a> Eval<'a> {
             &mut self.palm_j,
         );
         for (i, f) in self.sys.fingers.iter().enumerate() {
-            self.tip_p[i] = self.data.frame(f.tip) * Point3::from(f.tip_offset);
+            let x = self.data.frame(f.tip);
+            self.tip_p[i] = x * Point3::from(f.tip_offset);
+            self.tip_z[i] = x.rotation * f.pad_normal;
             self.tip_q[i] = self.req.object.query(&self.tip_p[i]);
             frame_jacobian(model, &self.data, f.tip, &f.tip_offset, &mut self.tip_j[i]);
         }
-        // Link-sphere Jacobians are not formed here: their constraints enter the solver only
-        // through `J_vᵀ d` with `d` zero for every sphere clear of the object and plane, so
-        // `jacobian_t` applies them lazily (most of the spheres, most of the time).
         for (i, s) in self.sys.link_spheres.iter().enumerate() {
             self.s_p[i] = self.data.frame(s.frame) * Point3::from(s.center);
-            self.s_q[i] = self.req.object.query(&self.s_p[i]);
         }
+        // Exact distances are computed on demand (`geometry`); the shapes are posed here.
+        self.checker.update(&mut self.cd, &self.q);
+        self.geom_fresh = false;
         if let Some(e) = self.sys.elbow {
             self.elbow_p = Point3::from(self.data.frame(e).translation.vector);
         }
-        // Arm translational Jacobian at the grasp frame and its partial derivatives. For a
-        // serial chain of revolute joints with world axes z and columns J_j = z_j × (p − p_j):
-        // ∂J_j/∂q_i = z_i × J_j when joint i precedes j (or i = j), z_j × J_i otherwise.
+        // TC (eq. 16) at the grasp point: the arm's translational Jacobian of the object's
+        // centroid c as carried by the hand, J_c = J_v − [c − p]× J_ω (p the grasp frame), i.e.
+        // columns J_j = z_j × (c − p_j) with c fixed in the world at this posture. Its partial
+        // derivatives: for a point carried by the hand ∂J_j/∂q_i = z_i × J_j (i precedes j or
+        // i = j) or z_j × J_i (otherwise); c does not move with q, which takes the carried
+        // point's own motion z_j × J_i off: ∂J_j/∂q_i = z_i × J_j − z_j × J_i when i precedes
+        // j, and 0 otherwise.
+        let r = self.req.object.centroid()
+            - Point3::from(self.data.frame(self.sys.palm).translation.vector);
         for (a, &qa) in self.sys.arm_joints.iter().enumerate() {
-            for r in 0..3 {
-                self.jv_arm[(r, a)] = self.palm_j[(r, qa)];
-            }
+            let v = Vector3::new(
+                self.palm_j[(0, qa)],
+                self.palm_j[(1, qa)],
+                self.palm_j[(2, qa)],
+            );
+            let w = Vector3::new(
+                self.palm_j[(3, qa)],
+                self.palm_j[(4, qa)],
+                self.palm_j[(5, qa)],
+            );
+            self.jv_arm.set_column(a, &(v - r.cross(&w)));
         }
         for i in 0..self.na {
             let zi = self
@@ -506,10 +703,10 @@ impl<'a> Eval<'a> {
                     .palm_j
                     .fixed_view::<3, 1>(3, self.sys.arm_joints[j])
                     .into_owned();
-                let col = if self.arm_rank[i] <= self.arm_rank[j] {
-                    zi.cross(&self.jv_arm.column(j))
+                let col = if self.arm_rank[i] < self.arm_rank[j] {
+                    zi.cross(&self.jv_arm.column(j)) - zj.cross(&self.jv_arm.column(i))
                 } else {
-                    zj.cross(&self.jv_arm.column(i))
+                    Vector3::zeros()
                 };
                 self.dj[i].set_column(j, &col);
             }
@@ -656,15 +853,9 @@ impl<'a> Eval<'a> {
             r[k] = sp.lower.at(&self.q) - sp.upper.at(&self.q);
             k += 1;
         }
-        for (i, s) in self.sys.link_spheres.iter().enumerate() {
-            r[k] = s.radius - self.s_q[i].signed_distance;
+        for ((tq, z), f) in self.tip_q.iter().zip(&self.tip_z).zip(&self.sys.fingers) {
+            r[k] = self.cos_cone + tq.normal.dot(z) - (tq.signed_distance - f.radius) / CONE_RELAX;
             k += 1;
-        }
-        if let Some(pl) = self.req.object.support() {
-            for (i, s) in self.sys.link_spheres.iter().enumerate() {
-                r[k] = s.radius - pl.signed_distance(&self.s_p[i]);
-                k += 1;
-            }
         }
         for &(i, j) in &self.pairs {
             let (fi, fj) = (&self.sys.fingers[i], &self.sys.fingers[j]);
@@ -672,12 +863,33 @@ impl<'a> Eval<'a> {
                 fi.radius + fj.radius + FINGER_CLEARANCE - (self.tip_p[i] - self.tip_p[j]).norm();
             k += 1;
         }
-        for &pair in &self.sys.link_pairs {
+        for &pair in &self.sys.crossing_pairs {
             let (a, c, rb) = self.partner(pair);
             r[k] =
                 self.sys.link_spheres[a].radius + rb + FINGER_CLEARANCE - (self.s_p[a] - c).norm();
             k += 1;
         }
+        self.geometry();
+        for p in 0..self.gd.len() {
+            r[k] = self.geom_margin(p) - self.gd[p].distance;
+            k += 1;
+        }
+    }
+
+    /// `(∂n/∂p)ᵀ z` at the contact-sphere centre of finger `i`, by central differences of the
+    /// object's surface normal (the Hessian of its signed distance; 6 projections).
+    fn normal_derivative_t(&self, i: usize) -> Vector3<f64> {
+        let h = 1e-6;
+        let (p, z) = (self.tip_p[i], self.tip_z[i]);
+        let mut out = Vector3::zeros();
+        for a in 0..3 {
+            let mut e = Vector3::zeros();
+            e[a] = h;
+            let np = self.req.object.query(&(p + e)).normal;
+            let nm = self.req.object.query(&(p - e)).normal;
+            out[a] = (np - nm).dot(&z) / (2.0 * h);
+        }
+        out
     }
 
     fn jacobian_t(&mut self, u: &[f64], d: &[f64], out: &mut [f64]) {
@@ -697,25 +909,16 @@ impl<'a> Eval<'a> {
             self.grad_q[sp.upper.q_index] -= sp.upper.multiplier * d[k];
             k += 1;
         }
-        let model = &*self.sys.model;
-        let n_spheres = self.sys.link_spheres.len();
-        let plane = self.req.object.support().map(|pl| Vector3::from(pl.normal));
-        for (i, s) in self.sys.link_spheres.iter().enumerate() {
-            // One pass per sphere with its object and plane rows combined.
-            let mut v = self.s_q[i].normal * -d[k + i];
-            if let Some(n) = &plane {
-                v -= n * d[k + n_spheres + i];
+        // ∂(n·z)/∂q = J_vᵀ (∂n/∂p)ᵀ z + J_ωᵀ (z × n); ∂sd/∂q = J_vᵀ n.
+        for i in 0..m {
+            let di = d[k + i];
+            if di == 0.0 {
+                continue;
             }
-            if v != Vector3::zeros() {
-                add_point_jacobian_transpose(
-                    model,
-                    &self.data,
-                    s.frame,
-                    &s.center,
-                    &v,
-                    &mut self.grad_q,
-                );
-            }
+            let v = (self.normal_derivative_t(i) - self.tip_q[i].normal / CONE_RELAX) * di;
+            let w = self.tip_z[i].cross(&self.tip_q[i].normal) * di;
+            add_point_gradient(&mut self.grad_q, &self.tip_j[i], &v);
+            add_angular_gradient(&mut self.grad_q, &self.tip_j[i], &w);
         }
         // ∂(−‖c_i − c_j‖)/∂q = −eᵀ (J_i − J_j), e the unit vector from c_j to c_i; at
         // coincident centres the row has no gradient and contributes none.
@@ -731,10 +934,10 @@ impl<'a> Eval<'a> {
             add_point_gradient(&mut self.grad_q, &self.tip_j[i], &(e * -dp));
             add_point_gradient(&mut self.grad_q, &self.tip_j[j], &(e * dp));
         }
-        // Link pairs the same way; their rows are zero in `d` while the spheres are clear, so
-        // the link Jacobians are applied only for active pairs.
+        // Sphere rows of two fingers, the same way; applied only for active pairs.
+        let model = &*self.sys.model;
         let k0 = self.link_pair_row();
-        for (p, &pair) in self.sys.link_pairs.iter().enumerate() {
+        for (p, &pair) in self.sys.crossing_pairs.iter().enumerate() {
             let dp = d[k0 + p];
             if dp == 0.0 {
                 continue;
@@ -769,9 +972,132 @@ impl<'a> Eval<'a> {
                 }
             }
         }
+        // Geometry rows `margin − d`: `−∂d/∂q` from the witness points (exact, or of the
+        // bounding spheres for far pairs), only for rows the solver weights (zero in `d` while a
+        // pair is clear, i.e. most pairs most of the time).
+        self.geometry();
+        let k0 = self.geom_row();
+        for p in 0..self.gd.len() {
+            let dp = d[k0 + p];
+            if dp == 0.0 {
+                continue;
+            }
+            self.pair_grad.iter_mut().for_each(|x| *x = 0.0);
+            self.checker.add_distance_gradient(
+                &self.cd,
+                self.rows[p],
+                &self.gd[p],
+                &mut self.pair_grad,
+            );
+            for (g, pg) in self.grad_q.iter_mut().zip(&self.pair_grad) {
+                *g -= dp * pg;
+            }
+        }
         for (k, &i) in self.sel.iter().enumerate() {
             out[k] = self.grad_q[i];
         }
+    }
+
+    /// Exact check at the current `u`: every non-allowed pair, smallest distance per category.
+    fn clearance(&mut self, u: &[f64]) -> Clearance {
+        self.update(u);
+        self.checker.clearance_at_update(&mut self.cd)
+    }
+
+    /// Angle between each pad normal and the inward surface normal at its contact, deg.
+    fn pad_angle_deg(&self, i: usize) -> f64 {
+        (-self.tip_q[i].normal.dot(&self.tip_z[i]))
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees()
+    }
+}
+
+/// The exact feasibility check of a configuration (what `feasible` means).
+struct Verdict {
+    /// Largest |eq. 27 residual|, m.
+    surface: f64,
+    clearance: Clearance,
+    /// Smallest exact distance of a link to the object, to the support and between two
+    /// non-adjacent links, m (`+∞` without pairs).
+    object: f64,
+    support: f64,
+    links: f64,
+    /// Largest pad angle, deg.
+    pad_angle: f64,
+    /// Largest spread-order violation (eq. 28).
+    spread: f64,
+    /// Largest contact-sphere pair row `r_i + r_j + δ − ‖c_i − c_j‖`, m.
+    tips: f64,
+}
+
+impl Verdict {
+    fn feasible(&self) -> bool {
+        self.surface <= SURFACE_TOLERANCE
+            && self.object >= -PENETRATION_TOLERANCE
+            && self.support >= -PENETRATION_TOLERANCE
+            && self.links >= 0.0
+            && self.pad_angle <= PAD_CONE_DEG
+            && self.spread <= 1e-9
+            && self.tips <= 0.5 * FINGER_CLEARANCE
+    }
+
+    /// Total violation, to rank infeasible starts.
+    fn violation(&self) -> f64 {
+        let pos = |v: f64| if v.is_finite() { v.max(0.0) } else { 0.0 };
+        pos(self.surface - SURFACE_TOLERANCE)
+            + pos(-PENETRATION_TOLERANCE - self.object)
+            + pos(-PENETRATION_TOLERANCE - self.support)
+            + pos(-self.links)
+            + pos((self.pad_angle - PAD_CONE_DEG).to_radians() * 0.01)
+            + pos(self.spread)
+            + pos(self.tips - 0.5 * FINGER_CLEARANCE)
+    }
+}
+
+impl Eval<'_> {
+    fn verdict(&mut self, u: &[f64]) -> Verdict {
+        let clearance = self.clearance(u);
+        let surface = self
+            .tip_q
+            .iter()
+            .zip(&self.sys.fingers)
+            .map(|(q, f)| (q.signed_distance - f.radius).abs())
+            .fold(0.0, f64::max);
+        let pad_angle = (0..self.n_eq())
+            .map(|i| self.pad_angle_deg(i))
+            .fold(0.0, f64::max);
+        let spread = self
+            .sys
+            .spread_pairs
+            .iter()
+            .map(|sp| sp.lower.at(&self.q) - sp.upper.at(&self.q))
+            .fold(f64::NEG_INFINITY, f64::max);
+        let tips = self
+            .pairs
+            .iter()
+            .map(|&(i, j)| {
+                let (fi, fj) = (&self.sys.fingers[i], &self.sys.fingers[j]);
+                fi.radius + fj.radius + FINGER_CLEARANCE - (self.tip_p[i] - self.tip_p[j]).norm()
+            })
+            .fold(f64::NEG_INFINITY, f64::max);
+        Verdict {
+            surface,
+            object: clearance.category_distance(Category::Object),
+            support: clearance.category_distance(Category::Support),
+            links: clearance.category_distance(Category::SelfCollision),
+            clearance,
+            pad_angle,
+            spread,
+            tips,
+        }
+    }
+}
+
+/// `grad_q += J_ωᵀ w` for the angular rows (3..6) of a 6 × nq frame Jacobian.
+fn add_angular_gradient(grad_q: &mut [f64], j: &Matrix6xX<f64>, w: &Vector3<f64>) {
+    for (c, g) in grad_q.iter_mut().enumerate() {
+        *g += j[(3, c)] * w.x + j[(4, c)] * w.y + j[(5, c)] * w.z;
     }
 }
 
@@ -851,7 +1177,14 @@ fn hand_gc(
 
 /// A start: arm configuration from a pre-grasp palm pose (damped least-squares IK), hand
 /// preshape at mid-range, perturbed per start.
-fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, u: &mut [f64]) {
+fn seed_start(
+    sys: &HandArm,
+    req: &GraspRequest,
+    start: usize,
+    data: &mut Data,
+    hand_gap: &mut dyn FnMut(&[f64]) -> f64,
+    u: &mut [f64],
+) {
     let model = &*sys.model;
     let mut rng =
         ChaCha8Rng::seed_from_u64(req.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ start as u64);
@@ -860,8 +1193,8 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
     // Hand preshape: mid-range, jittered on later starts. Where fingers cross each other there
     // (the T42's and the iHY's overlap at mid-range) the hand is opened towards the lower limits,
     // where the bundled hands are open, a tenth of the range at a time until the fingers are
-    // clear: a start with crossed fingers does not untangle them. A hand that no opening clears (the
-    // OB4F, whose thumb base sits 10 mm from its middle finger's) keeps mid-range.
+    // clear (exact distances between the hand's links): a start with crossed fingers does not
+    // untangle them. A hand that no opening clears starts open.
     let jitter: Vec<f64> = sys
         .hand_joints
         .iter()
@@ -879,12 +1212,12 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
             q[h] = (l + (frac + j) * (u - l)).clamp(l, u);
         }
     };
-    let mut chosen = 0.5;
+    let mut chosen = 0.0;
     for step in 0..=5 {
         let frac = 0.5 - 0.1 * step as f64;
         preshape(frac, &mut q);
         forward_kinematics(model, data, &q);
-        if sys.min_crossing_gap(data) >= FINGER_CLEARANCE {
+        if hand_gap(&q) >= FINGER_CLEARANCE {
             chosen = frac;
             break;
         }
@@ -1017,6 +1350,7 @@ fn dls_ik(sys: &HandArm, data: &mut Data, q: &mut [f64], target: &Isometry3<f64>
 struct StartOutcome {
     start: usize,
     u: Vec<f64>,
+    timed_out: bool,
     report: SolveReport,
     feasible: bool,
     score: f64,
@@ -1032,12 +1366,9 @@ fn solver_settings() -> Settings {
         initial_penalty: 100.0,
         penalty_update_factor: 5.0,
         lbfgs_memory: 10,
-        // A start that converges does so within a few hundred inner iterations (under 100 ms
-        // on a loaded 2-core machine for every shipped system and seeded object); the ones that
-        // ran to the former 400 ms cap were starts from a poor approach direction wandering
-        // between penalty updates, and they set the request time while the other starts had
-        // long finished. 150 ms keeps the multi-start's best result and bounds that tail.
-        max_duration: Some(Duration::from_millis(150)),
+        // The budget is the iteration counts above; the wall clock is only a safety net (a
+        // start it ends is reported as `timed_out`), so the answer does not depend on load.
+        max_duration: Some(START_WALL_LIMIT),
     }
 }
 
@@ -1060,7 +1391,18 @@ fn run_start_with(
     {
         let mut e = eval.borrow_mut();
         let e = &mut *e;
-        seed_start(sys, req, start, &mut e.fd_data, &mut u);
+        let (checker, cd, rows) = (&e.checker, &mut e.cd, &e.rows);
+        // Exact distances between the hand's links (self rows): a start whose fingers
+        // cross or sit in the palm does not untangle them (no joint motion follows a
+        // penetration depth's direction).
+        let mut hand_gap = |q: &[f64]| {
+            checker.update(cd, q);
+            rows.iter()
+                .filter(|&&p| checker.pairs()[p].category == Category::SelfCollision)
+                .map(|&p| checker.pair_distance(cd, p).distance)
+                .fold(f64::INFINITY, f64::min)
+        };
+        seed_start(sys, req, start, &mut e.fd_data, &mut hand_gap, &mut u);
     }
     let (lo, hi) = bounds(sys);
     let problem = Problem::new(
@@ -1080,28 +1422,17 @@ fn run_start_with(
     let report = solver
         .solve(&problem, &mut u)
         .expect("problem is well-formed");
-    let mut r = vec![0.0; n_eq + n_ineq];
-    eval.borrow_mut().residuals(&u, &mut r);
-    let pair_row = eval.borrow().pair_row();
-    let max_of = |rows: &[f64]| rows.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
-    let surface = r[..n_eq].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
-    let pen = max_of(&r[n_eq + sys.spread_pairs.len()..pair_row]);
-    let spread = max_of(&r[n_eq..n_eq + sys.spread_pairs.len()]);
-    // Rows are `r_i + r_j + δ − ‖c_i − c_j‖`: up to the penetration tolerance of δ may go.
-    let overlap = max_of(&r[pair_row..]);
-    let feasible = report.status != SolveStatus::NumericalFailure
-        && surface <= SURFACE_TOLERANCE
-        && pen <= PENETRATION_TOLERANCE
-        && overlap <= PENETRATION_TOLERANCE
-        && spread <= 1e-9;
+    let verdict = eval.borrow_mut().verdict(&u);
+    let feasible = report.status != SolveStatus::NumericalFailure && verdict.feasible();
     let score = if feasible {
         report.cost
     } else {
-        surface + pen.max(0.0) + spread.max(0.0) + overlap.max(0.0)
+        verdict.violation()
     };
     StartOutcome {
         start,
         u,
+        timed_out: report.status == SolveStatus::OutOfTime,
         report,
         feasible,
         score,
@@ -1163,6 +1494,7 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
     };
     result.starts_used = outcomes.len();
     result.starts_feasible = starts_feasible;
+    result.timed_out = outcomes.iter().any(|o| o.timed_out);
     result.time_s = t0.elapsed().as_secs_f64();
     Ok(result)
 }
@@ -1197,29 +1529,37 @@ fn explain(sys: &HandArm, req: &GraspRequest, r: &GraspResult) -> String {
         )
     } else if res.max_object_penetration > PENETRATION_TOLERANCE {
         format!(
-            "a hand link penetrates the object by {:.1} mm in every start found",
+            "link '{}' penetrates the object by {:.1} mm (exact) in every start found",
+            res.object_link.as_deref().unwrap_or("?"),
             res.max_object_penetration * 1e3
         )
-    } else if res.min_finger_separation < FINGER_CLEARANCE - PENETRATION_TOLERANCE {
+    } else if res.max_support_penetration > PENETRATION_TOLERANCE {
+        format!(
+            "link '{}' penetrates the support surface by {:.1} mm (exact): the object sits too \
+             low to be grasped without touching the table",
+            res.support_link.as_deref().unwrap_or("?"),
+            res.max_support_penetration * 1e3
+        )
+    } else if res.min_link_separation < 0.0 {
+        format!(
+            "links {} intersect by {:.2} mm (exact) in every start found: the system cannot \
+             close on the object without colliding with itself",
+            res.closest_links.as_deref().unwrap_or("?"),
+            -res.min_link_separation * 1e3
+        )
+    } else if res.max_pad_angle_deg > PAD_CONE_DEG {
+        format!(
+            "a fingertip touches the object {:.0} deg off its pad (at most {PAD_CONE_DEG:.0} deg) \
+             in every start found: the hand cannot press into the object",
+            res.max_pad_angle_deg
+        )
+    } else if res.min_finger_separation < 0.5 * FINGER_CLEARANCE {
         format!(
             "the contact spheres of two fingertips are {:.2} mm apart (at least {:.1} mm needed) \
              in every start found: the hand cannot close on the object without its fingers \
              colliding",
             res.min_finger_separation * 1e3,
-            (FINGER_CLEARANCE - PENETRATION_TOLERANCE) * 1e3
-        )
-    } else if res.min_link_separation < FINGER_CLEARANCE - PENETRATION_TOLERANCE {
-        format!(
-            "the links of two fingers are {:.2} mm apart (at least {:.1} mm needed) in every start \
-             found: the hand cannot close on the object without its fingers colliding",
-            res.min_link_separation * 1e3,
-            (FINGER_CLEARANCE - PENETRATION_TOLERANCE) * 1e3
-        )
-    } else if res.max_support_penetration > PENETRATION_TOLERANCE {
-        format!(
-            "the hand or wrist penetrates the support surface by {:.1} mm: the object sits too low \
-             to be grasped without touching the table",
-            res.max_support_penetration * 1e3
+            0.5 * FINGER_CLEARANCE * 1e3
         )
     } else {
         format!(
@@ -1238,9 +1578,7 @@ pub(crate) fn describe(
 ) -> GraspResult {
     let mut e = Eval::new(sys, req);
     let cost = e.cost(u);
-    let n_eq = e.n_eq();
-    let mut r = vec![0.0; n_eq + e.n_ineq()];
-    e.residuals(u, &mut r);
+    let v = e.verdict(u);
     let model = &*sys.model;
     let names = model.joint_names();
     let q_arm = sys
@@ -1265,11 +1603,13 @@ pub(crate) fn describe(
         .fingers
         .iter()
         .zip(&cps)
-        .map(|(f, (p, q))| Contact {
+        .enumerate()
+        .map(|(i, (f, (p, q)))| Contact {
             finger: f.name.clone(),
             point: [p.x, p.y, p.z],
             normal: [q.normal.x, q.normal.y, q.normal.z],
             surface_distance: q.signed_distance - f.radius,
+            pad_angle_deg: e.pad_angle_deg(i),
         })
         .collect();
     let m_arm = indexes::transmission_matrix(&e.jv_arm);
@@ -1280,25 +1620,17 @@ pub(crate) fn describe(
     for (a, &qa) in sys.arm_joints.iter().enumerate() {
         arm6.set_column(a, &e.palm_j.column(qa));
     }
-    let ns = sys.spread_pairs.len();
-    let s = sys.link_spheres.len();
-    let obj_pen = r[n_eq + ns..n_eq + ns + s]
-        .iter()
-        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
-    let pair_row = e.pair_row();
-    let link_row = e.link_pair_row();
-    // Rows `r_a + r_b + δ − ‖c_a − c_b‖` → the smallest gap; 1 m without rows.
-    let min_gap = |rows: &[f64]| {
-        rows.iter()
-            .map(|v| FINGER_CLEARANCE - v)
-            .fold(f64::INFINITY, f64::min)
-            .min(1.0)
+    let label = |c: Category| {
+        v.clearance.category(c).map(|cl| {
+            let l = e.checker.label(cl.pair);
+            match c {
+                Category::SelfCollision => format!("{} / {}", l.link, l.other),
+                _ => l.link,
+            }
+        })
     };
-    let min_link_sep = min_gap(&r[link_row..]);
-    let min_sep = min_gap(&r[pair_row..link_row]);
-    let plane_pen = r[n_eq + ns + s..pair_row]
-        .iter()
-        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
+    // −1 (clear by a metre) where there is no pair, to keep JSON finite.
+    let finite_or_clear = |d: f64| if d.is_finite() { d } else { 1.0 };
     let (lo, hi) = bounds(sys);
     let margin = u
         .iter()
@@ -1348,21 +1680,23 @@ pub(crate) fn describe(
                 .collect(),
         },
         residuals: Residuals {
-            max_surface_distance: r[..n_eq].iter().fold(0.0, |m, v| m.max(v.abs())),
-            max_object_penetration: if s > 0 { obj_pen } else { f64::NEG_INFINITY }.max(-1.0),
-            max_support_penetration: if plane_pen.is_finite() {
-                plane_pen
-            } else {
-                -1.0
-            },
+            max_surface_distance: v.surface,
+            max_object_penetration: -finite_or_clear(v.object),
+            object_link: label(Category::Object),
+            max_support_penetration: -finite_or_clear(v.support),
+            support_link: label(Category::Support),
+            max_pad_angle_deg: v.pad_angle,
             min_limit_margin: margin,
-            max_spread_violation: r[n_eq..n_eq + ns]
-                .iter()
-                .fold(f64::NEG_INFINITY, |m, &v| m.max(v))
-                .max(-10.0),
+            max_spread_violation: v.spread.max(-10.0),
             max_coupling_error: coupling,
-            min_finger_separation: min_sep,
-            min_link_separation: min_link_sep,
+            // Rows `r_a + r_b + δ − ‖c_a − c_b‖` → the smallest gap; 1 m without rows.
+            min_finger_separation: if v.tips.is_finite() {
+                FINGER_CLEARANCE - v.tips
+            } else {
+                1.0
+            },
+            min_link_separation: finite_or_clear(v.links),
+            closest_links: label(Category::SelfCollision),
         },
         arm_ellipsoids: Ellipsoids::of(&m_arm),
         hand_ellipsoids: Ellipsoids::of(&m_hand),
@@ -1370,6 +1704,7 @@ pub(crate) fn describe(
         time_s: 0.0,
         starts_used: 0,
         starts_feasible: 0,
+        timed_out: false,
     }
 }
 

@@ -8,6 +8,7 @@ use std::sync::Arc;
 use nalgebra::{Point3, Vector3};
 use parry3d_f64::shape::{Shape, TypedShape};
 
+use crate::geometry::RobotGeometry;
 use crate::kinematics::{Data, FrameId, Model, System, forward_kinematics};
 
 use super::GraspError;
@@ -23,6 +24,10 @@ pub struct Finger {
     pub tip_offset: Vector3<f64>,
     /// Contact-sphere radius.
     pub radius: f64,
+    /// Unit outward normal of the finger's pad (its inner, flexion-side face) in the tip frame:
+    /// the side that presses into the object when the finger closes. The bundled hand
+    /// descriptors put it on the tip frame's `z` ("z palmar normal").
+    pub pad_normal: Vector3<f64>,
 }
 
 /// A joint value as an affine function of one independent coordinate:
@@ -115,6 +120,9 @@ pub struct HandArm {
     /// Every separable pair of spheres of different fingers, first links included: the grasp
     /// starts' preshape avoids crossing fingers by these.
     pub crossing_pairs: Vec<LinkPair>,
+    /// The exact collision shapes of every link (arm and hand): the optimiser's geometry rows
+    /// (eq. 27-29) and the `feasible` verdict use exact distances between them.
+    pub geometry: Arc<RobotGeometry>,
 }
 
 /// Sample a collision shape by spheres: balls as themselves, capsules and cylinders along
@@ -395,6 +403,7 @@ impl HandArm {
                     tip: f.tip,
                     tip_offset: Vector3::zeros(),
                     radius: f.contact_radius,
+                    pad_normal: Vector3::z(),
                 })
                 .collect(),
             thumb: Some(sys.thumb),
@@ -418,6 +427,7 @@ impl HandArm {
             link_spheres: Vec::new(),
             link_pairs: Vec::new(),
             crossing_pairs: Vec::new(),
+            geometry: Arc::new(RobotGeometry::from_system(sys)),
         };
         h.collect_link_spheres(3);
         h.validate()?;
