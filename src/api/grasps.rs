@@ -484,7 +484,7 @@ pub(crate) fn grasp_dto(row: repo::GraspRow) -> Result<GraspDto, ApiError> {
 
 /// List objects (the seeded everyday objects first).
 #[utoipa::path(get, path = "/v1/objects", tag = "grasps",
-    responses((status = 200, body = Vec<ObjectDto>)))]
+    responses((status = 200, description = "OK", body = Vec<ObjectDto>)))]
 async fn list_objects(State(state): State<AppState>) -> Result<Json<Vec<ObjectDto>>, ApiError> {
     let rows = repo::list_objects(&state.db).await?;
     Ok(Json(
@@ -494,8 +494,8 @@ async fn list_objects(State(state): State<AppState>) -> Result<Json<Vec<ObjectDt
 
 /// Register an object: a primitive (sphere, cylinder, box, capsule) or a closed triangle mesh.
 #[utoipa::path(post, path = "/v1/objects", tag = "grasps", request_body = ObjectIn,
-    responses((status = 201, body = ObjectDto),
-              (status = 422, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 201, description = "Created", body = ObjectDto),
+              (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json")))]
 async fn create_object(
     State(state): State<AppState>,
     Json(body): Json<ObjectIn>,
@@ -516,8 +516,8 @@ async fn create_object(
 /// One object.
 #[utoipa::path(get, path = "/v1/objects/{id}", tag = "grasps",
     params(("id" = String, Path, description = "Object id")),
-    responses((status = 200, body = ObjectDto),
-              (status = 404, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = ObjectDto),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
 async fn get_object(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -532,7 +532,7 @@ async fn get_object(
 #[utoipa::path(delete, path = "/v1/objects/{id}", tag = "grasps",
     params(("id" = String, Path, description = "Object id")),
     responses((status = 204, description = "Deleted"),
-              (status = 404, body = Problem, content_type = "application/problem+json")))]
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
 async fn delete_object(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -548,8 +548,8 @@ async fn delete_object(
 /// infeasible request (object out of reach, too large) is a stored result with
 /// `feasible: false` and a reason.
 #[utoipa::path(post, path = "/v1/grasps", tag = "grasps", request_body = GraspIn,
-    responses((status = 201, body = GraspDto),
-              (status = 422, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 201, description = "Created", body = GraspDto),
+              (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json")))]
 async fn create_grasp(
     State(state): State<AppState>,
     Json(body): Json<GraspIn>,
@@ -604,8 +604,8 @@ pub(crate) async fn store_grasp(
 /// One stored grasp.
 #[utoipa::path(get, path = "/v1/grasps/{id}", tag = "grasps",
     params(("id" = String, Path, description = "Grasp id")),
-    responses((status = 200, body = GraspDto),
-              (status = 404, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = GraspDto),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
 async fn get_grasp(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -619,8 +619,8 @@ async fn get_grasp(
 /// Compute many grasps (objects or placements) as a job; the result is a batch
 /// (`GET /v1/grasps/batches/{id}`).
 #[utoipa::path(post, path = "/v1/grasps/batch", tag = "grasps", request_body = GraspBatchIn,
-    responses((status = 202, body = JobRecord),
-              (status = 422, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 202, description = "Accepted: the job, to follow at its Location", body = JobRecord),
+              (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json")))]
 async fn create_batch(
     State(state): State<AppState>,
     Json(body): Json<GraspBatchIn>,
@@ -679,8 +679,8 @@ async fn create_batch(
 /// A finished batch: counts and grasp ids in item order.
 #[utoipa::path(get, path = "/v1/grasps/batches/{id}", tag = "grasps",
     params(("id" = String, Path, description = "Batch id")),
-    responses((status = 200, body = GraspBatchDto),
-              (status = 404, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = GraspBatchDto),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
 async fn get_batch(
     State(state): State<AppState>,
     Path(id): Path<String>,

@@ -937,7 +937,7 @@ fn train_error(e: MotionError) -> JobError {
 /// job (202). The model is listed at once with the job's status; the job's result points at it.
 #[utoipa::path(post, path = "/v1/models", tag = "models", request_body = CreateModel,
     responses((status = 202, body = JobRecord, description = "Training job; `Content-Location` is the model"),
-              (status = 422, body = Problem, content_type = "application/problem+json")))]
+              (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json")))]
 async fn create_model(
     State(state): State<AppState>,
     Json(body): Json<CreateModel>,
@@ -1064,8 +1064,8 @@ async fn create_model(
 
 /// List models, newest first (pending and failed ones included, with their job's status).
 #[utoipa::path(get, path = "/v1/models", tag = "models", params(ModelQuery),
-    responses((status = 200, body = ModelList),
-              (status = 400, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = ModelList),
+              (status = 400, description = "Bad query parameters (problem+json naming the parameter)", body = Problem, content_type = "application/problem+json")))]
 async fn list_models(
     State(state): State<AppState>,
     Query(q): Query<ModelQuery>,
@@ -1092,8 +1092,8 @@ async fn list_models(
 /// One model: status, explained variance, training and held-out fit, certificates, goal regions.
 #[utoipa::path(get, path = "/v1/models/{id}", tag = "models",
     params(("id" = String, Path, description = "Model id")),
-    responses((status = 200, body = ModelDto),
-              (status = 404, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = ModelDto),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
 async fn get_model(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -1111,7 +1111,7 @@ async fn get_model(
 #[utoipa::path(get, path = "/v1/models/{id}/params", tag = "models",
     params(("id" = String, Path, description = "Model id")),
     responses((status = 200, body = Object, description = "`motion::ControlParams` as JSON"),
-              (status = 404, body = Problem, content_type = "application/problem+json"),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json"),
               (status = 409, body = Problem, content_type = "application/problem+json", description = "Not trained (yet)")))]
 async fn get_params(
     State(state): State<AppState>,
@@ -1124,10 +1124,10 @@ async fn get_params(
 /// Evaluate the closed-loop law `u(q)` for a measured state and a goal.
 #[utoipa::path(post, path = "/v1/models/{id}/control", tag = "models", request_body = ControlRequest,
     params(("id" = String, Path, description = "Model id")),
-    responses((status = 200, body = ControlResponse),
-              (status = 404, body = Problem, content_type = "application/problem+json"),
-              (status = 409, body = Problem, content_type = "application/problem+json"),
-              (status = 422, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = ControlResponse),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json"),
+              (status = 409, description = "Conflict with the stored state", body = Problem, content_type = "application/problem+json"),
+              (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json")))]
 async fn control(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -1344,9 +1344,9 @@ async fn resolve_goal(
 /// timing over the learned (or requested) duration, stretched where a joint limit would be
 /// exceeded; fingertip and elbow paths by forward kinematics.
 #[utoipa::path(post, path = "/v1/trajectories", tag = "trajectories", request_body = CreateTrajectory,
-    responses((status = 201, body = TrajectoryDto),
-              (status = 409, body = Problem, content_type = "application/problem+json"),
-              (status = 422, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 201, description = "Created", body = TrajectoryDto),
+              (status = 409, description = "Conflict with the stored state", body = Problem, content_type = "application/problem+json"),
+              (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json")))]
 async fn create_trajectory(
     State(state): State<AppState>,
     Json(body): Json<CreateTrajectory>,
@@ -1509,8 +1509,8 @@ pub(crate) async fn compute_trajectory(
 /// One stored trajectory with its points and report.
 #[utoipa::path(get, path = "/v1/trajectories/{id}", tag = "trajectories",
     params(("id" = String, Path, description = "Trajectory id")),
-    responses((status = 200, body = TrajectoryDto),
-              (status = 404, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = TrajectoryDto),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
 async fn get_trajectory(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -1523,8 +1523,8 @@ async fn get_trajectory(
 
 /// List stored trajectories, newest first (without points).
 #[utoipa::path(get, path = "/v1/trajectories", tag = "trajectories", params(TrajectoryQuery),
-    responses((status = 200, body = TrajectoryList),
-              (status = 400, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = TrajectoryList),
+              (status = 400, description = "Bad query parameters (problem+json naming the parameter)", body = Problem, content_type = "application/problem+json")))]
 async fn list_trajectories(
     State(state): State<AppState>,
     Query(q): Query<TrajectoryQuery>,

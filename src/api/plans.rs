@@ -339,10 +339,10 @@ fn request_json(body: &PlanIn) -> Result<String, ApiError> {
 /// `feasible: false` and the reason; a default model still being trained by first-start
 /// seeding is 503 `not-ready` with the job to watch.
 #[utoipa::path(post, path = "/v1/plans", tag = "plans", request_body = PlanIn,
-    responses((status = 201, body = PlanDto),
-              (status = 409, body = Problem, content_type = "application/problem+json"),
-              (status = 422, body = Problem, content_type = "application/problem+json"),
-              (status = 503, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 201, description = "Created", body = PlanDto),
+              (status = 409, description = "Conflict with the stored state", body = Problem, content_type = "application/problem+json"),
+              (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json"),
+              (status = 503, description = "Not ready yet (problem+json with the job to watch)", body = Problem, content_type = "application/problem+json")))]
 async fn create_plan(
     State(state): State<AppState>,
     Json(body): Json<PlanIn>,
@@ -358,8 +358,8 @@ async fn create_plan(
 /// One plan with its grasp and trajectory.
 #[utoipa::path(get, path = "/v1/plans/{id}", tag = "plans",
     params(("id" = String, Path, description = "Plan id")),
-    responses((status = 200, body = PlanDto),
-              (status = 404, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = PlanDto),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
 async fn get_plan(
     State(state): State<AppState>,
     Path(id): Path<String>,
@@ -401,8 +401,8 @@ async fn get_plan(
 
 /// List plans, newest first.
 #[utoipa::path(get, path = "/v1/plans", tag = "plans", params(PlanQuery),
-    responses((status = 200, body = PlanList),
-              (status = 400, body = Problem, content_type = "application/problem+json")))]
+    responses((status = 200, description = "OK", body = PlanList),
+              (status = 400, description = "Bad query parameters (problem+json naming the parameter)", body = Problem, content_type = "application/problem+json")))]
 async fn list_plans(
     State(state): State<AppState>,
     Query(q): Query<PlanQuery>,

@@ -37,3 +37,31 @@ async fn the_served_document_is_openapi_3_1_and_matches_the_generated_one() {
     // Test-only routes never appear in the document.
     assert!(served["paths"].get("/v1/_test/jobs/sleep").is_none());
 }
+
+/// OpenAPI 3.1 requires a `description` on every Response Object (4.8.17); a validator rejects
+/// the document without one.
+#[test]
+fn every_response_has_a_description() {
+    let doc = serde_json::to_value(reachgrasp::api::openapi()).unwrap();
+    let mut missing = Vec::new();
+    for (path, ops) in doc["paths"].as_object().unwrap() {
+        for (method, op) in ops.as_object().unwrap() {
+            let Some(responses) = op.get("responses").and_then(|r| r.as_object()) else {
+                continue;
+            };
+            for (status, response) in responses {
+                if response
+                    .get("description")
+                    .and_then(|d| d.as_str())
+                    .is_none()
+                {
+                    missing.push(format!("{method} {path} {status}"));
+                }
+            }
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "responses without a description: {missing:?}"
+    );
+}
