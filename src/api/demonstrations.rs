@@ -30,18 +30,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 
 impl From<HumanError> for ApiError {
     fn from(e: HumanError) -> Self {
-        match e {
-            HumanError::MalformedStorage { .. } => ApiError::internal(anyhow::Error::new(e)),
-            e => {
-                let path = e.path();
-                let path = if path.is_empty() {
-                    "$".to_string()
-                } else {
-                    format!("$.{path}")
-                };
-                ApiError::invalid_field(path, e.to_string())
-            }
-        }
+        crate::service::demonstrations::human_error(e).into()
     }
 }
 

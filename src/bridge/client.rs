@@ -164,12 +164,7 @@ impl TrajectoryClient for HubClient {
     }
 
     async fn send_trajectory(&self, trajectory: Trajectory) -> Result<Completion, Rejected> {
-        if trajectory.joint_names != self.joint_names {
-            return Err(Rejected::JointNames {
-                expected: self.joint_names.clone(),
-                got: trajectory.joint_names,
-            });
-        }
+        let trajectory = same_joints(&self.joint_names, trajectory)?;
         let payload = ExecutionPayload::Trajectory {
             trajectory_id: "inline".into(),
             joint_names: trajectory.joint_names,
@@ -184,6 +179,18 @@ impl TrajectoryClient for HubClient {
         Ok(Completion {
             execution_id: Some(id),
             wait: Box::pin(async move { hub.wait_final(&wait_id).await }),
+        })
+    }
+}
+
+/// Every client takes a trajectory only in its own joint order.
+fn same_joints(expected: &[String], trajectory: Trajectory) -> Result<Trajectory, Rejected> {
+    if trajectory.joint_names == expected {
+        Ok(trajectory)
+    } else {
+        Err(Rejected::JointNames {
+            expected: expected.to_vec(),
+            got: trajectory.joint_names,
         })
     }
 }
@@ -226,12 +233,7 @@ impl TrajectoryClient for FakeClient {
     }
 
     async fn send_trajectory(&self, trajectory: Trajectory) -> Result<Completion, Rejected> {
-        if trajectory.joint_names != self.joint_names {
-            return Err(Rejected::JointNames {
-                expected: self.joint_names.clone(),
-                got: trajectory.joint_names,
-            });
-        }
+        let trajectory = same_joints(&self.joint_names, trajectory)?;
         self.sent
             .lock()
             .unwrap_or_else(|e| e.into_inner())
