@@ -18,6 +18,11 @@ use crate::geometry::{Category, CheckData, CollisionChecker, SignedDistance};
 use crate::optim::{BoxReport, BoxSolver, PairOrder};
 use nalgebra::Point3;
 
+/// How far (rad, per joint) a batch's local first-frame solve may move from the reference
+/// posture: a wrist flip (about π on two wrist joints) is another branch, not a nearby posture,
+/// and an unbounded local solve slid into it on 12 of 25 pa10_ob4f demonstrations.
+pub const FIRST_FRAME_RADIUS: f64 = 1.0;
+
 /// Default of [`SolverOptions::first_frame_fallback`] (measured: see `probe_first_frame_reference`).
 pub const FIRST_FRAME_FALLBACK: f64 = 2.0;
 
@@ -412,8 +417,10 @@ impl Mapper {
         reference: &StartReference,
     ) -> FrameMetrics {
         let mm = &self.eval.mm;
-        self.lo.copy_from_slice(&mm.lower);
-        self.hi.copy_from_slice(&mm.upper);
+        for (i, &r) in reference.q.iter().enumerate() {
+            self.lo[i] = mm.lower[i].max(r - FIRST_FRAME_RADIUS);
+            self.hi[i] = mm.upper[i].min(r + FIRST_FRAME_RADIUS);
+        }
         self.q.copy_from_slice(&reference.q);
         let report = self.solve_in_box(
             goals,
