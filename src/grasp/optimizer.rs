@@ -127,6 +127,60 @@ impl Default for Weights {
 }
 
 /// One grasp request.
+/// A motion model's certified goal region for one group of joints: a ball in the group's PCA
+/// coordinates, `‖Wᵀ(q_g − μ) − c‖ ≤ radius`. A grasp for a plan must end inside it, or the
+/// model cannot take the arm there with its convergence guarantee.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GoalRegion {
+    /// Name of the group (`arm`, `hand`), for the infeasibility reason.
+    pub name: String,
+    /// `q` indices (system order) of the group's joints.
+    pub joints: Vec<usize>,
+    /// PCA mean per joint.
+    pub mean: Vec<f64>,
+    /// PCA components, row-major `joints × centre.len()`.
+    pub components: Vec<f64>,
+    pub center: Vec<f64>,
+    pub radius: f64,
+}
+
+/// A grasp's goal region rows keep it this fraction of the radius inside, so that a grasp the
+/// optimiser accepts is inside the model's region by more than its tolerance.
+pub const GOAL_REGION_MARGIN: f64 = 0.95;
+
+impl GoalRegion {
+    /// The distance of `q`'s projection from the centre, and (with `grad`) its gradient in the
+    /// PCA coordinates `y − c` (length `center.len()`).
+    fn distance(&self, q: &[f64], diff: &mut [f64]) -> f64 {
+        let d = self.center.len();
+        for (i, di) in diff.iter_mut().enumerate().take(d) {
+            let mut y = 0.0;
+            for (g, &j) in self.joints.iter().enumerate() {
+                y += self.components[g * d + i] * (q[j] - self.mean[g]);
+            }
+            *di = y - self.center[i];
+        }
+        diff[..d].iter().map(|v| v * v).sum::<f64>().sqrt()
+    }
+
+    fn check(&self, nq: usize) -> bool {
+        let (n, d) = (self.joints.len(), self.center.len());
+        n > 0
+            && d > 0
+            && self.mean.len() == n
+            && self.components.len() == n * d
+            && self.joints.iter().all(|&j| j < nq)
+            && self.radius.is_finite()
+            && self.radius > 0.0
+            && self
+                .mean
+                .iter()
+                .chain(&self.components)
+                .chain(&self.center)
+                .all(|x| x.is_finite())
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct GraspRequest {
     /// The object (pose included).
@@ -145,6 +199,14 @@ pub struct GraspRequest {
     pub elbow_reference: Option<Point3<f64>>,
     /// Worker threads for the starts.
     pub threads: usize,
+    /// A configuration (`q` of the system) every start begins from instead of mid-range: the
+    /// arm joints seed its inverse kinematics, the hand joints its preshape (where the fingers
+    /// do not cross). A plan passes its motion model's goal-region centre, so the grasp lands
+    /// on the arm branch and near the hand posture the demonstrations end on.
+    pub arm_seed: Option<Vec<f64>>,
+    /// Goal regions the grasp's configuration must lie in (a plan's motion model's), as
+    /// inequality rows of the optimisation (paper: not part of eq. 22-29; issue 23 item 5).
+    pub goal_regions: Vec<GoalRegion>,
 }
 
 impl GraspRequest {
@@ -159,6 +221,8 @@ impl GraspRequest {
             seed: 0,
             elbow_reference: None,
             threads: 2,
+            arm_seed: None,
+            goal_regions: Vec::new(),
         }
     }
 
@@ -185,6 +249,26 @@ impl GraspRequest {
                 measure: self.quality.name(),
                 needed: self.quality.min_fingers(),
                 fingers: sys.fingers.len(),
+            });
+        }
+        if let Some(q) = &self.arm_seed {
+            let nq = sys.model.nq();
+            if q.len() != nq || !q.iter().all(|x| x.is_finite()) {
+                return Err(GraspError::InvalidParameter {
+                    field: "arm_seed",
+                    reason: format!("must be {nq} finite joint values, got {}", q.len()),
+                });
+            }
+        }
+        let nq = sys.model.nq();
+        if let Some(g) = self.goal_regions.iter().find(|g| !g.check(nq)) {
+            return Err(GraspError::InvalidParameter {
+                field: "goal_regions",
+                reason: format!(
+                    "the '{}' goal region is malformed (joints, mean, components, centre and a \
+                     positive radius must agree)",
+                    g.name
+                ),
             });
         }
         if self.starts == 0 || self.starts > 64 {
@@ -413,6 +497,8 @@ struct Eval<'a> {
     plane: bool,
     /// Finger pairs `(i, j)`, `i < j`, whose contact spheres must stay disjoint.
     pairs: Vec<(usize, usize)>,
+    /// `y − c` of a goal region (scratch, the largest region's dimension).
+    region_diff: Vec<f64>,
 }
 /// The grasp's scene for the exact checker: the object and its support half-space.
 fn grasp_checker(sys: &HandArm, req: &GraspRequest) -> CollisionChecker {
@@ -497,6 +583,14 @@ impl<'a> Eval<'a> {
             pairs: (0..m)
                 .flat_map(|i| (i + 1..m).map(move |j| (i, j)))
                 .collect(),
+            region_diff: vec![
+                0.0;
+                req.goal_regions
+                    .iter()
+                    .map(|g| g.center.len())
+                    .max()
+                    .unwrap_or(0)
+            ],
         }
     }
 
@@ -515,6 +609,12 @@ impl<'a> Eval<'a> {
             + if self.plane { s } else { 0 }
             + self.pairs.len()
             + self.sys.link_pairs.len()
+            + self.req.goal_regions.len()
+    }
+
+    /// Index of the first goal-region row (the last rows).
+    fn region_row(&self) -> usize {
+        self.n_eq() + self.n_ineq() - self.req.goal_regions.len()
     }
 
     /// Index of the first fingertip-pair row in the residual vector.
@@ -522,9 +622,9 @@ impl<'a> Eval<'a> {
         self.link_pair_row() - self.pairs.len()
     }
 
-    /// Index of the first link-pair row (the last rows).
+    /// Index of the first link-pair row.
     fn link_pair_row(&self) -> usize {
-        self.n_eq() + self.n_ineq() - self.sys.link_pairs.len()
+        self.region_row() - self.sys.link_pairs.len()
     }
 
     /// World centre and radius of the other sphere of a link pair.
@@ -766,6 +866,14 @@ impl<'a> Eval<'a> {
                 self.sys.link_spheres[a].radius + rb + FINGER_CLEARANCE - (self.s_p[a] - c).norm();
             k += 1;
         }
+        // (‖y − c‖² − (m r)²) / 2r: about the distance past the margin near the boundary, smooth
+        // at the centre.
+        for g in &self.req.goal_regions {
+            let dist = g.distance(&self.q, &mut self.region_diff);
+            let rm = GOAL_REGION_MARGIN * g.radius;
+            r[k] = (dist * dist - rm * rm) / (2.0 * g.radius);
+            k += 1;
+        }
     }
 
     fn jacobian_t(&mut self, u: &[f64], d: &[f64], out: &mut [f64]) {
@@ -855,6 +963,20 @@ impl<'a> Eval<'a> {
                 LinkPair::Tip(_, f) => {
                     add_point_gradient(&mut self.grad_q, &self.tip_j[f], &(e * dp));
                 }
+            }
+        }
+        let k0 = self.region_row();
+        for (p, g) in self.req.goal_regions.iter().enumerate() {
+            let dp = d[k0 + p];
+            if dp == 0.0 {
+                continue;
+            }
+            g.distance(&self.q, &mut self.region_diff);
+            let dim = g.center.len();
+            for (gi, &j) in g.joints.iter().enumerate() {
+                let row = &g.components[gi * dim..(gi + 1) * dim];
+                let v: f64 = row.iter().zip(&self.region_diff).map(|(w, y)| w * y).sum();
+                self.grad_q[j] += dp * v / g.radius;
             }
         }
         for (k, &i) in self.sel.iter().enumerate() {
@@ -1030,6 +1152,11 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
         ChaCha8Rng::seed_from_u64(req.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ start as u64);
     let mut q = model.neutral();
     let (lo, hi) = (model.lower_limits(), model.upper_limits());
+    if let Some(seed) = &req.arm_seed {
+        for &a in &sys.arm_joints {
+            q[a] = seed[a].clamp(lo[a], hi[a]);
+        }
+    }
     // Hand preshape: mid-range, jittered on later starts. Where fingers cross each other there
     // (the T42's and the iHY's overlap at mid-range) the hand is opened towards the lower limits,
     // where the bundled hands are open, a tenth of the range at a time until the fingers are
@@ -1063,6 +1190,19 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
         }
     }
     preshape(chosen, &mut q);
+    // A seed's hand posture (a plan's demonstrated final grasp) replaces the preshape where its
+    // fingers are clear of each other.
+    if let Some(seed) = &req.arm_seed {
+        let before = q.clone();
+        for (&h, j) in sys.hand_joints.iter().zip(&jitter) {
+            let (l, u) = (finite_or(lo[h], -1.0), finite_or(hi[h], 1.0));
+            q[h] = (seed[h] + j * (u - l)).clamp(l, u);
+        }
+        forward_kinematics(model, data, &q);
+        if sys.min_crossing_gap(data) < FINGER_CLEARANCE {
+            q = before;
+        }
+    }
     // Fingertip geometry in the palm frame at the preshape.
     forward_kinematics(model, data, &q);
     let palm = *data.frame(sys.palm);
@@ -1253,22 +1393,36 @@ fn run_start_with(
         .expect("problem is well-formed");
     let mut r = vec![0.0; n_eq + n_ineq];
     eval.borrow_mut().residuals(&u, &mut r);
-    let pair_row = eval.borrow().pair_row();
+    let (pair_row, region_row) = {
+        let e = eval.borrow();
+        (e.pair_row(), e.region_row())
+    };
     let max_of = |rows: &[f64]| rows.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     let surface = r[..n_eq].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
     let pen = max_of(&r[n_eq + sys.spread_pairs.len()..pair_row]);
     let spread = max_of(&r[n_eq..n_eq + sys.spread_pairs.len()]);
     // Rows are `r_i + r_j + δ − ‖c_i − c_j‖`: up to the penetration tolerance of δ may go.
-    let overlap = max_of(&r[pair_row..]);
+    let overlap = max_of(&r[pair_row..region_row]);
+    // Inside the regions themselves (the rows keep a 5 % margin the solver may use up).
+    let outside = req
+        .goal_regions
+        .iter()
+        .zip(&r[region_row..])
+        .map(|(g, &v)| {
+            let rm = GOAL_REGION_MARGIN * g.radius;
+            ((2.0 * g.radius * v + rm * rm).max(0.0).sqrt() - g.radius).max(0.0)
+        })
+        .fold(0.0, f64::max);
     let feasible = report.status != SolveStatus::NumericalFailure
         && surface <= SURFACE_TOLERANCE
         && pen <= PENETRATION_TOLERANCE
         && overlap <= PENETRATION_TOLERANCE
-        && spread <= 1e-9;
+        && spread <= 1e-9
+        && outside == 0.0;
     let score = if feasible {
         report.cost
     } else {
-        surface + pen.max(0.0) + spread.max(0.0) + overlap.max(0.0)
+        surface + pen.max(0.0) + spread.max(0.0) + overlap.max(0.0) + outside
     };
     StartOutcome {
         start,
@@ -1331,7 +1485,7 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
     result.reason = if best.feasible {
         None
     } else {
-        Some(explain(sys, req, &result))
+        Some(explain(sys, req, &result, &best.u))
     };
     result.starts_used = outcomes.len();
     result.starts_feasible = starts_feasible;
@@ -1340,15 +1494,53 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
     Ok(result)
 }
 
-fn explain(sys: &HandArm, req: &GraspRequest, r: &GraspResult) -> String {
+fn explain(sys: &HandArm, req: &GraspRequest, r: &GraspResult, u: &[f64]) -> String {
     let res = &r.residuals;
+    let mut q = sys.model.neutral();
+    for (&i, &v) in sys.arm_joints.iter().chain(&sys.hand_joints).zip(u) {
+        q[i] = v;
+    }
+    let out_of_region = req.goal_regions.iter().find_map(|g| {
+        let mut diff = vec![0.0; g.center.len()];
+        let d = g.distance(&q, &mut diff);
+        (d > g.radius).then(|| (g, d))
+    });
     let cg = req.object.centroid();
     let palm_reach = r
         .contacts
         .iter()
         .map(|c| (Point3::from(c.point) - cg).norm())
         .fold(0.0, f64::max);
-    if res.max_surface_distance > SURFACE_TOLERANCE {
+    if let Some((g, d)) = out_of_region {
+        let names = sys.model.joint_names();
+        let mut centre = vec![0.0; g.joints.len()];
+        for (gi, c) in centre.iter_mut().enumerate() {
+            let dim = g.center.len();
+            *c = g.mean[gi]
+                + (0..dim)
+                    .map(|i| g.components[gi * dim + i] * g.center[i])
+                    .sum::<f64>();
+        }
+        let mut worst: Vec<(f64, usize)> = g
+            .joints
+            .iter()
+            .zip(&centre)
+            .map(|(&j, c)| ((q[j] - c).abs(), j))
+            .collect();
+        worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let list: Vec<String> = worst
+            .iter()
+            .take(3)
+            .map(|(dq, j)| format!("{} {:.2} rad from the region's centre", names[*j], dq))
+            .collect();
+        format!(
+            "every grasp found lies outside the motion model's certified goal region of the {} \
+             joints ({d:.3} from its centre, radius {:.3}; furthest: {})",
+            g.name,
+            g.radius,
+            list.join(", ")
+        )
+    } else if res.max_surface_distance > SURFACE_TOLERANCE {
         let worst = r
             .contacts
             .iter()

@@ -223,6 +223,8 @@ pub struct MappingModel {
     /// The system's collision shapes: every mapped frame's exact support and object clearances
     /// are measured with them (`None`: not measured).
     pub geometry: Option<Arc<RobotGeometry>>,
+    /// The wrist frame's pose when no joint moves it (a hand on a fixed base).
+    pub fixed_wrist: Option<nalgebra::Isometry3<f64>>,
 }
 
 impl MappingModel {
@@ -241,9 +243,18 @@ impl MappingModel {
             }),
             &system.spread_pairs,
         )
-        .map(|mm| Self {
-            geometry: Some(Arc::new(RobotGeometry::from_system(system))),
-            ..mm
+        .map(|mm| {
+            // No joint moves the wrist: a hand on a fixed base, registered relative to it.
+            let fixed_wrist = system.arm_joints.is_empty().then(|| {
+                let mut data = Data::new(&system.model);
+                forward_kinematics(&system.model, &mut data, &mm.neutral());
+                *data.frame(system.wrist_frame)
+            });
+            Self {
+                geometry: Some(Arc::new(RobotGeometry::from_system(system))),
+                fixed_wrist,
+                ..mm
+            }
         })
     }
 
@@ -338,6 +349,7 @@ impl MappingModel {
             lower,
             upper,
             geometry: None,
+            fixed_wrist: None,
         })
     }
 
@@ -375,6 +387,7 @@ impl MappingModel {
             reach,
             // The shipped systems stand on the table they work on (`grasp::objects`).
             support: 0.0,
+            fixed_wrist: self.fixed_wrist,
         }
     }
 

@@ -190,6 +190,21 @@ pub struct RobotAnchor {
     pub reach: f64,
     /// Height of the robot's support plane (the table it stands on) along `axes.up`.
     pub support: f64,
+    /// The wrist frame's pose when no joint moves it: a hand on a fixed base (hand-only system).
+    /// Such a system registers each frame's fingertips relative to the subject's wrist, not the
+    /// arm's transport ([`Registration::hand_frame`]).
+    pub fixed_wrist: Option<Isometry3<f64>>,
+}
+
+/// How the subject's wrist frame sits in a robot hand's root frame for a hand-only system: the
+/// human wrist's `x` (distal, towards the middle-finger knuckle) along the hand root's `z` (the
+/// approach axis of every bundled hand: fingers point along `+z` when open), the human palmar
+/// normal `z` along the root's `x`, and `y = z × x` along `−y`. A hand whose root frame follows
+/// another convention is described by a descriptor whose wrist frame does (`wrist_frame`).
+pub fn hand_alignment() -> UnitQuaternion<f64> {
+    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(Matrix3::from_columns(
+        &[Vector3::z(), -Vector3::y(), Vector3::x()],
+    )))
 }
 
 /// The human arm points registration looks at in one frame (tracker frame).
@@ -223,6 +238,10 @@ pub struct Registration {
     pub support: Option<f64>,
     /// The registered object: its shape and robot-frame pose (`None` without an object).
     pub object: Option<HumanObject>,
+    /// Hand-only systems: the robot wrist's pose composed with [`hand_alignment`]. Each frame's
+    /// fingertips are then `hand_frame · hand_scale · (W⁻¹ p)` with `W` that frame's human wrist
+    /// pose: the hand's grasp without the arm's transport ([`Self::hand_tip`]).
+    pub hand_frame: Option<Isometry3<f64>>,
 }
 
 /// Objects may sink this far into their support before the placement counts as "under" it
@@ -241,6 +260,7 @@ impl Registration {
             hand_scale: 1.0,
             support: None,
             object: None,
+            hand_frame: None,
         }
     }
 
@@ -263,6 +283,9 @@ impl Registration {
                 }
             }
         }
+        if let Some(wrist) = robot.fixed_wrist {
+            return Self::resolve_hand(spec, &wrist, robot);
+        }
         match *spec {
             RegistrationSpec::Explicit { transform, scale } => {
                 check_scale(scale)?;
@@ -283,6 +306,7 @@ impl Registration {
                     hand_scale: scale,
                     support: None,
                     object: None,
+                    hand_frame: None,
                 })
             }
             RegistrationSpec::Scene(s) => {
@@ -395,9 +419,68 @@ impl Registration {
                     hand_scale: s.hand_scale,
                     support: Some(robot.support),
                     object,
+                    hand_frame: None,
                 })
             }
         }
+    }
+
+    /// A hand on a fixed base: only the hand scale applies (the arm points, placement and
+    /// transport scale have nothing to act on). No support or object is registered: the hand's
+    /// scene is its own.
+    fn resolve_hand(
+        spec: &RegistrationSpec,
+        wrist: &Isometry3<f64>,
+        robot: &RobotAnchor,
+    ) -> Result<Self, MappingError> {
+        let RegistrationSpec::Scene(s) = spec else {
+            return Err(MappingError::InvalidRegistration {
+                reason: "a hand on a fixed base is registered relative to the subject's wrist; \
+                         an explicit transform does not apply"
+                    .into(),
+            });
+        };
+        if !(s.hand_scale.is_finite() && s.hand_scale > 0.0) {
+            return Err(MappingError::InvalidFactor {
+                field: "hand_scale",
+                value: s.hand_scale,
+            });
+        }
+        if s.placement.is_some() {
+            return Err(MappingError::InvalidPlacement {
+                reason: "a hand on a fixed base has no placement: its fingertips are registered \
+                         relative to the subject's wrist"
+                    .into(),
+            });
+        }
+        let hand_frame =
+            Isometry3::from_parts(wrist.translation, wrist.rotation * hand_alignment());
+        Ok(Self {
+            rotation: UnitQuaternion::identity(),
+            human_anchor: Point3::origin(),
+            robot_anchor: Point3::from(wrist.translation.vector),
+            up: robot_up(robot)?,
+            transport_scale: 1.0,
+            vertical_scale: 1.0,
+            hand_scale: s.hand_scale,
+            support: None,
+            object: None,
+            hand_frame: Some(hand_frame),
+        })
+    }
+
+    /// A fingertip pose of a hand-only registration: relative to the subject's wrist `wrist`,
+    /// placed in the robot hand's root ([`Self::hand_frame`]). `None` for arm systems.
+    #[inline]
+    pub fn hand_tip(
+        &self,
+        tip: &Isometry3<f64>,
+        wrist: &Isometry3<f64>,
+    ) -> Option<(Point3<f64>, UnitQuaternion<f64>)> {
+        let frame = self.hand_frame?;
+        let local = wrist.inverse() * tip;
+        let p = frame * Point3::from(local.translation.vector * self.hand_scale);
+        Some((p, frame.rotation * local.rotation))
     }
 
     /// An arm point (shoulder, elbow, wrist) in the robot base frame.
@@ -505,6 +588,7 @@ mod tests {
             axes: BodyAxes::default(),
             reach: 1.46,
             support: 0.0,
+            fixed_wrist: None,
         }
     }
 

@@ -1050,3 +1050,85 @@ fn probe_registration_and_weights() {
         }
     }
 }
+
+/// A hand-only system (`robots/examples/ihy_hand.toml`: the iHY on a fixed base, its wrist the
+/// hand's root) maps a demonstration fingertips-only, relative to the subject's wrist. The check
+/// is an invariance the registration must have and the arm registration has not: moving the
+/// whole demonstration rigidly (another tracker placement, another reach) changes nothing.
+#[test]
+fn a_hand_only_system_maps_the_grasp_relative_to_the_wrist() {
+    let sys = System::from_file(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/examples/ihy_hand.toml"),
+    )
+    .unwrap();
+    assert!(sys.arm_joints.is_empty() && sys.elbow_frames.is_empty());
+    let mm = MappingModel::from_system(&sys).unwrap();
+    let anchor = mm.anchor();
+    assert!(anchor.fixed_wrist.is_some());
+    let demo = &demos(1, 3)[0];
+    let moved: Vec<HumanFrame> = {
+        let t = Isometry3::from_parts(
+            Translation3::new(0.4, -0.3, 0.2),
+            UnitQuaternion::from_euler_angles(0.3, -0.5, 1.2),
+        );
+        demo.iter()
+            .map(|f| HumanFrame {
+                t: f.t,
+                shoulder: t * f.shoulder,
+                elbow: t * f.elbow,
+                wrist: t * f.wrist,
+                fingertips: f.fingertips.map(|p| t * p),
+            })
+            .collect()
+    };
+    let spec = RegistrationSpec::default();
+    let a = mapper(&sys, Weights::default())
+        .map(demo, &spec, &anchor)
+        .unwrap();
+    let b = mapper(&sys, Weights::default())
+        .map(&moved, &spec, &anchor)
+        .unwrap();
+    let diff = a
+        .positions
+        .iter()
+        .zip(&b.positions)
+        .fold(0.0_f64, |m, (x, y)| m.max((x - y).abs()));
+    assert!(
+        diff < 1e-6,
+        "a rigid move of the demonstration changed the hand by {diff} rad"
+    );
+    // The fingertip goals are the subject's, rigid with the wrist: the distance of each human
+    // fingertip to the wrist is the distance of its goal to the robot hand's root.
+    let reg = a.registration;
+    let root = anchor.fixed_wrist.unwrap().translation.vector;
+    for f in demo.iter().step_by(7) {
+        for tip in &f.fingertips {
+            let (goal, _) = reg.hand_tip(tip, &f.wrist).unwrap();
+            let human = (tip.translation.vector - f.wrist.translation.vector).norm();
+            let d = (goal.coords - root).norm();
+            assert!((d - human).abs() < 1e-9, "{d} vs {human}");
+        }
+    }
+    let unconverged = a.unconverged().count();
+    println!(
+        "hand-only iHY: {} frames, {unconverged} unconverged, fingertip error median {:.1} mm",
+        demo.len(),
+        median(
+            a.metrics
+                .iter()
+                .flat_map(|m| m.position_error[..m.fingers].to_vec())
+                .collect()
+        ) * 1e3
+    );
+    assert!(unconverged * 10 <= demo.len());
+    assert!(a.metrics.iter().all(|m| m.swivel_difference.is_nan()));
+    // An explicit transform has nothing to act on.
+    let explicit = RegistrationSpec::Explicit {
+        transform: Isometry3::identity(),
+        scale: 1.0,
+    };
+    assert!(matches!(
+        mapper(&sys, Weights::default()).map(demo, &explicit, &anchor),
+        Err(MappingError::InvalidRegistration { .. })
+    ));
+}

@@ -51,10 +51,12 @@ impl Mapper {
         let wrist = Point3::from(frame.wrist.translation.vector);
         let tips: [_; 5] = std::array::from_fn(|i| {
             let iso = &frame.fingertips[i];
-            (
-                reg.hand_point(&iso.translation.vector.into(), &wrist),
-                reg.orientation(&iso.rotation),
-            )
+            reg.hand_tip(iso, &frame.wrist).unwrap_or_else(|| {
+                (
+                    reg.hand_point(&iso.translation.vector.into(), &wrist),
+                    reg.orientation(&iso.rotation),
+                )
+            })
         });
         let mm = self.eval.model();
         finger_goals(&tips, mm.fingers(), mm.thumb, &mut out.fingers);

@@ -161,6 +161,16 @@ struct RegistrationJson {
     support: Option<f64>,
     #[serde(default)]
     object: Option<ObjectJson>,
+    /// Hand-only systems: the robot hand root's frame the fingertips are registered in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    hand_frame: Option<PoseJson>,
+}
+
+/// A pose: position and `[w, x, y, z]` orientation.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct PoseJson {
+    position: [f64; 3],
+    orientation: [f64; 4],
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -195,6 +205,14 @@ impl RegistrationJson {
                     orientation: [q.w, q.i, q.j, q.k],
                 }
             }),
+            hand_frame: r.hand_frame.map(|f| {
+                let t = f.translation.vector;
+                let q = f.rotation.quaternion();
+                PoseJson {
+                    position: [t.x, t.y, t.z],
+                    orientation: [q.w, q.i, q.j, q.k],
+                }
+            }),
         }
     }
 
@@ -221,6 +239,12 @@ impl RegistrationJson {
                     Vector3::from(o.position).into(),
                     quat(o.orientation),
                 ),
+            }),
+            hand_frame: self.hand_frame.as_ref().map(|f| {
+                nalgebra::Isometry3::from_parts(
+                    Vector3::from(f.position).into(),
+                    quat(f.orientation),
+                )
             }),
         }
     }
@@ -651,6 +675,10 @@ mod tests {
                     shape: crate::human::ObjectShape::Sphere { radius: 0.04 },
                     pose: nalgebra::Isometry3::translation(0.1, -0.2, 0.3),
                 }),
+                hand_frame: Some(nalgebra::Isometry3::from_parts(
+                    nalgebra::Translation3::new(0.0, 0.1, 0.2),
+                    UnitQuaternion::from_euler_angles(0.3, -0.2, 0.1),
+                )),
             },
         }
     }
