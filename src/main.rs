@@ -264,6 +264,30 @@ fn main() -> anyhow::Result<()> {
     }
 }
 
+/// A use case's error as a CLI error: every offending field, else the summary.
+fn failure(e: reachgrasp::service::Error) -> anyhow::Error {
+    use reachgrasp::service::Error as E;
+    match e {
+        E::Invalid(fields) => anyhow::anyhow!(
+            "{}",
+            fields
+                .iter()
+                .map(|f| format!("{}: {}", f.field, f.message))
+                .collect::<Vec<_>>()
+                .join("; ")
+        ),
+        E::Payload(issues) => anyhow::anyhow!(
+            "{}",
+            issues
+                .iter()
+                .map(|i| format!("{:?}{}: {}", i.part, i.at, i.message))
+                .collect::<Vec<_>>()
+                .join("; ")
+        ),
+        other => anyhow::Error::new(other),
+    }
+}
+
 /// An API error as a CLI error: the detail and every offending field.
 fn api_failure(e: reachgrasp::api::ApiError) -> anyhow::Error {
     let fields: Vec<String> = e
@@ -293,7 +317,7 @@ fn progress_bar(len: usize, what: &str) -> anyhow::Result<indicatif::ProgressBar
 }
 
 fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
-    use reachgrasp::api::grasps::{GraspIn, grasp_offline};
+    use reachgrasp::service::grasps::{GraspIn, offline as grasp_offline};
     let out = match body {
         serde_json::Value::Array(items) => {
             let bar = progress_bar(items.len(), "grasps")?;
@@ -302,7 +326,7 @@ fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
                 let body: GraspIn = serde_json::from_value(item)
                     .map_err(|e| anyhow::anyhow!("request {i}: {e}"))?;
                 let r = grasp_offline(&config.robots, &body)
-                    .map_err(|e| api_failure(e).context(format!("request {i}")))?;
+                    .map_err(|e| failure(e).context(format!("request {i}")))?;
                 results.push(r);
                 bar.inc(1);
             }
@@ -311,9 +335,7 @@ fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
         }
         one => {
             let body: GraspIn = serde_json::from_value(one)?;
-            serde_json::to_string_pretty(
-                &grasp_offline(&config.robots, &body).map_err(api_failure)?,
-            )?
+            serde_json::to_string_pretty(&grasp_offline(&config.robots, &body).map_err(failure)?)?
         }
     };
     println!("{out}");
@@ -324,7 +346,7 @@ fn plan(mut config: Config, request: &std::path::Path) -> anyhow::Result<()> {
     use anyhow::Context;
     let text = std::fs::read_to_string(request)
         .with_context(|| format!("cannot read {}", request.display()))?;
-    let body: reachgrasp::api::plans::PlanIn = serde_json::from_str(&text)
+    let body: reachgrasp::service::plans::PlanIn = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a plan request", request.display()))?;
     anyhow::ensure!(
         config.db.is_file(),
@@ -339,9 +361,10 @@ fn plan(mut config: Config, request: &std::path::Path) -> anyhow::Result<()> {
         .build()?;
     let dto = runtime.block_on(async {
         let app = App::build(config).await?;
-        reachgrasp::api::plans::plan(app.state(), &body)
+        let planned = reachgrasp::service::plans::plan(app.state(), &body)
             .await
-            .map_err(api_failure)
+            .map_err(failure)?;
+        reachgrasp::api::plans::plan_dto(planned).map_err(|e| anyhow::anyhow!("{e}"))
     })?;
     println!("{}", serde_json::to_string_pretty(&dto)?);
     Ok(())
@@ -549,14 +572,14 @@ fn serve(config: Config) -> anyhow::Result<()> {
 
 fn ik(config: &Config, robot: &str, targets: &std::path::Path) -> anyhow::Result<()> {
     use anyhow::Context;
-    use reachgrasp::api::robots;
+    use reachgrasp::service::robots;
     let system = reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, robot)?;
     let text = std::fs::read_to_string(targets)
         .with_context(|| format!("cannot read {}", targets.display()))?;
     let file: robots::IkBatchFile = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a list of IK targets", targets.display()))?;
     let report = robots::ik_batch(robot, &system, file)
-        .map_err(|e| anyhow::anyhow!("invalid target: {}", e.detail()))?;
+        .map_err(|e| anyhow::anyhow!("invalid target: {}", failure(e)))?;
     println!("{}", serde_json::to_string_pretty(&report)?);
     Ok(())
 }

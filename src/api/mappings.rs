@@ -847,7 +847,7 @@ async fn create_mapping(
     Json(body): Json<MappingIn>,
 ) -> Result<Response, ApiError> {
     let params = parse_params(&body.weights, &body.registration, body.output_rate_hz)?;
-    let system = super::robots::robot_field(&state, &body.robot, "$.robot").await?;
+    let system = crate::service::robots::robot_field(&state, &body.robot, "$.robot").await?;
     let (selected, filter) = resolve_selection(&state, &body.demonstrations).await?;
     let mut loaded = Vec::with_capacity(selected.len());
     for (id, path) in &selected {

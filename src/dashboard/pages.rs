@@ -7,10 +7,10 @@ use uuid::Uuid;
 
 use super::html::{self, esc, facts, field, figure, form, link, num, progress, table};
 use crate::api::ApiError;
-use crate::api::grasps::GraspSettingsDto;
 use crate::grasp::{GraspResult, ObjectSpec, ShapeSpec};
 use crate::jobs::JobRecord;
 use crate::service::Context as AppState;
+use crate::service::grasps::GraspSettings;
 use crate::store::demonstrations::{self as demo_repo, DemonstrationFilter};
 use crate::store::grasps as grasp_repo;
 use crate::store::jobs::JobFilter;
@@ -598,8 +598,7 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
         return Ok(html::not_found("grasp", &id, "/ui/grasps", "grasps"));
     };
     let object: ObjectSpec = serde_json::from_str(&g.object).map_err(ApiError::internal)?;
-    let settings: GraspSettingsDto =
-        serde_json::from_str(&g.request).map_err(ApiError::internal)?;
+    let settings: GraspSettings = serde_json::from_str(&g.request).map_err(ApiError::internal)?;
     let result: GraspResult = serde_json::from_str(&g.result).map_err(ApiError::internal)?;
     let terms = serde_json::to_value(&result.terms).map_err(ApiError::internal)?;
     let residuals = serde_json::to_value(&result.residuals).map_err(ApiError::internal)?;

@@ -1,0 +1,324 @@
+//! Robots: resolving the arm-hand systems of the library as every use case does, and the
+//! inverse kinematics of one (the API's `/v1/robots/{id}/ik` and `reachgrasp ik`).
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use super::{Context, Error};
+use crate::kinematics::{
+    FrameId, IkOptions, IkSolver, IkTarget, JointVector, KinematicsError, System,
+};
+use crate::store::library::LibraryError;
+
+/// Longest IK time budget a request may ask for.
+pub const MAX_IK_BUDGET_MS: f64 = 2000.0;
+
+/// The loaded system `id` (a path parameter: unknown is "not found").
+pub async fn system(ctx: &Context, id: &str) -> Result<Arc<System>, Error> {
+    Ok(ctx.robots.system(id).await?)
+}
+
+/// The system of a robot named in a request body: an unknown id is bad input at `field`.
+pub async fn robot_field(ctx: &Context, id: &str, field: &str) -> Result<Arc<System>, Error> {
+    match ctx.robots.system(id).await {
+        Err(LibraryError::UnknownRobot(_)) => Err(unknown_robot(field, id)),
+        other => Ok(other?),
+    }
+}
+
+/// The one "unknown robot" field error.
+pub fn unknown_robot(field: &str, id: &str) -> Error {
+    Error::invalid(field, format!("unknown robot '{id}'"))
+}
+
+pub fn frame_of(system: &System, name: &str, path: &str) -> Result<FrameId, Error> {
+    system
+        .model
+        .frame_id(name)
+        .ok_or_else(|| Error::invalid(path, format!("frame '{name}' does not exist in this robot")))
+}
+
+pub fn finite_array<const N: usize>(v: &[f64; N], path: &str) -> Result<(), Error> {
+    match v.iter().position(|x| !x.is_finite()) {
+        Some(i) => Err(Error::invalid(
+            format!("{path}[{i}]"),
+            "must be a finite number",
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Unit quaternion from `[w, x, y, z]` (normalised; zero norm rejected).
+pub fn quaternion(q: &[f64; 4], path: &str) -> Result<UnitQuaternion<f64>, Error> {
+    finite_array(q, path)?;
+    let quat = Quaternion::new(q[0], q[1], q[2], q[3]);
+    if quat.norm() < 1e-9 {
+        return Err(Error::invalid(
+            path,
+            "quaternion [w, x, y, z] must not be zero",
+        ));
+    }
+    Ok(UnitQuaternion::from_quaternion(quat))
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SeedDto {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct IkRequest {
+    /// Frame to place (default: the wrist frame, where the hand mounts).
+    pub frame: Option<String>,
+    /// Point rigidly attached to the frame, in frame coordinates (default the origin).
+    pub point: Option<[f64; 3]>,
+    /// Target position of the point, metres, world frame.
+    pub position: [f64; 3],
+    /// Target orientation `[w, x, y, z]`; omit for a position-only target.
+    pub orientation: Option<[f64; 4]>,
+    /// Start configuration (default: mid-range); joints not named keep mid-range values.
+    pub seed: Option<SeedDto>,
+    pub position_weight: Option<f64>,
+    pub orientation_weight: Option<f64>,
+    pub position_tolerance: Option<f64>,
+    pub orientation_tolerance: Option<f64>,
+    /// The solver's CPU-time budget in ms (default 5, at most 2000): time the thread is
+    /// descheduled is not charged, and the wall time of one solve is capped at 4 × the budget.
+    pub time_budget_ms: Option<f64>,
+    pub max_restarts: Option<usize>,
+    /// Seed of the random restarts (default 0): the same request gives the same answer.
+    pub random_seed: Option<u64>,
+}
+
+/// The IK outcome. An unreachable target is `success: false` with the best residuals.
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct IkResponse {
+    pub success: bool,
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+    pub position_error: f64,
+    pub orientation_error: f64,
+    pub iterations: usize,
+    pub restarts: usize,
+    pub elapsed_ms: f64,
+}
+
+/// Validates an IK request into a target, seed and options.
+pub fn parse_ik(
+    s: &System,
+    body: &IkRequest,
+    base: &str,
+) -> Result<(IkTarget, Vec<f64>, IkOptions, u64), Error> {
+    let frame = match &body.frame {
+        Some(n) => frame_of(s, n, &format!("{base}.frame"))?,
+        None => s.wrist_frame,
+    };
+    let point = body.point.unwrap_or([0.0; 3]);
+    finite_array(&point, &format!("{base}.point"))?;
+    finite_array(&body.position, &format!("{base}.position"))?;
+    let rotation = match &body.orientation {
+        Some(q) => quaternion(q, &format!("{base}.orientation"))?,
+        None => UnitQuaternion::identity(),
+    };
+    let mut opts = IkOptions::default();
+    if body.orientation.is_none() {
+        opts.orientation_weight = 0.0;
+    }
+    let nonneg = |v: Option<f64>, name: &str, dflt: f64| -> Result<f64, Error> {
+        match v {
+            None => Ok(dflt),
+            Some(x) if x.is_finite() && x >= 0.0 => Ok(x),
+            Some(x) => Err(Error::invalid(
+                format!("{base}.{name}"),
+                format!("must be a finite number >= 0, got {x}"),
+            )),
+        }
+    };
+    opts.position_weight = nonneg(
+        body.position_weight,
+        "position_weight",
+        opts.position_weight,
+    )?;
+    opts.orientation_weight = nonneg(
+        body.orientation_weight,
+        "orientation_weight",
+        opts.orientation_weight,
+    )?;
+    if body.orientation.is_none() && opts.orientation_weight > 0.0 {
+        return Err(Error::invalid(
+            format!("{base}.orientation_weight"),
+            "needs an orientation target",
+        ));
+    }
+    if opts.position_weight == 0.0 && opts.orientation_weight == 0.0 {
+        return Err(Error::invalid(
+            format!("{base}.position_weight"),
+            "position and orientation weights cannot both be 0",
+        ));
+    }
+    opts.position_tolerance = nonneg(
+        body.position_tolerance,
+        "position_tolerance",
+        opts.position_tolerance,
+    )?;
+    opts.orientation_tolerance = nonneg(
+        body.orientation_tolerance,
+        "orientation_tolerance",
+        opts.orientation_tolerance,
+    )?;
+    let budget = nonneg(body.time_budget_ms, "time_budget_ms", 5.0)?;
+    if budget > MAX_IK_BUDGET_MS {
+        return Err(Error::invalid(
+            format!("{base}.time_budget_ms"),
+            format!("at most {MAX_IK_BUDGET_MS} ms"),
+        ));
+    }
+    opts.time_budget = Duration::from_secs_f64(budget / 1000.0);
+    if let Some(r) = body.max_restarts {
+        if r > 100_000 {
+            return Err(Error::invalid(
+                format!("{base}.max_restarts"),
+                "at most 100000",
+            ));
+        }
+        opts.max_restarts = r;
+    }
+    let neutral = s.model.neutral();
+    let seed = match &body.seed {
+        None => neutral,
+        Some(sd) => JointVector::from_named_with_defaults(
+            &s.model,
+            &sd.joint_names,
+            &sd.positions,
+            Some(&neutral),
+        )
+        .map_err(|e| {
+            let f = if matches!(
+                e,
+                KinematicsError::NonFiniteJointValue { .. } | KinematicsError::WrongLength { .. }
+            ) {
+                "positions"
+            } else {
+                "joint_names"
+            };
+            Error::invalid(format!("{base}.seed.{f}"), e.to_string())
+        })?
+        .into_vec(),
+    };
+    let target = IkTarget {
+        frame,
+        point_in_frame: Vector3::from(point),
+        pose: Isometry3::from_parts(Translation3::from(Vector3::from(body.position)), rotation),
+    };
+    Ok((target, seed, opts, body.random_seed.unwrap_or(0)))
+}
+
+/// One IK request for robot `id`, solved off the async runtime.
+pub async fn ik(ctx: &Context, id: &str, body: &IkRequest) -> Result<IkResponse, Error> {
+    let s = system(ctx, id).await?;
+    let (target, seed, opts, rseed) = parse_ik(&s, body, "$")?;
+    tokio::task::spawn_blocking(move || solve_ik(&s, &target, &seed, &opts, rseed))
+        .await
+        .map_err(Error::internal)
+}
+
+/// One IK solve, as the API and the CLI report it.
+pub fn solve_ik(
+    s: &System,
+    target: &IkTarget,
+    seed: &[f64],
+    opts: &IkOptions,
+    random_seed: u64,
+) -> IkResponse {
+    let mut rng = ChaCha8Rng::seed_from_u64(random_seed);
+    let r = IkSolver::new(&s.model).solve(&s.model, target, seed, opts, &mut rng);
+    IkResponse {
+        success: r.success,
+        joint_names: s.model.joint_names().to_vec(),
+        positions: r.q,
+        position_error: r.position_error,
+        orientation_error: r.orientation_error,
+        iterations: r.iterations,
+        restarts: r.restarts,
+        elapsed_ms: r.elapsed.as_secs_f64() * 1000.0,
+    }
+}
+
+/// `reachgrasp ik --targets` input: a list of IK requests, or `{"targets": [...]}`.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+pub enum IkBatchFile {
+    List(Vec<IkRequest>),
+    Wrapped { targets: Vec<IkRequest> },
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+pub struct IkBatchStats {
+    pub count: usize,
+    pub solved: usize,
+    pub success_rate: f64,
+    pub median_ms: f64,
+    pub p95_ms: f64,
+    pub max_ms: f64,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+pub struct IkBatchReport {
+    pub robot: String,
+    pub solutions: Vec<IkResponse>,
+    pub stats: IkBatchStats,
+}
+
+/// Solves every target with the one IK use case's solver; target `i` without `random_seed` uses seed `i`.
+/// Validation errors name the target (`$[3].orientation`).
+pub fn ik_batch(robot: &str, s: &System, file: IkBatchFile) -> Result<IkBatchReport, Error> {
+    let targets = match file {
+        IkBatchFile::List(t) | IkBatchFile::Wrapped { targets: t } => t,
+    };
+    let mut solutions = Vec::with_capacity(targets.len());
+    for (i, t) in targets.iter().enumerate() {
+        let (target, seed, opts, rseed) = parse_ik(s, t, &format!("$[{i}]"))?;
+        let rseed = if t.random_seed.is_some() {
+            rseed
+        } else {
+            i as u64
+        };
+        solutions.push(solve_ik(s, &target, &seed, &opts, rseed));
+    }
+    let mut times: Vec<f64> = solutions.iter().map(|r| r.elapsed_ms).collect();
+    times.sort_by(f64::total_cmp);
+    let pct = |p: f64| {
+        if times.is_empty() {
+            0.0
+        } else {
+            times[((times.len() - 1) as f64 * p).round() as usize]
+        }
+    };
+    let solved = solutions.iter().filter(|r| r.success).count();
+    let count = solutions.len();
+    Ok(IkBatchReport {
+        robot: robot.to_owned(),
+        stats: IkBatchStats {
+            count,
+            solved,
+            success_rate: if count == 0 {
+                0.0
+            } else {
+                solved as f64 / count as f64
+            },
+            median_ms: pct(0.5),
+            p95_ms: pct(0.95),
+            max_ms: times.last().copied().unwrap_or(0.0),
+        },
+        solutions,
+    })
+}
