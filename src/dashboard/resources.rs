@@ -4,8 +4,7 @@
 use axum::extract::{Path, Query, State};
 use serde::Deserialize;
 
-use super::html::{self, esc, facts, field, figure, form, link, num, progress, table};
-use crate::api::ApiError;
+use super::html::{self, PageError, esc, facts, field, figure, form, link, num, progress, table};
 use crate::bridge::Mode;
 use crate::service::Context as AppState;
 use crate::store::executions as execution_repo;
@@ -14,7 +13,7 @@ use crate::store::mappings as mapping_repo;
 use crate::store::models as model_repo;
 use crate::store::trajectories as trajectory_repo;
 
-type Page = Result<axum::response::Response, ApiError>;
+type Page = Result<axum::response::Response, PageError>;
 
 fn short(id: &str) -> &str {
     &id[..8.min(id.len())]
@@ -58,7 +57,7 @@ fn train_form(robot: &str, mapping: &str) -> String {
     )
 }
 
-async fn trajectory_form(state: &AppState, model: &str, robot: &str) -> Result<String, ApiError> {
+async fn trajectory_form(state: &AppState, model: &str, robot: &str) -> Result<String, PageError> {
     let system = state.robots.system(robot).await?;
     let m = &system.model;
     let neutral: Vec<String> = m.neutral().iter().map(|v| num(*v, 4)).collect();
