@@ -288,21 +288,6 @@ fn failure(e: reachgrasp::service::Error) -> anyhow::Error {
     }
 }
 
-/// An API error as a CLI error: the detail and every offending field.
-fn api_failure(e: reachgrasp::api::ApiError) -> anyhow::Error {
-    let fields: Vec<String> = e
-        .errors()
-        .iter()
-        .map(|f| format!("{}: {}", f.path, f.message))
-        .collect();
-    // The field errors already say everything the summary line would (it repeats the first).
-    if fields.is_empty() {
-        anyhow::anyhow!("{}", e.detail())
-    } else {
-        anyhow::anyhow!("{}", fields.join("; "))
-    }
-}
-
 /// A progress bar on stderr for `len` items of `what`.
 fn progress_bar(len: usize, what: &str) -> anyhow::Result<indicatif::ProgressBar> {
     let bar = indicatif::ProgressBar::new(len as u64);
@@ -427,11 +412,10 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
 
 fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
     use anyhow::Context;
-    use reachgrasp::api::demonstrations::DemonstrationUpload;
-    use reachgrasp::api::mappings::{
+    use reachgrasp::human::{DemonstrationInput, ingest};
+    use reachgrasp::service::mappings::{
         RegistrationIn, ScaleIn, WeightsIn, map_offline, parse_params,
     };
-    use reachgrasp::human::{DemonstrationInput, ingest};
     use reachgrasp::store::mappings::DemoLabels;
     use std::io::Write;
 
@@ -452,7 +436,7 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
         scale,
         ..RegistrationIn::default()
     };
-    let params = parse_params(&weights, &registration, args.rate).map_err(api_failure)?;
+    let params = parse_params(&weights, &registration, args.rate).map_err(failure)?;
     let system =
         reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, &args.robot)?;
     let text = std::fs::read_to_string(&args.demo)
@@ -470,9 +454,9 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
     );
     let mut demos = Vec::with_capacity(docs.len());
     for (i, doc) in docs.into_iter().enumerate() {
-        let upload: DemonstrationUpload = serde_json::from_value(doc)
+        // The upload document of `POST /v1/demonstrations` is the ingest input itself.
+        let input: DemonstrationInput = serde_json::from_value(doc)
             .with_context(|| format!("demonstration {i} is not an upload document"))?;
-        let input: DemonstrationInput = upload.into();
         let demo = ingest(&input).with_context(|| format!("demonstration {i}"))?;
         let labels = DemoLabels {
             demonstration_id: demo
@@ -496,7 +480,7 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
         bar.set_position(done as u64)
     });
     bar.finish_and_clear();
-    let result = result.map_err(api_failure)?;
+    let result = result.map_err(failure)?;
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     serde_json::to_writer(&mut out, &result)?;
     writeln!(out)?;

@@ -13,11 +13,15 @@
 //! 2. `store` (SQLite rows, the robot library) and `shutdown`;
 //! 3. `jobs` and `bridge` (the job runner, the bridge hub and its worker protocol);
 //! 4. `service` and `config` (this layer);
-//! 5. the edges: `api`, `dashboard`, `app`, the CLI (`main.rs`).
+//! 5. the edges that reach the use cases without HTTP: `dashboard`, `seed`;
+//! 6. `api` (HTTP handlers, DTOs, problem+json);
+//! 7. the process: `app` (wiring) and the CLI (`main.rs`), which takes from `api` only the
+//!    OpenAPI document and the rendering of a plan.
 
 pub mod demonstrations;
 pub mod executions;
 pub mod grasps;
+pub mod mappings;
 pub mod models;
 pub mod plans;
 pub mod robots;
