@@ -10,6 +10,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use uuid::Uuid;
 
+use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem, Query};
 use crate::jobs::{JobFailure, JobRecord};
 use crate::service::mappings as service;
@@ -75,14 +76,13 @@ pub struct MappingDto {
     pub demonstrations: Option<MappedDemoPage>,
 }
 
-/// A page of mappings, newest first.
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct MappingList {
-    pub items: Vec<MappingDto>,
-    pub total: i64,
-    pub limit: u32,
-    pub offset: u32,
+impl Listed for MappingDto {
+    const PAGE: &'static str = "MappingList";
+    const DESCRIPTION: Option<&'static str> = Some("A page of mappings, newest first.");
 }
+
+/// A page of mappings, newest first.
+pub type MappingList = Page<MappingDto>;
 
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
@@ -92,7 +92,9 @@ pub struct ListQuery {
     /// Only this status.
     pub status: Option<String>,
     /// Page size, 1 to 500 (default 50).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub limit: Option<u32>,
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub offset: Option<u32>,
 }
 
@@ -249,10 +251,8 @@ async fn get_mapping(
     ))]
 async fn list_mappings(
     State(state): State<AppState>,
-    Query(q): Query<ListQuery>,
+    Listing(q, page): Listing<ListQuery>,
 ) -> Result<Json<MappingList>, ApiError> {
-    let limit = super::extract::page_limit(q.limit)?;
-    let offset = q.offset.unwrap_or(0);
     if let Some(s) = &q.status
         && crate::jobs::JobStatus::parse(s).is_none()
     {
@@ -263,8 +263,8 @@ async fn list_mappings(
     }
     let (rows, total) = repo::list_mappings(
         &state.db,
-        i64::from(limit),
-        i64::from(offset),
+        i64::from(page.limit),
+        i64::from(page.offset),
         q.robot.as_deref(),
         q.status.as_deref(),
     )
@@ -273,10 +273,5 @@ async fn list_mappings(
     for row in rows {
         items.push(mapping_dto(&state, row, None).await?);
     }
-    Ok(Json(MappingList {
-        items,
-        total,
-        limit,
-        offset,
-    }))
+    Ok(Json(page.of(items, Some(total))))
 }

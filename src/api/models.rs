@@ -15,7 +15,8 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::{ApiError, AppState, Json, Path, Problem, Query};
+use super::page::{Listed, Listing, Page};
+use super::{ApiError, AppState, Json, Path, Problem};
 use crate::jobs::JobRecord;
 use crate::motion::ControlParams;
 use crate::service;
@@ -57,13 +58,11 @@ pub struct ModelDto {
     pub created_at: String,
 }
 
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct ModelList {
-    pub items: Vec<ModelDto>,
-    pub total: i64,
-    pub limit: u32,
-    pub offset: u32,
+impl Listed for ModelDto {
+    const PAGE: &'static str = "ModelList";
 }
+
+pub type ModelList = Page<ModelDto>;
 
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
@@ -71,8 +70,10 @@ pub struct ModelQuery {
     /// Only models of this robot.
     pub robot: Option<String>,
     /// Page size, 1 to 500 (default 50).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub limit: Option<u32>,
     /// Models to skip (default 0).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub offset: Option<u32>,
 }
 
@@ -120,13 +121,11 @@ pub struct TrajectorySummaryDto {
     pub created_at: String,
 }
 
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct TrajectoryList {
-    pub items: Vec<TrajectorySummaryDto>,
-    pub total: i64,
-    pub limit: u32,
-    pub offset: u32,
+impl Listed for TrajectorySummaryDto {
+    const PAGE: &'static str = "TrajectoryList";
 }
+
+pub type TrajectoryList = Page<TrajectorySummaryDto>;
 
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
@@ -134,8 +133,10 @@ pub struct TrajectoryQuery {
     /// Only trajectories of this model.
     pub model: Option<String>,
     /// Page size, 1 to 500 (default 50).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub limit: Option<u32>,
     /// Trajectories to skip (default 0).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub offset: Option<u32>,
 }
 
@@ -180,11 +181,10 @@ async fn create_model(
               (status = 400, description = "Bad query parameters (problem+json naming the parameter)", body = Problem, content_type = "application/problem+json")))]
 async fn list_models(
     State(state): State<AppState>,
-    Query(q): Query<ModelQuery>,
+    Listing(q, page): Listing<ModelQuery>,
 ) -> Result<Json<ModelList>, ApiError> {
-    let limit = super::extract::page_limit(q.limit)?;
-    let offset = q.offset.unwrap_or(0);
-    let (rows, total) = repo::list_models(&state.db, q.robot.as_deref(), limit, offset).await?;
+    let (rows, total) =
+        repo::list_models(&state.db, q.robot.as_deref(), page.limit, page.offset).await?;
     let mut items = Vec::with_capacity(rows.len());
     for row in rows {
         let names = repo::joint_names(&state.db, &row.id)
@@ -193,12 +193,7 @@ async fn list_models(
         let default = repo::is_marked_default(&state.db, &row.id).await?;
         items.push(model_dto(row, names, default)?);
     }
-    Ok(Json(ModelList {
-        items,
-        total,
-        limit,
-        offset,
-    }))
+    Ok(Json(page.of(items, Some(total))))
 }
 
 /// One model: status, explained variance, training and held-out fit, certificates, goal regions.
@@ -312,12 +307,11 @@ async fn get_trajectory(
               (status = 400, description = "Bad query parameters (problem+json naming the parameter)", body = Problem, content_type = "application/problem+json")))]
 async fn list_trajectories(
     State(state): State<AppState>,
-    Query(q): Query<TrajectoryQuery>,
+    Listing(q, page): Listing<TrajectoryQuery>,
 ) -> Result<Json<TrajectoryList>, ApiError> {
-    let limit = super::extract::page_limit(q.limit)?;
-    let offset = q.offset.unwrap_or(0);
     let (rows, total) =
-        trajectories::list_trajectories(&state.db, q.model.as_deref(), limit, offset).await?;
+        trajectories::list_trajectories(&state.db, q.model.as_deref(), page.limit, page.offset)
+            .await?;
     let mut items = Vec::with_capacity(rows.len());
     for r in rows {
         let s: TrajectoryReportDto =
@@ -332,10 +326,5 @@ async fn list_trajectories(
             created_at: r.created_at,
         });
     }
-    Ok(Json(TrajectoryList {
-        items,
-        total,
-        limit,
-        offset,
-    }))
+    Ok(Json(page.of(items, Some(total))))
 }

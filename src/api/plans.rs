@@ -20,7 +20,8 @@ use utoipa_axum::routes;
 
 use super::grasps::{GraspDto, grasp_dto};
 use super::models::{TrajectoryDto, trajectory_dto};
-use super::{ApiError, AppState, Json, Path, Problem, Query};
+use super::page::{Listed, Listing, Page};
+use super::{ApiError, AppState, Json, Path, Problem};
 use crate::service;
 pub use crate::service::plans::{PlanIn, PlanTimings, StartIn};
 use crate::store::{grasps as grasp_repo, plans as repo, trajectories};
@@ -64,13 +65,11 @@ pub struct PlanSummaryDto {
     pub created_at: String,
 }
 
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct PlanList {
-    pub items: Vec<PlanSummaryDto>,
-    pub total: i64,
-    pub limit: u32,
-    pub offset: u32,
+impl Listed for PlanSummaryDto {
+    const PAGE: &'static str = "PlanList";
 }
+
+pub type PlanList = Page<PlanSummaryDto>;
 
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
@@ -78,8 +77,10 @@ pub struct PlanQuery {
     /// Only plans of this robot.
     pub robot: Option<String>,
     /// Page size, 1 to 500 (default 50).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub limit: Option<u32>,
     /// Plans to skip (default 0).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub offset: Option<u32>,
 }
 
@@ -176,29 +177,28 @@ async fn get_plan(
               (status = 400, description = "Bad query parameters (problem+json naming the parameter)", body = Problem, content_type = "application/problem+json")))]
 async fn list_plans(
     State(state): State<AppState>,
-    Query(q): Query<PlanQuery>,
+    Listing(q, page): Listing<PlanQuery>,
 ) -> Result<Json<PlanList>, ApiError> {
-    let limit = super::extract::page_limit(q.limit)?;
-    let offset = q.offset.unwrap_or(0);
-    let (rows, total) =
-        repo::list(&state.db, q.robot.as_deref(), limit.into(), offset.into()).await?;
-    Ok(Json(PlanList {
-        items: rows
-            .into_iter()
-            .map(|r| PlanSummaryDto {
-                id: r.id,
-                robot: r.robot,
-                model_id: r.model_id,
-                feasible: r.feasible,
-                reason: r.reason,
-                grasp_id: r.grasp_id,
-                trajectory_id: r.trajectory_id,
-                execution_id: r.execution_id,
-                created_at: r.created_at,
-            })
-            .collect(),
-        total,
-        limit,
-        offset,
-    }))
+    let (rows, total) = repo::list(
+        &state.db,
+        q.robot.as_deref(),
+        page.limit.into(),
+        page.offset.into(),
+    )
+    .await?;
+    let items = rows
+        .into_iter()
+        .map(|r| PlanSummaryDto {
+            id: r.id,
+            robot: r.robot,
+            model_id: r.model_id,
+            feasible: r.feasible,
+            reason: r.reason,
+            grasp_id: r.grasp_id,
+            trajectory_id: r.trajectory_id,
+            execution_id: r.execution_id,
+            created_at: r.created_at,
+        })
+        .collect();
+    Ok(Json(page.of(items, Some(total))))
 }
