@@ -19,6 +19,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "grasp",
             "optim",
             "figures",
+            "parallel",
         ],
     ),
     ("store", &["store", "shutdown"]),

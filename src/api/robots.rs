@@ -6,7 +6,6 @@
 //! field and the joint, link or frame.
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 
 use axum::extract::State;
 use axum::http::{StatusCode, header};
@@ -19,11 +18,10 @@ use utoipa_axum::routes;
 
 use super::{ApiError, AppState, FieldError, Json, Path, Problem};
 use crate::kinematics::{
-    self, Data, FrameId, JointKind, JointVector, KinematicsError, MapMeshes, System,
-    SystemDescriptor, forward_kinematics, frame_jacobian,
+    self, Data, FrameId, JointKind, JointVector, KinematicsError, System, SystemDescriptor,
+    forward_kinematics, frame_jacobian,
 };
-use crate::store::library::system_from_stored;
-use crate::store::{self, robots as repo};
+use crate::store::robots as repo;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -37,27 +35,6 @@ pub fn router() -> OpenApiRouter<AppState> {
 }
 
 // ------------------------------------------------------------------------------------ errors
-
-/// The JSONPath a kinematics error belongs to, given where the URDF text came from.
-fn kin_error(e: KinematicsError, urdf_field: &str) -> ApiError {
-    use KinematicsError as E;
-    let path = match &e {
-        E::Descriptor { field, .. }
-        | E::UnknownFrame { field, .. }
-        | E::UnknownJointInDescriptor { field, .. } => {
-            format!("$.descriptor.{field}")
-        }
-        E::NonFinite { path, .. } if path.starts_with("mount") || path.starts_with("fingers") => {
-            format!("$.descriptor.{}", path.split(' ').next().unwrap_or(path))
-        }
-        E::WrongLength { .. } | E::NonFiniteJointValue { .. } => "$.positions".into(),
-        E::UnknownJoint { .. } | E::RepeatedJoint { .. } | E::MissingJoint { .. } => {
-            "$.joint_names".into()
-        }
-        _ => urdf_field.into(),
-    };
-    ApiError::invalid_field(path, e.to_string())
-}
 
 fn joint_vector(
     model: &kinematics::Model,
@@ -80,10 +57,10 @@ fn inf_to_none(v: f64) -> Option<f64> {
     v.is_finite().then_some(v)
 }
 
+use crate::service::robots::{self as service, finite_array, frame_of, system};
 pub use crate::service::robots::{
     IkBatchFile, IkBatchReport, IkBatchStats, IkRequest, IkResponse, MAX_IK_BUDGET_MS, SeedDto,
 };
-use crate::service::robots::{finite_array, frame_of, system};
 
 // ------------------------------------------------------------------------------------ DTOs
 
@@ -538,77 +515,13 @@ async fn create_robot(
         }
     };
     let meshes = decode_meshes(&body.meshes)?;
-    // Build it once to validate (the same path that loads it later).
-    let desc_json = serde_json::to_string(&desc).map_err(ApiError::internal)?;
-    let probe = repo::RobotRow {
-        id: String::new(),
-        name: desc.name.clone(),
-        bundled: false,
-        descriptor: desc_json.clone(),
-        arm_urdf: arm.clone(),
-        hand_urdf: hand.clone(),
-        created_at: String::new(),
-        updated_at: String::new(),
-    };
-    let source = MapMeshes(meshes);
-    let (built, source) = tokio::task::spawn_blocking(move || {
-        let built = system_from_stored(&probe, &source).map_err(|e| {
-            let which = urdf_field_of(&e, &probe.arm_urdf, probe.hand_urdf.as_deref());
-            kin_error(e, which)
-        });
-        (built, source)
-    })
-    .await
-    .map_err(ApiError::internal)?;
-    let system = built?;
-    let meshes: Vec<(String, Vec<u8>)> = source.0.into_iter().collect();
-    let id = uuid::Uuid::new_v4().to_string();
-    let row = repo::insert_with_meshes(
-        &state.db,
-        &repo::NewRobot {
-            id: &id,
-            name: &desc.name,
-            bundled: false,
-            descriptor: &desc_json,
-            arm_urdf: &arm,
-            hand_urdf: hand.as_deref(),
-        },
-        &meshes,
-    )
-    .await?;
-    let s = Arc::new(system);
-    state.robots.remember(&id, &row.updated_at, s.clone());
+    let (row, s) = service::register(&state, desc, arm, hand, meshes).await?;
+    let id = row.id.clone();
     Ok(super::created(
         StatusCode::CREATED,
         format!("/v1/robots/{id}"),
         detail(&row, &s),
     ))
-}
-
-/// Which URDF text a loader error is about: a text that does not parse, or the one whose link
-/// and joint names the message quotes (the hand's names when it does); default the arm.
-fn urdf_field_of(e: &KinematicsError, arm: &str, hand: Option<&str>) -> &'static str {
-    let Some(hand) = hand else { return "$.urdf" };
-    if matches!(
-        e,
-        KinematicsError::MalformedUrdf { .. } | KinematicsError::UrdfTooLarge { .. }
-    ) {
-        return if kinematics::urdf::parse_urdf(arm).is_ok() {
-            "$.hand_urdf"
-        } else {
-            "$.arm_urdf"
-        };
-    }
-    let msg = e.to_string();
-    let Ok(h) = kinematics::urdf::parse_urdf(hand) else {
-        return "$.hand_urdf";
-    };
-    let quoted = |n: &str| msg.contains(&format!("'{n}'"));
-    if h.links.iter().any(|l| quoted(&l.name)) || h.joints.iter().any(|j| quoted(&j.name)) {
-        "$.hand_urdf"
-    } else {
-        "$.arm_urdf"
-    }
 }
 
 /// Delete a registered system. Bundled systems are read-only (409); a system still referenced
@@ -624,30 +537,8 @@ async fn delete_robot(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<StatusCode, ApiError> {
-    let row = repo::get(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("robot", &id))?;
-    if row.bundled {
-        return Err(ApiError::conflict(format!(
-            "robot {id} is bundled (from robots/) and read-only"
-        )));
-    }
-    if store::grasps::robot_in_use(&state.db, &id).await? {
-        return Err(ApiError::conflict(format!(
-            "robot {id} is still referenced by stored grasps; it cannot be deleted"
-        )));
-    }
-    match repo::delete(&state.db, &id).await {
-        Ok(true) => {
-            state.robots.forget(&id);
-            Ok(StatusCode::NO_CONTENT)
-        }
-        Ok(false) => Err(ApiError::not_found("robot", &id)),
-        Err(e) if store::is_foreign_key_violation(&e) => Err(ApiError::conflict(format!(
-            "robot {id} is still referenced by other resources; delete those first"
-        ))),
-        Err(e) => Err(e.into()),
-    }
+    service::delete(&state, &id).await?;
+    Ok(StatusCode::NO_CONTENT)
 }
 
 /// Forward kinematics: world placement of every (or the named) frame.

@@ -1,6 +1,7 @@
 //! Robots: resolving the arm-hand systems of the library as every use case does, and the
 //! inverse kinematics of one (the API's `/v1/robots/{id}/ik` and `reachgrasp ik`).
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -12,9 +13,11 @@ use utoipa::ToSchema;
 
 use super::{Context, Error};
 use crate::kinematics::{
-    FrameId, IkOptions, IkSolver, IkTarget, JointVector, KinematicsError, System,
+    self, FrameId, IkOptions, IkSolver, IkTarget, JointVector, KinematicsError, MapMeshes, System,
+    SystemDescriptor,
 };
-use crate::store::library::LibraryError;
+use crate::store::library::{LibraryError, system_from_stored};
+use crate::store::robots as repo;
 
 /// Longest IK time budget a request may ask for.
 pub const MAX_IK_BUDGET_MS: f64 = 2000.0;
@@ -35,6 +38,135 @@ pub async fn robot_field(ctx: &Context, id: &str, field: &str) -> Result<Arc<Sys
 /// The one "unknown robot" field error.
 pub fn unknown_robot(field: &str, id: &str) -> Error {
     Error::invalid(field, format!("unknown robot '{id}'"))
+}
+
+// ------------------------------------------------------------------------------------ library
+
+/// Registers an arm-hand system: builds it once to validate (the same path that loads it
+/// later; nothing is stored on error), then stores it with its meshes.
+pub async fn register(
+    ctx: &Context,
+    desc: SystemDescriptor,
+    arm: String,
+    hand: Option<String>,
+    meshes: BTreeMap<String, Vec<u8>>,
+) -> Result<(repo::RobotRow, Arc<System>), Error> {
+    let desc_json = serde_json::to_string(&desc).map_err(Error::internal)?;
+    let probe = repo::RobotRow {
+        id: String::new(),
+        name: desc.name.clone(),
+        bundled: false,
+        descriptor: desc_json.clone(),
+        arm_urdf: arm.clone(),
+        hand_urdf: hand.clone(),
+        created_at: String::new(),
+        updated_at: String::new(),
+    };
+    let source = MapMeshes(meshes);
+    let (built, source) = tokio::task::spawn_blocking(move || {
+        let built = system_from_stored(&probe, &source).map_err(|e| {
+            let which = urdf_field_of(&e, &probe.arm_urdf, probe.hand_urdf.as_deref());
+            kin_error(e, which)
+        });
+        (built, source)
+    })
+    .await
+    .map_err(Error::internal)?;
+    let system = built?;
+    let meshes: Vec<(String, Vec<u8>)> = source.0.into_iter().collect();
+    let id = uuid::Uuid::new_v4().to_string();
+    let row = repo::insert_with_meshes(
+        &ctx.db,
+        &repo::NewRobot {
+            id: &id,
+            name: &desc.name,
+            bundled: false,
+            descriptor: &desc_json,
+            arm_urdf: &arm,
+            hand_urdf: hand.as_deref(),
+        },
+        &meshes,
+    )
+    .await?;
+    let s = Arc::new(system);
+    ctx.robots.remember(&id, &row.updated_at, s.clone());
+    Ok((row, s))
+}
+
+/// Deletes a registered system. Bundled systems are read-only; a system still referenced by
+/// other resources is refused.
+pub async fn delete(ctx: &Context, id: &str) -> Result<(), Error> {
+    let row = repo::get(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("robot", id))?;
+    if row.bundled {
+        return Err(Error::Conflict(format!(
+            "robot {id} is bundled (from robots/) and read-only"
+        )));
+    }
+    if crate::store::grasps::robot_in_use(&ctx.db, id).await? {
+        return Err(Error::Conflict(format!(
+            "robot {id} is still referenced by stored grasps; it cannot be deleted"
+        )));
+    }
+    match repo::delete(&ctx.db, id).await {
+        Ok(true) => {
+            ctx.robots.forget(id);
+            Ok(())
+        }
+        Ok(false) => Err(Error::not_found("robot", id)),
+        Err(e) if crate::store::is_foreign_key_violation(&e) => Err(Error::Conflict(format!(
+            "robot {id} is still referenced by other resources; delete those first"
+        ))),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// The JSONPath a kinematics error belongs to, given where the URDF text came from.
+fn kin_error(e: KinematicsError, urdf_field: &str) -> Error {
+    use KinematicsError as E;
+    let path = match &e {
+        E::Descriptor { field, .. }
+        | E::UnknownFrame { field, .. }
+        | E::UnknownJointInDescriptor { field, .. } => {
+            format!("$.descriptor.{field}")
+        }
+        E::NonFinite { path, .. } if path.starts_with("mount") || path.starts_with("fingers") => {
+            format!("$.descriptor.{}", path.split(' ').next().unwrap_or(path))
+        }
+        E::WrongLength { .. } | E::NonFiniteJointValue { .. } => "$.positions".into(),
+        E::UnknownJoint { .. } | E::RepeatedJoint { .. } | E::MissingJoint { .. } => {
+            "$.joint_names".into()
+        }
+        _ => urdf_field.into(),
+    };
+    Error::invalid(path, e.to_string())
+}
+
+/// Which URDF text a loader error is about: a text that does not parse, or the one whose link
+/// and joint names the message quotes (the hand's names when it does); default the arm.
+fn urdf_field_of(e: &KinematicsError, arm: &str, hand: Option<&str>) -> &'static str {
+    let Some(hand) = hand else { return "$.urdf" };
+    if matches!(
+        e,
+        KinematicsError::MalformedUrdf { .. } | KinematicsError::UrdfTooLarge { .. }
+    ) {
+        return if kinematics::urdf::parse_urdf(arm).is_ok() {
+            "$.hand_urdf"
+        } else {
+            "$.arm_urdf"
+        };
+    }
+    let msg = e.to_string();
+    let Ok(h) = kinematics::urdf::parse_urdf(hand) else {
+        return "$.hand_urdf";
+    };
+    let quoted = |n: &str| msg.contains(&format!("'{n}'"));
+    if h.links.iter().any(|l| quoted(&l.name)) || h.joints.iter().any(|j| quoted(&j.name)) {
+        "$.hand_urdf"
+    } else {
+        "$.arm_urdf"
+    }
 }
 
 pub fn frame_of(system: &System, name: &str, path: &str) -> Result<FrameId, Error> {
