@@ -1,26 +1,23 @@
 //! `/v1/robots`: the arm-hand system library (bundled read-only systems from `robots/`, plus
 //! registered ones) and its kinematics: FK, Jacobians, IK, manipulability.
 //!
-//! Joint vectors always travel with their names (`joint_names` + `positions`) and are checked
-//! once against the model ([`JointVector`]). Kinematic errors become 422 problem+json naming the
-//! field and the joint, link or frame.
+//! The use cases are in [`crate::service::robots`]; here they are routed and rendered. Joint
+//! vectors always travel with their names (`joint_names` + `positions`) and are checked once
+//! against the model ([`crate::kinematics::JointVector`]). Kinematic errors become 422
+//! problem+json naming the field and the joint, link or frame.
 
 use std::collections::BTreeMap;
 
 use axum::extract::State;
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use nalgebra::{Matrix6xX, Vector3, Vector6};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::{ApiError, AppState, FieldError, Json, Path, Problem};
-use crate::kinematics::{
-    self, Data, FrameId, JointKind, JointVector, KinematicsError, System, SystemDescriptor,
-    forward_kinematics, frame_jacobian,
-};
+use super::{ApiError, AppState, Json, Path, Problem};
+use crate::kinematics::{FrameId, JointKind, System, SystemDescriptor};
 use crate::store::robots as repo;
 
 pub fn router() -> OpenApiRouter<AppState> {
@@ -36,28 +33,11 @@ pub fn router() -> OpenApiRouter<AppState> {
 
 // ------------------------------------------------------------------------------------ errors
 
-fn joint_vector(
-    model: &kinematics::Model,
-    names: &[String],
-    positions: &[f64],
-    base: &str,
-) -> Result<JointVector, ApiError> {
-    JointVector::from_named(model, names, positions).map_err(|e| {
-        let field = match e {
-            KinematicsError::UnknownJoint { .. }
-            | KinematicsError::RepeatedJoint { .. }
-            | KinematicsError::MissingJoint { .. } => "joint_names",
-            _ => "positions",
-        };
-        ApiError::invalid_field(format!("{base}.{field}"), e.to_string())
-    })
-}
-
-fn inf_to_none(v: f64) -> Option<f64> {
-    v.is_finite().then_some(v)
-}
-
-use crate::service::robots::{self as service, finite_array, frame_of, system};
+use crate::service::robots::{self as service, inf_to_none};
+pub use crate::service::robots::{
+    FkRequest, FkResponse, FramePose, JacobianRequest, JacobianResponse, ManipulabilityRequest,
+    ManipulabilityResponse, TaskRows, TransmissionDto,
+};
 pub use crate::service::robots::{
     IkBatchFile, IkBatchReport, IkBatchStats, IkRequest, IkResponse, MAX_IK_BUDGET_MS, SeedDto,
 };
@@ -218,96 +198,6 @@ fn decode_meshes(
     Ok(out)
 }
 
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct FkRequest {
-    pub joint_names: Vec<String>,
-    pub positions: Vec<f64>,
-    /// Frames to report (default: every frame).
-    pub frames: Option<Vec<String>>,
-}
-
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct FramePose {
-    pub name: String,
-    /// Metres, world (robot base) frame.
-    pub position: [f64; 3],
-    /// `[w, x, y, z]`.
-    pub orientation: [f64; 4],
-}
-
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct FkResponse {
-    pub frames: Vec<FramePose>,
-}
-
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct JacobianRequest {
-    pub joint_names: Vec<String>,
-    pub positions: Vec<f64>,
-    pub frame: String,
-    /// Point rigidly attached to the frame, in frame coordinates (default the origin).
-    pub point: Option<[f64; 3]>,
-}
-
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct JacobianResponse {
-    pub frame: String,
-    /// Column order.
-    pub joint_names: Vec<String>,
-    /// 6 rows in the world frame: linear velocity of the point (3), then angular velocity (3).
-    /// Coupled joints are folded into their drivers' columns.
-    pub rows: Vec<Vec<f64>>,
-}
-
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, ToSchema, PartialEq, Eq)]
-#[serde(rename_all = "snake_case")]
-pub enum TaskRows {
-    /// Linear and angular velocity (6-D).
-    Full,
-    /// Linear velocity of the point only (3-D).
-    Linear,
-    /// Angular velocity only (3-D).
-    Angular,
-}
-
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-#[serde(deny_unknown_fields)]
-pub struct ManipulabilityRequest {
-    pub joint_names: Vec<String>,
-    pub positions: Vec<f64>,
-    pub frame: String,
-    pub point: Option<[f64; 3]>,
-    /// Rows of the Jacobian to analyse (default `linear`).
-    pub task: Option<TaskRows>,
-    /// Task directions (3 or 6 components to match `task`) for the transmission ratios.
-    #[serde(default)]
-    pub directions: Vec<Vec<f64>>,
-}
-
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct TransmissionDto {
-    /// The unit direction used.
-    pub direction: Vec<f64>,
-    /// Eq. 14; `null` when unbounded (the arm cannot move along the direction).
-    pub force_ratio: Option<f64>,
-    /// Eq. 15.
-    pub velocity_ratio: f64,
-}
-
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct ManipulabilityResponse {
-    /// Eq. 12: sqrt(det(J Jᵀ)).
-    pub manipulability: f64,
-    /// Velocity-ellipsoid semi-axes (eq. 10), longest first; the force ellipsoid's are their
-    /// reciprocals.
-    pub semi_axes: Vec<f64>,
-    /// Unit axis directions matching `semi_axes`.
-    pub axes: Vec<Vec<f64>>,
-    pub transmission: Vec<TransmissionDto>,
-}
-
 fn summary(row: &repo::RobotRow, s: &System) -> RobotSummary {
     RobotSummary {
         id: row.id.clone(),
@@ -410,12 +300,11 @@ fn detail(row: &repo::RobotRow, s: &System) -> RobotDetail {
 #[utoipa::path(get, path = "/v1/robots", tag = "robots",
     responses((status = 200, description = "All systems, bundled first", body = RobotList)))]
 async fn list_robots(State(state): State<AppState>) -> Result<Json<RobotList>, ApiError> {
-    let rows = repo::list(&state.db).await?;
-    let mut items = Vec::with_capacity(rows.len());
-    for row in rows {
-        let s = state.robots.load_cached(row.clone()).await?;
-        items.push(summary(&row, &s));
-    }
+    let items = service::list(&state)
+        .await?
+        .iter()
+        .map(|(row, s)| summary(row, s))
+        .collect();
     Ok(Json(RobotList { items }))
 }
 
@@ -430,10 +319,7 @@ async fn get_robot(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<RobotDetail>, ApiError> {
-    let row = repo::get(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("robot", &id))?;
-    let s = state.robots.load_cached(row.clone()).await?;
+    let (row, s) = service::get(&state, &id).await?;
     Ok(Json(detail(&row, &s)))
 }
 
@@ -448,47 +334,8 @@ async fn get_robot_urdf(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let row = repo::get(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("robot", &id))?;
-    let text = match &row.hand_urdf {
-        None => row.arm_urdf.clone(),
-        Some(hand) => combined_urdf(&row, hand).map_err(ApiError::internal)?,
-    };
+    let text = service::urdf(&state, &id).await?;
     Ok(([(header::CONTENT_TYPE, "application/xml")], text).into_response())
-}
-
-fn combined_urdf(row: &repo::RobotRow, hand: &str) -> anyhow::Result<String> {
-    let desc: SystemDescriptor = serde_json::from_str(&row.descriptor)?;
-    let mount = desc
-        .mount
-        .ok_or_else(|| anyhow::anyhow!("stored system without mount"))?;
-    let mut arm = urdf_rs::read_from_string(&row.arm_urdf)?;
-    let hand = urdf_rs::read_from_string(hand)?;
-    let hand_root = kinematics::urdf::root_link(&hand)?;
-    arm.joints.push(urdf_rs::Joint {
-        name: "hand_mount_joint".into(),
-        joint_type: urdf_rs::JointType::Fixed,
-        origin: urdf_rs::Pose {
-            xyz: urdf_rs::Vec3(mount.xyz),
-            rpy: urdf_rs::Vec3(mount.rpy),
-        },
-        parent: urdf_rs::LinkName {
-            link: mount.parent_frame,
-        },
-        child: urdf_rs::LinkName { link: hand_root },
-        axis: urdf_rs::Axis::default(),
-        limit: urdf_rs::JointLimit::default(),
-        calibration: None,
-        dynamics: None,
-        mimic: None,
-        safety_controller: None,
-    });
-    arm.name = row.name.clone();
-    arm.links.extend(hand.links);
-    arm.joints.extend(hand.joints);
-    arm.materials.extend(hand.materials);
-    Ok(urdf_rs::write_to_string(&arm)?)
 }
 
 /// Register an arm-hand system (validated; nothing is stored on error).
@@ -554,31 +401,7 @@ async fn robot_fk(
     Path(id): Path<String>,
     Json(body): Json<FkRequest>,
 ) -> Result<Json<FkResponse>, ApiError> {
-    let s = system(&state, &id).await?;
-    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
-    let frames: Vec<FrameId> = match &body.frames {
-        None => (0..s.model.n_frames()).map(FrameId).collect(),
-        Some(names) => names
-            .iter()
-            .enumerate()
-            .map(|(i, n)| frame_of(&s, n, &format!("$.frames[{i}]")))
-            .collect::<Result<_, _>>()?,
-    };
-    let mut data = Data::new(&s.model);
-    forward_kinematics(&s.model, &mut data, q.as_slice());
-    let frames = frames
-        .into_iter()
-        .map(|f| {
-            let x = data.frame(f);
-            let r = x.rotation;
-            FramePose {
-                name: s.model.frame_name(f).to_owned(),
-                position: x.translation.vector.into(),
-                orientation: [r.w, r.i, r.j, r.k],
-            }
-        })
-        .collect();
-    Ok(Json(FkResponse { frames }))
+    Ok(Json(service::fk(&state, &id, &body).await?))
 }
 
 /// Geometric Jacobian of a frame point in the world frame (6 × n, linear then angular).
@@ -594,21 +417,7 @@ async fn robot_jacobian(
     Path(id): Path<String>,
     Json(body): Json<JacobianRequest>,
 ) -> Result<Json<JacobianResponse>, ApiError> {
-    let s = system(&state, &id).await?;
-    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
-    let frame = frame_of(&s, &body.frame, "$.frame")?;
-    let point = body.point.unwrap_or([0.0; 3]);
-    finite_array(&point, "$.point")?;
-    let mut data = Data::new(&s.model);
-    forward_kinematics(&s.model, &mut data, q.as_slice());
-    let mut j = Matrix6xX::zeros(s.model.nq());
-    frame_jacobian(&s.model, &data, frame, &Vector3::from(point), &mut j);
-    let rows = (0..6).map(|r| j.row(r).iter().copied().collect()).collect();
-    Ok(Json(JacobianResponse {
-        frame: body.frame,
-        joint_names: s.model.joint_names().to_vec(),
-        rows,
-    }))
+    Ok(Json(service::jacobian(&state, &id, &body).await?))
 }
 
 /// Pose inverse kinematics (damped least squares with limits and random restarts). A target
@@ -642,94 +451,7 @@ async fn robot_manipulability(
     Path(id): Path<String>,
     Json(body): Json<ManipulabilityRequest>,
 ) -> Result<Json<ManipulabilityResponse>, ApiError> {
-    use kinematics::manipulability as mm;
-    let s = system(&state, &id).await?;
-    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
-    let frame = frame_of(&s, &body.frame, "$.frame")?;
-    let point = body.point.unwrap_or([0.0; 3]);
-    finite_array(&point, "$.point")?;
-    let task = body.task.unwrap_or(TaskRows::Linear);
-    let dim = if task == TaskRows::Full { 6 } else { 3 };
-    let mut errors = Vec::new();
-    for (i, d) in body.directions.iter().enumerate() {
-        if d.len() != dim {
-            errors.push(FieldError::new(
-                format!("$.directions[{i}]"),
-                format!("needs {dim} components for task {task:?}, got {}", d.len()),
-            ));
-        } else if d.iter().any(|x| !x.is_finite()) {
-            errors.push(FieldError::new(
-                format!("$.directions[{i}]"),
-                "components must be finite",
-            ));
-        } else if d.iter().map(|x| x * x).sum::<f64>() < 1e-18 {
-            errors.push(FieldError::new(
-                format!("$.directions[{i}]"),
-                "must not be the zero vector",
-            ));
-        }
-    }
-    if !errors.is_empty() {
-        return Err(ApiError::validation(errors));
-    }
-    let mut data = Data::new(&s.model);
-    forward_kinematics(&s.model, &mut data, q.as_slice());
-    let mut j = Matrix6xX::zeros(s.model.nq());
-    frame_jacobian(&s.model, &data, frame, &Vector3::from(point), &mut j);
-    let unit = |d: &[f64]| {
-        let n = d.iter().map(|x| x * x).sum::<f64>().sqrt();
-        d.iter().map(|x| x / n).collect::<Vec<f64>>()
-    };
-    let out = match task {
-        TaskRows::Full => {
-            let e = mm::velocity_ellipsoid(&j);
-            let transmission = body
-                .directions
-                .iter()
-                .map(|d| {
-                    let v = Vector6::from_column_slice(&unit(d));
-                    TransmissionDto {
-                        direction: v.iter().copied().collect(),
-                        force_ratio: inf_to_none(mm::force_transmission_ratio(&j, &v)),
-                        velocity_ratio: mm::velocity_transmission_ratio(&j, &v),
-                    }
-                })
-                .collect();
-            ManipulabilityResponse {
-                manipulability: mm::manipulability(&j),
-                semi_axes: e.semi_axes.iter().copied().collect(),
-                axes: (0..6)
-                    .map(|k| e.directions.column(k).iter().copied().collect())
-                    .collect(),
-                transmission,
-            }
-        }
-        TaskRows::Linear | TaskRows::Angular => {
-            let block = j.fixed_rows::<3>(if task == TaskRows::Linear { 0 } else { 3 });
-            let e = mm::velocity_ellipsoid(&block);
-            let transmission = body
-                .directions
-                .iter()
-                .map(|d| {
-                    let v = Vector3::from_column_slice(&unit(d));
-                    TransmissionDto {
-                        direction: v.iter().copied().collect(),
-                        force_ratio: inf_to_none(mm::force_transmission_ratio(&block, &v)),
-                        velocity_ratio: mm::velocity_transmission_ratio(&block, &v),
-                    }
-                })
-                .collect();
-            ManipulabilityResponse {
-                manipulability: mm::manipulability(&block),
-                semi_axes: e.semi_axes.iter().copied().collect(),
-                axes: (0..3)
-                    .map(|k| e.directions.column(k).iter().copied().collect())
-                    .collect(),
-                transmission,
-            }
-        }
-    };
-    Ok(Json(out))
+    Ok(Json(service::manipulability(&state, &id, &body).await?))
 }
 
 // ------------------------------------------------------------------------------------ CLI batch

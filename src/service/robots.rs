@@ -5,19 +5,346 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
 
-use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix6xX, Quaternion, Translation3, UnitQuaternion, Vector3, Vector6};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use super::{Context, Error};
+use super::{Context, Error, Invalid};
 use crate::kinematics::{
-    self, FrameId, IkOptions, IkSolver, IkTarget, JointVector, KinematicsError, MapMeshes, System,
-    SystemDescriptor,
+    self, Data, FrameId, IkOptions, IkSolver, IkTarget, JointVector, KinematicsError, MapMeshes,
+    System, SystemDescriptor, forward_kinematics, frame_jacobian,
 };
 use crate::store::library::{LibraryError, system_from_stored};
 use crate::store::robots as repo;
+
+// ------------------------------------------------------------------------------------ kinematics
+
+/// Every system with its stored row, bundled first.
+pub async fn list(ctx: &Context) -> Result<Vec<(repo::RobotRow, Arc<System>)>, Error> {
+    let rows = repo::list(&ctx.db).await?;
+    let mut out = Vec::with_capacity(rows.len());
+    for row in rows {
+        let s = ctx.robots.load_cached(row.clone()).await?;
+        out.push((row, s));
+    }
+    Ok(out)
+}
+
+/// A registered or bundled system with its stored row (`id` a path parameter).
+pub async fn get(ctx: &Context, id: &str) -> Result<(repo::RobotRow, Arc<System>), Error> {
+    let row = repo::get(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("robot", id))?;
+    let s = ctx.robots.load_cached(row.clone()).await?;
+    Ok((row, s))
+}
+
+/// The system as one URDF (arm, mount joint `hand_mount_joint`, hand).
+pub async fn urdf(ctx: &Context, id: &str) -> Result<String, Error> {
+    let row = repo::get(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("robot", id))?;
+    match &row.hand_urdf {
+        None => Ok(row.arm_urdf.clone()),
+        Some(hand) => combined_urdf(&row, hand).map_err(Error::internal),
+    }
+}
+
+/// Forward kinematics of robot `id`: world placement of every (or the named) frame.
+pub async fn fk(ctx: &Context, id: &str, body: &FkRequest) -> Result<FkResponse, Error> {
+    let s = system(ctx, id).await?;
+    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
+    let frames: Vec<FrameId> = match &body.frames {
+        None => (0..s.model.n_frames()).map(FrameId).collect(),
+        Some(names) => names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| frame_of(&s, n, &format!("$.frames[{i}]")))
+            .collect::<Result<_, _>>()?,
+    };
+    let mut data = Data::new(&s.model);
+    forward_kinematics(&s.model, &mut data, q.as_slice());
+    let frames = frames
+        .into_iter()
+        .map(|f| {
+            let x = data.frame(f);
+            let r = x.rotation;
+            FramePose {
+                name: s.model.frame_name(f).to_owned(),
+                position: x.translation.vector.into(),
+                orientation: [r.w, r.i, r.j, r.k],
+            }
+        })
+        .collect();
+    Ok(FkResponse { frames })
+}
+
+/// The geometric Jacobian of a frame point of robot `id`, world frame (linear then angular).
+pub async fn jacobian(
+    ctx: &Context,
+    id: &str,
+    body: &JacobianRequest,
+) -> Result<JacobianResponse, Error> {
+    let s = system(ctx, id).await?;
+    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
+    let frame = frame_of(&s, &body.frame, "$.frame")?;
+    let point = body.point.unwrap_or([0.0; 3]);
+    finite_array(&point, "$.point")?;
+    let mut data = Data::new(&s.model);
+    forward_kinematics(&s.model, &mut data, q.as_slice());
+    let mut j = Matrix6xX::zeros(s.model.nq());
+    frame_jacobian(&s.model, &data, frame, &Vector3::from(point), &mut j);
+    let rows = (0..6).map(|r| j.row(r).iter().copied().collect()).collect();
+    Ok(JacobianResponse {
+        frame: body.frame.clone(),
+        joint_names: s.model.joint_names().to_vec(),
+        rows,
+    })
+}
+
+/// Manipulability (eq. 12), ellipsoid axes (eq. 10-11) and transmission ratios along task
+/// directions (eq. 14-15) of a frame point of robot `id`.
+pub async fn manipulability(
+    ctx: &Context,
+    id: &str,
+    body: &ManipulabilityRequest,
+) -> Result<ManipulabilityResponse, Error> {
+    use kinematics::manipulability as mm;
+    let s = system(ctx, id).await?;
+    let q = joint_vector(&s.model, &body.joint_names, &body.positions, "$")?;
+    let frame = frame_of(&s, &body.frame, "$.frame")?;
+    let point = body.point.unwrap_or([0.0; 3]);
+    finite_array(&point, "$.point")?;
+    let task = body.task.unwrap_or(TaskRows::Linear);
+    let dim = if task == TaskRows::Full { 6 } else { 3 };
+    let mut errors = Vec::new();
+    for (i, d) in body.directions.iter().enumerate() {
+        if d.len() != dim {
+            errors.push(Invalid::new(
+                format!("$.directions[{i}]"),
+                format!("needs {dim} components for task {task:?}, got {}", d.len()),
+            ));
+        } else if d.iter().any(|x| !x.is_finite()) {
+            errors.push(Invalid::new(
+                format!("$.directions[{i}]"),
+                "components must be finite",
+            ));
+        } else if d.iter().map(|x| x * x).sum::<f64>() < 1e-18 {
+            errors.push(Invalid::new(
+                format!("$.directions[{i}]"),
+                "must not be the zero vector",
+            ));
+        }
+    }
+    if !errors.is_empty() {
+        return Err(Error::Invalid(errors));
+    }
+    let mut data = Data::new(&s.model);
+    forward_kinematics(&s.model, &mut data, q.as_slice());
+    let mut j = Matrix6xX::zeros(s.model.nq());
+    frame_jacobian(&s.model, &data, frame, &Vector3::from(point), &mut j);
+    let unit = |d: &[f64]| {
+        let n = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+        d.iter().map(|x| x / n).collect::<Vec<f64>>()
+    };
+    let out = match task {
+        TaskRows::Full => {
+            let e = mm::velocity_ellipsoid(&j);
+            let transmission = body
+                .directions
+                .iter()
+                .map(|d| {
+                    let v = Vector6::from_column_slice(&unit(d));
+                    TransmissionDto {
+                        direction: v.iter().copied().collect(),
+                        force_ratio: inf_to_none(mm::force_transmission_ratio(&j, &v)),
+                        velocity_ratio: mm::velocity_transmission_ratio(&j, &v),
+                    }
+                })
+                .collect();
+            ManipulabilityResponse {
+                manipulability: mm::manipulability(&j),
+                semi_axes: e.semi_axes.iter().copied().collect(),
+                axes: (0..6)
+                    .map(|k| e.directions.column(k).iter().copied().collect())
+                    .collect(),
+                transmission,
+            }
+        }
+        TaskRows::Linear | TaskRows::Angular => {
+            let block = j.fixed_rows::<3>(if task == TaskRows::Linear { 0 } else { 3 });
+            let e = mm::velocity_ellipsoid(&block);
+            let transmission = body
+                .directions
+                .iter()
+                .map(|d| {
+                    let v = Vector3::from_column_slice(&unit(d));
+                    TransmissionDto {
+                        direction: v.iter().copied().collect(),
+                        force_ratio: inf_to_none(mm::force_transmission_ratio(&block, &v)),
+                        velocity_ratio: mm::velocity_transmission_ratio(&block, &v),
+                    }
+                })
+                .collect();
+            ManipulabilityResponse {
+                manipulability: mm::manipulability(&block),
+                semi_axes: e.semi_axes.iter().copied().collect(),
+                axes: (0..3)
+                    .map(|k| e.directions.column(k).iter().copied().collect())
+                    .collect(),
+                transmission,
+            }
+        }
+    };
+    Ok(out)
+}
+
+fn joint_vector(
+    model: &kinematics::Model,
+    names: &[String],
+    positions: &[f64],
+    base: &str,
+) -> Result<JointVector, Error> {
+    JointVector::from_named(model, names, positions).map_err(|e| {
+        let field = match e {
+            KinematicsError::UnknownJoint { .. }
+            | KinematicsError::RepeatedJoint { .. }
+            | KinematicsError::MissingJoint { .. } => "joint_names",
+            _ => "positions",
+        };
+        Error::invalid(format!("{base}.{field}"), e.to_string())
+    })
+}
+
+/// A limit as JSON: `null` where unbounded.
+pub fn inf_to_none(v: f64) -> Option<f64> {
+    v.is_finite().then_some(v)
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct FkRequest {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+    /// Frames to report (default: every frame).
+    pub frames: Option<Vec<String>>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct FramePose {
+    pub name: String,
+    /// Metres, world (robot base) frame.
+    pub position: [f64; 3],
+    /// `[w, x, y, z]`.
+    pub orientation: [f64; 4],
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct FkResponse {
+    pub frames: Vec<FramePose>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JacobianRequest {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+    pub frame: String,
+    /// Point rigidly attached to the frame, in frame coordinates (default the origin).
+    pub point: Option<[f64; 3]>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct JacobianResponse {
+    pub frame: String,
+    /// Column order.
+    pub joint_names: Vec<String>,
+    /// 6 rows in the world frame: linear velocity of the point (3), then angular velocity (3).
+    /// Coupled joints are folded into their drivers' columns.
+    pub rows: Vec<Vec<f64>>,
+}
+
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, ToSchema, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum TaskRows {
+    /// Linear and angular velocity (6-D).
+    Full,
+    /// Linear velocity of the point only (3-D).
+    Linear,
+    /// Angular velocity only (3-D).
+    Angular,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ManipulabilityRequest {
+    pub joint_names: Vec<String>,
+    pub positions: Vec<f64>,
+    pub frame: String,
+    pub point: Option<[f64; 3]>,
+    /// Rows of the Jacobian to analyse (default `linear`).
+    pub task: Option<TaskRows>,
+    /// Task directions (3 or 6 components to match `task`) for the transmission ratios.
+    #[serde(default)]
+    pub directions: Vec<Vec<f64>>,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct TransmissionDto {
+    /// The unit direction used.
+    pub direction: Vec<f64>,
+    /// Eq. 14; `null` when unbounded (the arm cannot move along the direction).
+    pub force_ratio: Option<f64>,
+    /// Eq. 15.
+    pub velocity_ratio: f64,
+}
+
+#[derive(Debug, Serialize, Deserialize, ToSchema)]
+pub struct ManipulabilityResponse {
+    /// Eq. 12: sqrt(det(J Jᵀ)).
+    pub manipulability: f64,
+    /// Velocity-ellipsoid semi-axes (eq. 10), longest first; the force ellipsoid's are their
+    /// reciprocals.
+    pub semi_axes: Vec<f64>,
+    /// Unit axis directions matching `semi_axes`.
+    pub axes: Vec<Vec<f64>>,
+    pub transmission: Vec<TransmissionDto>,
+}
+
+fn combined_urdf(row: &repo::RobotRow, hand: &str) -> anyhow::Result<String> {
+    let desc: SystemDescriptor = serde_json::from_str(&row.descriptor)?;
+    let mount = desc
+        .mount
+        .ok_or_else(|| anyhow::anyhow!("stored system without mount"))?;
+    let mut arm = urdf_rs::read_from_string(&row.arm_urdf)?;
+    let hand = urdf_rs::read_from_string(hand)?;
+    let hand_root = kinematics::urdf::root_link(&hand)?;
+    arm.joints.push(urdf_rs::Joint {
+        name: "hand_mount_joint".into(),
+        joint_type: urdf_rs::JointType::Fixed,
+        origin: urdf_rs::Pose {
+            xyz: urdf_rs::Vec3(mount.xyz),
+            rpy: urdf_rs::Vec3(mount.rpy),
+        },
+        parent: urdf_rs::LinkName {
+            link: mount.parent_frame,
+        },
+        child: urdf_rs::LinkName { link: hand_root },
+        axis: urdf_rs::Axis::default(),
+        limit: urdf_rs::JointLimit::default(),
+        calibration: None,
+        dynamics: None,
+        mimic: None,
+        safety_controller: None,
+    });
+    arm.name = row.name.clone();
+    arm.links.extend(hand.links);
+    arm.joints.extend(hand.joints);
+    arm.materials.extend(hand.materials);
+    Ok(urdf_rs::write_to_string(&arm)?)
+}
 
 /// Longest IK time budget a request may ask for.
 pub const MAX_IK_BUDGET_MS: f64 = 2000.0;
