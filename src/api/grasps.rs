@@ -106,7 +106,7 @@ pub(crate) fn grasp_dto(row: repo::GraspRow) -> Result<GraspDto, ApiError> {
 #[utoipa::path(get, path = "/v1/objects", tag = "grasps",
     responses((status = 200, description = "OK", body = Vec<ObjectDto>)))]
 async fn list_objects(State(state): State<AppState>) -> Result<Json<Vec<ObjectDto>>, ApiError> {
-    let rows = repo::list_objects(&state.db).await?;
+    let rows = service::objects(&state).await?;
     Ok(Json(
         rows.into_iter().map(object_dto).collect::<Result<_, _>>()?,
     ))
@@ -137,10 +137,7 @@ async fn get_object(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<ObjectDto>, ApiError> {
-    let row = repo::get_object(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("object", &id))?;
-    Ok(Json(object_dto(row)?))
+    Ok(Json(object_dto(service::object(&state, &id).await?)?))
 }
 
 /// Delete an object (grasps computed for it keep their own copy).
@@ -152,11 +149,8 @@ async fn delete_object(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<StatusCode, ApiError> {
-    if repo::delete_object(&state.db, &id).await? {
-        Ok(StatusCode::NO_CONTENT)
-    } else {
-        Err(ApiError::not_found("object", &id))
-    }
+    service::delete_object(&state, &id).await?;
+    Ok(StatusCode::NO_CONTENT)
 }
 
 /// Compute a task-specific arm configuration and robust grasp (eq. 22-29) and store it. An
@@ -186,9 +180,7 @@ async fn get_grasp(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<GraspDto>, ApiError> {
-    let row = repo::get_grasp(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("grasp", &id))?;
+    let row = service::get(&state, &id).await?;
     Ok(Json(grasp_dto(row)?))
 }
 
@@ -214,9 +206,7 @@ async fn get_batch(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<GraspBatchDto>, ApiError> {
-    let (b, grasps) = repo::get_batch(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("grasp batch", &id))?;
+    let (b, grasps) = service::batch(&state, &id).await?;
     Ok(Json(GraspBatchDto {
         id: b.id,
         job_id: b.job_id,

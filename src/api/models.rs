@@ -295,9 +295,7 @@ async fn get_trajectory(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<TrajectoryDto>, ApiError> {
-    let t = trajectories::get_trajectory(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("trajectory", &id))?;
+    let t = service::trajectories::get(&state, &id).await?;
     Ok(Json(trajectory_dto(t)?))
 }
 

@@ -24,7 +24,7 @@ use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem};
 use crate::service;
 pub use crate::service::plans::{PlanIn, PlanTimings, StartIn};
-use crate::store::{grasps as grasp_repo, plans as repo, trajectories};
+use crate::store::plans as repo;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -136,39 +136,14 @@ async fn get_plan(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<PlanDto>, ApiError> {
-    let row = repo::get(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("plan", &id))?;
-    let grasp = grasp_repo::get_grasp(&state.db, &row.grasp_id)
-        .await?
-        .ok_or_else(|| {
-            ApiError::conflict(format!(
-                "the plan's grasp {} no longer exists",
-                row.grasp_id
-            ))
-        })?;
-    let trajectory = match &row.trajectory_id {
-        Some(t) => Some(trajectory_dto(
-            trajectories::get_trajectory(&state.db, t)
-                .await?
-                .ok_or_else(|| {
-                    ApiError::conflict(format!("the plan's trajectory {t} no longer exists"))
-                })?,
-        )?),
-        None => None,
-    };
-    Ok(Json(PlanDto {
-        id: row.id,
-        robot: row.robot,
-        model_id: row.model_id,
-        feasible: row.feasible,
-        reason: row.reason,
-        grasp: grasp_dto(grasp)?,
-        trajectory,
-        execution_id: row.execution_id,
-        timings: serde_json::from_str(&row.timings).map_err(ApiError::internal)?,
-        created_at: row.created_at,
-    }))
+    let stored = service::plans::get(&state, &id).await?;
+    let timings = serde_json::from_str(&stored.plan.timings).map_err(ApiError::internal)?;
+    let reason = stored.plan.reason.clone();
+    Ok(Json(plan_dto(service::plans::Planned {
+        stored,
+        reason,
+        timings,
+    })?))
 }
 
 /// List plans, newest first.

@@ -400,6 +400,41 @@ pub async fn compute(
     ))
 }
 
+/// The stored objects, the seeded everyday objects first.
+pub async fn objects(ctx: &Context) -> Result<Vec<repo::ObjectRow>, Error> {
+    Ok(repo::list_objects(&ctx.db).await?)
+}
+
+/// Stored object `id`.
+pub async fn object(ctx: &Context, id: &str) -> Result<repo::ObjectRow, Error> {
+    repo::get_object(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("object", id))
+}
+
+/// Deletes object `id` (grasps computed for it keep their own copy).
+pub async fn delete_object(ctx: &Context, id: &str) -> Result<(), Error> {
+    if repo::delete_object(&ctx.db, id).await? {
+        Ok(())
+    } else {
+        Err(Error::not_found("object", id))
+    }
+}
+
+/// Stored grasp `id`.
+pub async fn get(ctx: &Context, id: &str) -> Result<repo::GraspRow, Error> {
+    repo::get_grasp(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("grasp", id))
+}
+
+/// Finished batch `id` with its grasp ids in item order.
+pub async fn batch(ctx: &Context, id: &str) -> Result<(repo::BatchRow, Vec<String>), Error> {
+    repo::get_batch(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("grasp batch", id))
+}
+
 /// Computes and stores one grasp. An infeasible request (object out of reach, too large) is a
 /// stored result with `feasible: false` and a reason.
 pub async fn create(ctx: &Context, body: &GraspIn) -> Result<repo::GraspRow, Error> {

@@ -258,6 +258,38 @@ fn request_json(body: &PlanIn) -> Result<String, Error> {
     serde_json::to_string(&value).map_err(Error::internal)
 }
 
+/// Stored plan `id` with its grasp and trajectory (a plan whose grasp or trajectory has been
+/// deleted since conflicts with the stored state).
+pub async fn get(ctx: &Context, id: &str) -> Result<StoredPlan, Error> {
+    let plan = plan_repo::get(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("plan", id))?;
+    let grasp = grasp_repo::get_grasp(&ctx.db, &plan.grasp_id)
+        .await?
+        .ok_or_else(|| {
+            Error::Conflict(format!(
+                "the plan's grasp {} no longer exists",
+                plan.grasp_id
+            ))
+        })?;
+    let trajectory = match &plan.trajectory_id {
+        Some(t) => Some(
+            trajectories::get_trajectory(&ctx.db, t)
+                .await?
+                .ok_or_else(|| {
+                    Error::Conflict(format!("the plan's trajectory {t} no longer exists"))
+                })?,
+        ),
+        None => None,
+    };
+    Ok(StoredPlan {
+        grasp,
+        trajectory,
+        execution_id: plan.execution_id.clone(),
+        plan,
+    })
+}
+
 /// A stored plan with why it is infeasible, if it is, and how long its steps took.
 #[derive(Debug, Clone)]
 pub struct Planned {

@@ -299,6 +299,13 @@ pub async fn check_start(ctx: &Context, model: &str, start: &JointValues) -> Res
     Ok(l.robot.clone())
 }
 
+/// Stored trajectory `id`.
+pub async fn get(ctx: &Context, id: &str) -> Result<trajectories::StoredTrajectory, Error> {
+    trajectories::get_trajectory(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("trajectory", id))
+}
+
 /// Generates and stores one trajectory (`POST /v1/trajectories`).
 pub async fn create(
     ctx: &Context,
