@@ -15,7 +15,6 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use reachgrasp::api::models::held_out_folds;
 use reachgrasp::human::{StudyConfig, generate_study, ingest};
 use reachgrasp::kinematics::System;
 use reachgrasp::mapping::{
@@ -23,6 +22,7 @@ use reachgrasp::mapping::{
 };
 use reachgrasp::motion::mapped::{DEFAULT_ACCELERATION_LIMIT, system_groups, system_limits};
 use reachgrasp::motion::{DEFAULT_PROFILE_RIDGE, JointTrajectory, ProfileInputs, TrainOptions};
+use reachgrasp::service::models::held_out_folds;
 
 const SYSTEMS: [&str; 6] = [
     "wam_t42",

@@ -2,7 +2,8 @@
 //! low-complexity hands, as an HTTP planning service.
 //!
 //! Pure computation (no I/O, no async, deterministic for a seed): [`kinematics`], [`geometry`], [`human`],
-//! [`mapping`], [`motion`], [`grasp`], [`optim`], [`figures`]. The service shell around them, in
+//! [`mapping`], [`motion`], [`grasp`], [`optim`], [`figures`], and their one parallel map,
+//! [`parallel`]. The service shell around them, in
 //! layers (see [`service`] for the order and the test that keeps it): [`store`] and
 //! [`shutdown`]; [`jobs`] and [`bridge`]; the use cases in [`service`] with the typed
 //! [`config`]; the edges [`api`], [`dashboard`] and the CLI, wired together by [`app`]. Equation numbers refer to
@@ -22,6 +23,7 @@ pub mod kinematics;
 pub mod mapping;
 pub mod motion;
 pub mod optim;
+pub mod parallel;
 pub mod seed;
 pub mod service;
 pub mod shutdown;

@@ -264,18 +264,27 @@ fn main() -> anyhow::Result<()> {
     }
 }
 
-/// An API error as a CLI error: the detail and every offending field.
-fn api_failure(e: reachgrasp::api::ApiError) -> anyhow::Error {
-    let fields: Vec<String> = e
-        .errors()
-        .iter()
-        .map(|f| format!("{}: {}", f.path, f.message))
-        .collect();
-    // The field errors already say everything the summary line would (it repeats the first).
-    if fields.is_empty() {
-        anyhow::anyhow!("{}", e.detail())
-    } else {
-        anyhow::anyhow!("{}", fields.join("; "))
+/// A use case's error as a CLI error: every offending field, else the summary.
+fn failure(e: reachgrasp::service::Error) -> anyhow::Error {
+    use reachgrasp::service::Error as E;
+    match e {
+        E::Invalid(fields) => anyhow::anyhow!(
+            "{}",
+            fields
+                .iter()
+                .map(|f| format!("{}: {}", f.field, f.message))
+                .collect::<Vec<_>>()
+                .join("; ")
+        ),
+        E::Payload(issues) => anyhow::anyhow!(
+            "{}",
+            issues
+                .iter()
+                .map(|i| format!("{:?}{}: {}", i.part, i.at, i.message))
+                .collect::<Vec<_>>()
+                .join("; ")
+        ),
+        other => anyhow::Error::new(other),
     }
 }
 
@@ -293,7 +302,7 @@ fn progress_bar(len: usize, what: &str) -> anyhow::Result<indicatif::ProgressBar
 }
 
 fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
-    use reachgrasp::api::grasps::{GraspIn, grasp_offline};
+    use reachgrasp::service::grasps::{GraspIn, offline as grasp_offline};
     let out = match body {
         serde_json::Value::Array(items) => {
             let bar = progress_bar(items.len(), "grasps")?;
@@ -302,7 +311,7 @@ fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
                 let body: GraspIn = serde_json::from_value(item)
                     .map_err(|e| anyhow::anyhow!("request {i}: {e}"))?;
                 let r = grasp_offline(&config.robots, &body)
-                    .map_err(|e| api_failure(e).context(format!("request {i}")))?;
+                    .map_err(|e| failure(e).context(format!("request {i}")))?;
                 results.push(r);
                 bar.inc(1);
             }
@@ -311,9 +320,7 @@ fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
         }
         one => {
             let body: GraspIn = serde_json::from_value(one)?;
-            serde_json::to_string_pretty(
-                &grasp_offline(&config.robots, &body).map_err(api_failure)?,
-            )?
+            serde_json::to_string_pretty(&grasp_offline(&config.robots, &body).map_err(failure)?)?
         }
     };
     println!("{out}");
@@ -324,7 +331,7 @@ fn plan(mut config: Config, request: &std::path::Path) -> anyhow::Result<()> {
     use anyhow::Context;
     let text = std::fs::read_to_string(request)
         .with_context(|| format!("cannot read {}", request.display()))?;
-    let body: reachgrasp::api::plans::PlanIn = serde_json::from_str(&text)
+    let body: reachgrasp::service::plans::PlanIn = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a plan request", request.display()))?;
     anyhow::ensure!(
         config.db.is_file(),
@@ -339,9 +346,10 @@ fn plan(mut config: Config, request: &std::path::Path) -> anyhow::Result<()> {
         .build()?;
     let dto = runtime.block_on(async {
         let app = App::build(config).await?;
-        reachgrasp::api::plans::plan(app.state(), &body)
+        let planned = reachgrasp::service::plans::plan(app.state(), &body)
             .await
-            .map_err(api_failure)
+            .map_err(failure)?;
+        reachgrasp::api::plans::plan_dto(planned).map_err(|e| anyhow::anyhow!("{e}"))
     })?;
     println!("{}", serde_json::to_string_pretty(&dto)?);
     Ok(())
@@ -404,11 +412,10 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
 
 fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
     use anyhow::Context;
-    use reachgrasp::api::demonstrations::DemonstrationUpload;
-    use reachgrasp::api::mappings::{
+    use reachgrasp::human::{DemonstrationInput, ingest};
+    use reachgrasp::service::mappings::{
         RegistrationIn, ScaleIn, WeightsIn, map_offline, parse_params,
     };
-    use reachgrasp::human::{DemonstrationInput, ingest};
     use reachgrasp::store::mappings::DemoLabels;
     use std::io::Write;
 
@@ -430,7 +437,7 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
         scale,
         ..RegistrationIn::default()
     };
-    let params = parse_params(&weights, &registration, args.rate).map_err(api_failure)?;
+    let params = parse_params(&weights, &registration, args.rate).map_err(failure)?;
     let system =
         reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, &args.robot)?;
     let text = std::fs::read_to_string(&args.demo)
@@ -448,9 +455,9 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
     );
     let mut demos = Vec::with_capacity(docs.len());
     for (i, doc) in docs.into_iter().enumerate() {
-        let upload: DemonstrationUpload = serde_json::from_value(doc)
+        // The upload document of `POST /v1/demonstrations` is the ingest input itself.
+        let input: DemonstrationInput = serde_json::from_value(doc)
             .with_context(|| format!("demonstration {i} is not an upload document"))?;
-        let input: DemonstrationInput = upload.into();
         let demo = ingest(&input).with_context(|| format!("demonstration {i}"))?;
         let labels = DemoLabels {
             demonstration_id: demo
@@ -475,7 +482,7 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
         bar.set_position(done as u64)
     });
     bar.finish_and_clear();
-    let result = result.map_err(api_failure)?;
+    let result = result.map_err(failure)?;
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     serde_json::to_writer(&mut out, &result)?;
     writeln!(out)?;
@@ -551,14 +558,14 @@ fn serve(config: Config) -> anyhow::Result<()> {
 
 fn ik(config: &Config, robot: &str, targets: &std::path::Path) -> anyhow::Result<()> {
     use anyhow::Context;
-    use reachgrasp::api::robots;
+    use reachgrasp::service::robots;
     let system = reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, robot)?;
     let text = std::fs::read_to_string(targets)
         .with_context(|| format!("cannot read {}", targets.display()))?;
     let file: robots::IkBatchFile = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a list of IK targets", targets.display()))?;
     let report = robots::ik_batch(robot, &system, file)
-        .map_err(|e| anyhow::anyhow!("invalid target: {}", e.detail()))?;
+        .map_err(|e| anyhow::anyhow!("invalid target: {}", failure(e)))?;
     println!("{}", serde_json::to_string_pretty(&report)?);
     Ok(())
 }

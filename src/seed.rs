@@ -1,10 +1,10 @@
 //! First start: make an empty database immediately useful (issue 10).
 //!
 //! When a bundled system has no trained model, a background task generates the default
-//! synthetic study, maps it onto every such system and trains each one's default model. It does
-//! so as a client of the service's own API (in-process requests through the router, no
-//! network): every step is an ordinary job with progress in `/v1/jobs` and the dashboard, goes
-//! through the same validation, and stores exactly what a user making the same calls would. A
+//! synthetic study, maps it onto every such system and trains each one's default model. It
+//! calls the same use cases as the API's handlers ([`crate::service`]): every step is an
+//! ordinary job with progress in `/v1/jobs` and the dashboard, goes through the same
+//! validation, and stores exactly what a user making the same requests would. A
 //! crash midway leaves finished steps stored and unfinished ones `failed: interrupted`; the
 //! next start repeats only what is still missing (the study's demonstrations have deterministic
 //! external ids, so they are not duplicated).
@@ -15,15 +15,14 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use axum::Router;
-use axum::body::Body;
-use axum::http::{Method, Request, StatusCode, header};
-use serde_json::{Value, json};
-use tower::ServiceExt;
 use uuid::Uuid;
 
+use crate::human::StudyConfig;
 use crate::jobs::JobStatus;
 use crate::service::Context as AppState;
+use crate::service::mappings::{MappingIn, SelectionIn};
+use crate::service::models::CreateModel;
+use crate::service::{self, demonstrations};
 use crate::store;
 
 /// Seed of the default synthetic study (the paper's design: 5 subjects × 5 positions × 10
@@ -47,9 +46,7 @@ pub async fn start(state: &AppState) -> anyhow::Result<()> {
         tracing::info!("seeding: every bundled system has a default model");
         return Ok(());
     }
-    // One router for every in-process request of this run (building it mounts Swagger UI).
-    let router = crate::api::router(state.clone(), Router::new());
-    let study = submit_study(&router).await?;
+    let study = submit_study(state).await?;
     for r in &missing {
         state.seed.set(r, study);
     }
@@ -57,7 +54,7 @@ pub async fn start(state: &AppState) -> anyhow::Result<()> {
     let state = state.clone();
     tokio::spawn(async move {
         let started = Instant::now();
-        match run(&state, &router, study, &missing).await {
+        match run(&state, study, &missing).await {
             Ok(()) => tracing::info!(
                 seconds = started.elapsed().as_secs_f64(),
                 "seeding: finished; every bundled system has a default model"
@@ -85,12 +82,7 @@ async fn robots_missing_a_model(state: &AppState) -> anyhow::Result<Vec<String>>
     Ok(missing)
 }
 
-async fn run(
-    state: &AppState,
-    router: &Router,
-    study: Uuid,
-    robots: &[String],
-) -> anyhow::Result<()> {
+async fn run(state: &AppState, study: Uuid, robots: &[String]) -> anyhow::Result<()> {
     wait(state, study, "synthetic study").await?;
     let demos =
         store::demonstrations::ids_by_external_prefix(&state.db, &format!("synth-{STUDY_SEED}-"))
@@ -100,10 +92,9 @@ async fn run(
     }
     let mut tasks = tokio::task::JoinSet::new();
     for r in robots {
-        let (state, router, robot, demos) =
-            (state.clone(), router.clone(), r.clone(), demos.clone());
+        let (state, robot, demos) = (state.clone(), r.clone(), demos.clone());
         tasks.spawn(async move {
-            let r = seed_robot(&state, &router, &robot, demos).await;
+            let r = seed_robot(&state, &robot, demos).await;
             state.seed.clear(&robot);
             r.with_context(|| format!("seeding {robot}"))
         });
@@ -124,93 +115,73 @@ async fn run(
     first_error.map_or(Ok(()), Err)
 }
 
-async fn seed_robot(
-    state: &AppState,
-    router: &Router,
-    robot: &str,
-    demos: Vec<String>,
-) -> anyhow::Result<()> {
-    let (job, mapping) = submit(
-        router,
-        "/v1/mappings",
-        json!({"robot": robot, "demonstrations": demos, "output_rate_hz": MAPPING_RATE_HZ}),
-    )
-    .await?;
+async fn seed_robot(state: &AppState, robot: &str, demos: Vec<String>) -> anyhow::Result<()> {
+    let request = MappingIn {
+        robot: robot.to_owned(),
+        demonstrations: SelectionIn::Ids(demos),
+        weights: Default::default(),
+        registration: Default::default(),
+        output_rate_hz: Some(MAPPING_RATE_HZ),
+    };
+    let (job, mapping) = service::mappings::submit(state, &request)
+        .await
+        .map_err(|e| step_failed("mapping", e))?;
+    let job = job.id;
     state.seed.set(robot, job);
     tracing::info!(robot, %job, "seeding: mapping the study");
     wait(state, job, "mapping").await?;
-    let mapping = mapping.context("the mapping answer has no Content-Location")?;
-    let (job, model) = submit(
-        router,
-        "/v1/models",
-        json!({"robot": robot, "mappings": [mapping], "held_out": false, "default": true}),
-    )
-    .await?;
+    let request = CreateModel {
+        robot: robot.to_owned(),
+        mappings: vec![mapping],
+        components: None,
+        variance_threshold: None,
+        spline_intervals: None,
+        regularisation: None,
+        k: None,
+        held_out: Some(false),
+        residual_profile: None,
+        profile_ridge: None,
+        acceleration_limit: None,
+        control: None,
+        default: true,
+    };
+    let (job, model) = service::models::train_model(state, &request)
+        .await
+        .map_err(|e| step_failed("training", e))?;
+    let job = job.id;
     state.seed.set(robot, job);
     tracing::info!(robot, %job, "seeding: training the default model");
     wait(state, job, "training").await?;
     tracing::info!(
         robot,
-        model = model.as_deref().unwrap_or("?"),
+        model = %model,
         "seeding: default model ready"
     );
     Ok(())
 }
 
-async fn submit_study(router: &Router) -> anyhow::Result<Uuid> {
-    Ok(submit(
-        router,
-        "/v1/demonstrations/synthetic",
-        json!({"seed": STUDY_SEED}),
-    )
-    .await?
-    .0)
+async fn submit_study(state: &AppState) -> anyhow::Result<Uuid> {
+    let config = StudyConfig {
+        seed: STUDY_SEED,
+        ..StudyConfig::default()
+    };
+    let job = demonstrations::submit_study(state, config)
+        .await
+        .map_err(|e| step_failed("synthetic study", e))?;
+    Ok(job.id)
 }
 
-/// POSTs `body` to a job-creating route in-process; returns the job id (`Location`) and the
-/// resource id the job fills (`Content-Location`), if given.
-async fn submit(
-    router: &Router,
-    path: &str,
-    body: Value,
-) -> anyhow::Result<(Uuid, Option<String>)> {
-    let request = Request::builder()
-        .method(Method::POST)
-        .uri(path)
-        .header(header::CONTENT_TYPE, "application/json")
-        .body(Body::from(body.to_string()))?;
-    let response = router
-        .clone()
-        .oneshot(request)
-        .await
-        .expect("the router is infallible");
-    let (parts, body) = response.into_parts();
-    let status = parts.status;
-    let header_value = |name| {
-        parts
-            .headers
-            .get(name)
-            .and_then(|v| v.to_str().ok())
-            .map(str::to_owned)
+/// A step the service refused: its error, which names the offending field if any.
+fn step_failed(what: &str, e: service::Error) -> anyhow::Error {
+    let detail = match &e {
+        service::Error::Invalid(fields) => fields
+            .iter()
+            .map(|f| format!("{}: {}", f.field, f.message))
+            .collect::<Vec<_>>()
+            .join("; "),
+        other => other.to_string(),
     };
-    let job = header_value(header::LOCATION);
-    let resource = header_value(header::CONTENT_LOCATION);
-    if status != StatusCode::ACCEPTED {
-        let bytes = axum::body::to_bytes(body, 64 * 1024)
-            .await
-            .unwrap_or_default();
-        bail!(
-            "POST {path} answered {status}: {}",
-            String::from_utf8_lossy(&bytes)
-        );
-    }
-    let job = job
-        .as_deref()
-        .and_then(|l| l.strip_prefix("/v1/jobs/"))
-        .and_then(|id| id.parse().ok())
-        .with_context(|| format!("POST {path}: no job Location"))?;
-    let resource = resource.and_then(|l| l.rsplit('/').next().map(str::to_owned));
-    Ok((job, resource))
+    anyhow::anyhow!("submitting the {what} failed: {detail}")
 }
 
 /// Waits for a job to end; an error unless it succeeded.

@@ -19,13 +19,23 @@ const LAYERS: &[(&str, &[&str])] = &[
             "grasp",
             "optim",
             "figures",
+            "parallel",
         ],
     ),
     ("store", &["store", "shutdown"]),
     ("jobs/bridge", &["jobs", "bridge"]),
     ("service", &["service", "config"]),
-    ("edges", &["api", "dashboard", "seed", "app", "cli"]),
+    // The edges that reach the use cases without HTTP: never through the API's handlers or
+    // router.
+    ("pages and seeding", &["dashboard", "seed"]),
+    ("http", &["api"]),
+    ("process", &["app", "cli"]),
 ];
+
+/// What the CLI may take from `api`: the OpenAPI document it prints and the rendering of a
+/// plan (`reachgrasp plan` prints what `POST /v1/plans` answers). Its use cases come from
+/// `service`.
+const CLI_API_ALLOWED: &[&str] = &["api::openapi()", "api::plans::plan_dto("];
 
 fn layer_of(module: &str) -> Option<usize> {
     LAYERS.iter().position(|(_, ms)| ms.contains(&module))
@@ -215,6 +225,29 @@ fn no_import_circle_between_top_level_modules() {
             panic!("import circle: {}", circle.join(" -> "));
         }
     }
+}
+
+#[test]
+fn the_cli_calls_use_cases_not_api_handlers() {
+    let main = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/main.rs");
+    let text = std::fs::read_to_string(main).expect("readable main.rs");
+    let mut wrong = Vec::new();
+    for (n, line) in text.lines().enumerate() {
+        let code = line.split("//").next().unwrap_or("");
+        let mut rest = code;
+        while let Some(i) = rest.find("reachgrasp::api") {
+            let after = &rest[i + "reachgrasp::".len()..];
+            if !CLI_API_ALLOWED.iter().any(|a| after.starts_with(a)) {
+                wrong.push(format!("src/main.rs:{}: {}", n + 1, line.trim()));
+            }
+            rest = after;
+        }
+    }
+    assert!(
+        wrong.is_empty(),
+        "the CLI uses the API beyond {CLI_API_ALLOWED:?}:\n{}",
+        wrong.join("\n")
+    );
 }
 
 #[test]

@@ -10,6 +10,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use uuid::Uuid;
 
+use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem, Query};
 use crate::human::{
     self, Demonstration, DemonstrationInput, GloveCalibration, GloveStream, HumanError,
@@ -169,14 +170,13 @@ impl TryFrom<&DemonstrationRow> for DemonstrationDto {
     }
 }
 
-/// A page of demonstrations, newest first.
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct DemonstrationList {
-    pub items: Vec<DemonstrationDto>,
-    pub total: i64,
-    pub limit: u32,
-    pub offset: u32,
+impl Listed for DemonstrationDto {
+    const PAGE: &'static str = "DemonstrationList";
+    const DESCRIPTION: Option<&'static str> = Some("A page of demonstrations, newest first.");
 }
+
+/// A page of demonstrations, newest first.
+pub type DemonstrationList = Page<DemonstrationDto>;
 
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
@@ -190,8 +190,10 @@ pub struct ListQuery {
     /// Only those produced by this synthetic-study job.
     pub job_id: Option<Uuid>,
     /// Page size, 1 to 500 (default 50).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub limit: Option<u32>,
     /// Demonstrations to skip (default 0).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub offset: Option<u32>,
 }
 
@@ -394,29 +396,22 @@ async fn create_demonstration(
     ))]
 async fn list_demonstrations(
     State(state): State<AppState>,
-    Query(q): Query<ListQuery>,
+    Listing(q, page): Listing<ListQuery>,
 ) -> Result<Json<DemonstrationList>, ApiError> {
-    let limit = super::extract::page_limit(q.limit)?;
-    let offset = q.offset.unwrap_or(0);
     let filter = DemonstrationFilter {
         subject: q.subject,
         object: q.object,
         synthetic: q.synthetic,
         job_id: q.job_id.map(|j| j.to_string()),
-        limit,
-        offset,
+        limit: page.limit,
+        offset: page.offset,
     };
     let (rows, total) = repo::list(&state.db, &filter).await?;
     let items = rows
         .iter()
         .map(DemonstrationDto::try_from)
         .collect::<Result<_, _>>()?;
-    Ok(Json(DemonstrationList {
-        items,
-        total,
-        limit,
-        offset,
-    }))
+    Ok(Json(page.of(items, Some(total))))
 }
 
 /// One demonstration: metadata and ingest summary.

@@ -18,11 +18,12 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use uuid::Uuid;
 
+use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, FieldError, Json, Path, Problem, Query};
 use crate::bridge::protocol::{Feedback, TrajectoryPointSchema};
 use crate::bridge::{ExecutionPayload, Mode, TrackingSummary, WorkerName};
 use crate::motion::TrajectoryPoint;
-use crate::store::executions as repo;
+use crate::store::executions::{self as repo, ExecutionState};
 use crate::store::feedback::{self, History};
 
 /// Where the parts of a payload came from in a request, for error paths
@@ -174,18 +175,21 @@ pub struct ListExecutionsQuery {
     /// Only executions of this robot.
     pub robot: Option<String>,
     /// Page size, 1 to 500 (default 50).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub limit: Option<u32>,
     /// Executions to skip (default 0).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub offset: Option<u32>,
 }
 
-/// A page of executions, newest first.
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct ExecutionList {
-    pub items: Vec<ExecutionDto>,
-    pub limit: u32,
-    pub offset: u32,
+impl Listed for ExecutionDto {
+    const PAGE: &'static str = "ExecutionList";
+    const DESCRIPTION: Option<&'static str> = Some("A page of executions, newest first.");
+    const COUNTED: bool = false;
 }
+
+/// A page of executions, newest first.
+pub type ExecutionList = Page<ExecutionDto>;
 
 // ------------------------------------------------------------------------------------ views
 
@@ -201,7 +205,7 @@ pub async fn view(state: &AppState, row: repo::ExecutionRow) -> ExecutionDto {
         mode: Mode::parse(&row.mode).unwrap_or(Mode::OpenLoop),
         id: row.id,
         robot: row.robot,
-        state: row.state,
+        state: row.state.to_string(),
         reason: row.reason,
         kind: row.kind,
         source_id: row.source_id,
@@ -224,7 +228,7 @@ pub async fn history(
     row: &repo::ExecutionRow,
     n_joints: usize,
 ) -> Result<History, ApiError> {
-    if row.state == repo::RUNNING
+    if row.state == ExecutionState::Running
         && let Some(h) = state.bridges.history(&row.id)
         && h.n_joints == n_joints
     {
@@ -502,44 +506,28 @@ async fn create_execution(
     ))]
 async fn list_executions(
     State(state): State<AppState>,
-    Query(q): Query<ListExecutionsQuery>,
+    Listing(q, page): Listing<ListExecutionsQuery>,
 ) -> Result<Json<ExecutionList>, ApiError> {
-    let limit = super::extract::page_limit(q.limit)?;
-    let offset = q.offset.unwrap_or(0);
-    if let Some(s) = &q.state
-        && ![
-            repo::QUEUED,
-            repo::RUNNING,
-            repo::SUCCEEDED,
-            repo::FAILED,
-            repo::ABORTED,
-            repo::CANCELLED,
-            repo::INTERRUPTED,
-        ]
-        .contains(&s.as_str())
-    {
-        return Err(ApiError::invalid_parameter(
-            "state",
-            format!("unknown state '{s}'"),
-        ));
-    }
+    let wanted =
+        match &q.state {
+            None => None,
+            Some(s) => Some(ExecutionState::parse(s).ok_or_else(|| {
+                ApiError::invalid_parameter("state", format!("unknown state '{s}'"))
+            })?),
+        };
     let rows = repo::list(
         &state.db,
-        q.state.as_deref(),
+        wanted,
         q.robot.as_deref(),
-        limit,
-        offset,
+        page.limit,
+        page.offset,
     )
     .await?;
     let mut items = Vec::with_capacity(rows.len());
     for r in rows {
         items.push(view(&state, r).await);
     }
-    Ok(Json(ExecutionList {
-        items,
-        limit,
-        offset,
-    }))
+    Ok(Json(page.of(items, None)))
 }
 
 /// One execution: state, last feedback, tracking error summary.
@@ -595,7 +583,7 @@ async fn execution_events(
     let first = load(&state, &id).await?;
     // A finished execution gets its final event only; a live one is followed. The first event
     // is read after subscribing, so no change in between is missed.
-    let rx = if repo::is_final(&first.state) {
+    let rx = if ExecutionState::parse(&first.state).is_none_or(ExecutionState::is_final) {
         watch::channel(0).1
     } else {
         state.bridges.subscribe(&key)
@@ -619,7 +607,7 @@ async fn execution_events(
             }
             let row = repo::get(&state.db, &key).await.ok().flatten()?;
             let dto = view(&state, row).await;
-            let last = repo::is_final(&dto.state);
+            let last = ExecutionState::parse(&dto.state).is_none_or(ExecutionState::is_final);
             let event = Event::default()
                 .event(if last { "final" } else { "progress" })
                 .id(seq.to_string())
@@ -691,7 +679,7 @@ async fn execution_feedback(
         .flatten();
     Ok(Json(FeedbackHistoryDto {
         execution_id: key,
-        state: row.state,
+        state: row.state.to_string(),
         joint_names,
         total: h.len() as u64,
         max_rate_hz: feedback::MAX_RATE_HZ,

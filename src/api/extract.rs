@@ -187,24 +187,6 @@ impl From<QueryRejection> for ApiError {
     }
 }
 
-/// Largest page a list endpoint returns.
-pub const MAX_PAGE: u32 = 500;
-/// Page size when the client names none.
-pub const DEFAULT_PAGE: u32 = 50;
-
-/// The `limit` query parameter of every list endpoint, defaulted and range-checked once here so
-/// all lists page alike.
-pub fn page_limit(limit: Option<u32>) -> Result<u32, super::ApiError> {
-    let limit = limit.unwrap_or(DEFAULT_PAGE);
-    if !(1..=MAX_PAGE).contains(&limit) {
-        return Err(super::ApiError::invalid_parameter(
-            "limit",
-            format!("must be between 1 and {MAX_PAGE}, got {limit}"),
-        ));
-    }
-    Ok(limit)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -160,7 +160,7 @@ async fn robot_plot(
     Query(q): Query<PostureQuery>,
 ) -> Result<Response, ApiError> {
     let view = View::new(q.azimuth, q.elevation)?;
-    let system = super::robots::system(&state, &id).await?;
+    let system = crate::service::robots::system(&state, &id).await?;
     let config = parse_q(&system.model, q.q.as_deref())?;
     render(move || {
         let scene = figures::posture_scene(&system, &config)?;
@@ -243,7 +243,7 @@ async fn grasp_plot(
     let result: GraspResult = serde_json::from_str(&row.result).map_err(ApiError::internal)?;
     let robots = state.config.robots.clone();
     render(move || {
-        let system = super::grasps::load_system(&robots, &row.robot)?;
+        let system = crate::service::grasps::load_system(&robots, &row.robot)?;
         let dirs: Vec<([f64; 3], _)> = settings
             .task_directions
             .iter()
@@ -319,7 +319,7 @@ async fn mapping_plot(
         ));
     };
     let (_, frames) = load_demonstration(&state, &demo.demonstration_id).await?;
-    let system = super::robots::system(&state, &row.robot).await?;
+    let system = crate::service::robots::system(&state, &row.robot).await?;
     render(move || {
         let scene = figures::mapping_scene(&MappingInput {
             system: &system,

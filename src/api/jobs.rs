@@ -6,14 +6,15 @@ use axum::extract::State;
 use axum::http::StatusCode;
 use axum::response::sse::{Event, KeepAlive, Sse};
 use futures::Stream;
-use serde::{Deserialize, Serialize};
+use serde::Deserialize;
 use tokio::sync::watch;
-use utoipa::{IntoParams, ToSchema};
+use utoipa::IntoParams;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use uuid::Uuid;
 
-use super::{ApiError, AppState, Json, Path, Problem, Query};
+use super::page::{Listed, Listing, Page};
+use super::{ApiError, AppState, Json, Path, Problem};
 use crate::jobs::{JobRecord, JobRunner, JobStatus};
 use crate::shutdown::Shutdown;
 use crate::store::jobs::JobFilter;
@@ -34,18 +35,21 @@ pub struct ListJobsQuery {
     /// Only jobs of this kind.
     pub kind: Option<String>,
     /// Page size, 1 to 500 (default 50).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub limit: Option<u32>,
     /// Jobs to skip (default 0).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
     pub offset: Option<u32>,
 }
 
-/// A page of jobs, newest first.
-#[derive(Debug, Serialize, Deserialize, ToSchema)]
-pub struct JobList {
-    pub items: Vec<JobRecord>,
-    pub limit: u32,
-    pub offset: u32,
+impl Listed for JobRecord {
+    const PAGE: &'static str = "JobList";
+    const DESCRIPTION: Option<&'static str> = Some("A page of jobs, newest first.");
+    const COUNTED: bool = false;
 }
+
+/// A page of jobs, newest first.
+pub type JobList = Page<JobRecord>;
 
 /// List jobs, newest first.
 #[utoipa::path(get, path = "/v1/jobs", tag = "jobs", params(ListJobsQuery),
@@ -56,22 +60,16 @@ pub struct JobList {
     ))]
 async fn list_jobs(
     State(state): State<AppState>,
-    Query(q): Query<ListJobsQuery>,
+    Listing(q, page): Listing<ListJobsQuery>,
 ) -> Result<Json<JobList>, ApiError> {
-    let limit = super::extract::page_limit(q.limit)?;
-    let offset = q.offset.unwrap_or(0);
     let filter = JobFilter {
         status: q.status,
         kind: q.kind,
-        limit,
-        offset,
+        limit: page.limit,
+        offset: page.offset,
     };
     let items = state.jobs.list(&filter).await?;
-    Ok(Json(JobList {
-        items,
-        limit,
-        offset,
-    }))
+    Ok(Json(page.of(items, None)))
 }
 
 /// One job: status, progress, error and result reference.

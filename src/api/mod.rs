@@ -74,6 +74,7 @@ pub mod jobs;
 pub mod mappings;
 pub mod middleware;
 pub mod models;
+pub mod page;
 pub mod plans;
 pub mod robots;
 pub mod testing;

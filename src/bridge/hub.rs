@@ -28,7 +28,7 @@ use super::protocol::{
 };
 use super::{BridgeError, WorkerName};
 use crate::shutdown::Shutdown;
-use crate::store::executions as repo;
+use crate::store::executions::{self as repo, ExecutionState};
 use crate::store::feedback::{Chunk, History, Recorder};
 use crate::store::library::{LibraryError, RobotLibrary};
 
@@ -192,11 +192,9 @@ impl Hub {
             let row = repo::get(&self.0.db, id)
                 .await?
                 .ok_or_else(|| BridgeError::UnknownExecution(id.to_owned()))?;
-            if let Some(state) = repo::ExecutionState::parse(&row.state)
-                && state.is_final()
-            {
+            if row.state.is_final() {
                 return Ok(super::client::Finished {
-                    state,
+                    state: row.state,
                     reason: row.reason,
                 });
             }
@@ -390,7 +388,7 @@ impl Hub {
                     if repo::finish(
                         &self.0.db,
                         &row.id,
-                        repo::FAILED,
+                        ExecutionState::Failed,
                         Some(&reason),
                         None,
                         None,
@@ -466,17 +464,17 @@ impl Hub {
         let row = repo::get(&self.0.db, id)
             .await?
             .ok_or_else(|| BridgeError::UnknownExecution(id.to_owned()))?;
-        if repo::is_final(&row.state) {
+        if row.state.is_final() {
             return Err(BridgeError::AlreadyFinished {
                 id: id.to_owned(),
                 state: row.state,
             });
         }
-        if row.state == repo::QUEUED
+        if row.state == ExecutionState::Queued
             && repo::finish(
                 &self.0.db,
                 id,
-                repo::CANCELLED,
+                ExecutionState::Cancelled,
                 Some("cancelled before it was dispatched"),
                 None,
                 None,
@@ -626,7 +624,7 @@ impl Hub {
             match repo::finish(
                 &self.0.db,
                 &id,
-                repo::INTERRUPTED,
+                ExecutionState::Interrupted,
                 Some(&reason),
                 fb.as_deref(),
                 tr.as_deref(),
@@ -773,10 +771,10 @@ impl Hub {
         });
         let cancel_requested = live.as_ref().is_some_and(|l| l.cancel_requested);
         let state = match r.outcome {
-            Outcome::Succeeded => repo::SUCCEEDED,
-            Outcome::Failed => repo::FAILED,
-            Outcome::Aborted if cancel_requested => repo::CANCELLED,
-            Outcome::Aborted => repo::ABORTED,
+            Outcome::Succeeded => ExecutionState::Succeeded,
+            Outcome::Failed => ExecutionState::Failed,
+            Outcome::Aborted if cancel_requested => ExecutionState::Cancelled,
+            Outcome::Aborted => ExecutionState::Aborted,
         };
         let fb = live
             .as_ref()
@@ -797,7 +795,7 @@ impl Hub {
         )
         .await
         {
-            Ok(_) => tracing::info!(execution = %r.execution_id, state, "execution finished"),
+            Ok(_) => tracing::info!(execution = %r.execution_id, %state, "execution finished"),
             Err(e) => {
                 tracing::error!(execution = %r.execution_id, error = %e, "cannot record a result")
             }

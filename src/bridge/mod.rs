@@ -99,7 +99,10 @@ pub enum BridgeError {
     #[error("no execution '{0}'")]
     UnknownExecution(String),
     #[error("execution {id} has already finished ({state})")]
-    AlreadyFinished { id: String, state: String },
+    AlreadyFinished {
+        id: String,
+        state: crate::store::executions::ExecutionState,
+    },
     #[error(transparent)]
     Store(#[from] sqlx::Error),
     #[error(transparent)]

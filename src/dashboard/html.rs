@@ -5,6 +5,48 @@ use std::fmt::Write;
 use axum::http::StatusCode;
 use axum::response::{Html, IntoResponse, Response};
 
+/// Why a page could not be shown: a use case's error, rendered as a readable HTML page with
+/// its status (the API renders the same errors as problem+json; this edge has its own face).
+#[derive(Debug)]
+pub struct PageError(pub crate::service::Error);
+
+impl PageError {
+    pub fn internal(cause: impl Into<anyhow::Error>) -> Self {
+        PageError(crate::service::Error::internal(cause))
+    }
+}
+
+impl<E: Into<crate::service::Error>> From<E> for PageError {
+    fn from(e: E) -> Self {
+        PageError(e.into())
+    }
+}
+
+impl IntoResponse for PageError {
+    fn into_response(self) -> Response {
+        use crate::service::Error as E;
+        let status = match &self.0 {
+            E::Invalid(_) | E::Payload(_) => StatusCode::UNPROCESSABLE_ENTITY,
+            E::NotFound { .. } => StatusCode::NOT_FOUND,
+            E::Conflict(_) => StatusCode::CONFLICT,
+            E::NotReady { .. } | E::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
+            _ => StatusCode::INTERNAL_SERVER_ERROR,
+        };
+        // Internal causes are logged, never shown.
+        let text = if status == StatusCode::INTERNAL_SERVER_ERROR {
+            tracing::error!(error = ?self.0, "dashboard page failed");
+            "internal error; see the server logs".to_owned()
+        } else {
+            self.0.to_string()
+        };
+        let body = format!(
+            "<section class=\"notfound\"><p>{}</p><p><a href=\"/\">Overview</a></p></section>",
+            esc(&text)
+        );
+        (status, Html(page("Error", "/", &body))).into_response()
+    }
+}
+
 /// Escapes text for HTML element content and quoted attribute values (`&<>"'`).
 pub fn esc(s: &str) -> String {
     html_escape::encode_quoted_attribute(s).into_owned()

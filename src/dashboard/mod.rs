@@ -1,7 +1,7 @@
 //! Dashboard: server-rendered HTML pages at `GET /` and `/ui/...`, with the stylesheet and script
 //! embedded in the binary (`include_str!`; no CDN, no build step).
 //!
-//! Pages read the store directly and link to the figures of [`crate::api::figures`]. The script
+//! Pages read the store directly and link to the figures of the API (`/v1/.../plot.svg`). The script
 //! (`assets/dashboard/app.js`) does three things: submits the action forms as JSON to the API and
 //! shows each problem+json field error next to the input whose `data-path` matches the error's
 //! JSONPath; follows job progress over Server-Sent Events (`/v1/jobs/{id}/events`) with a

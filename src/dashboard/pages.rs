@@ -5,18 +5,17 @@ use axum::response::Response;
 use serde::Deserialize;
 use uuid::Uuid;
 
-use super::html::{self, esc, facts, field, figure, form, link, num, progress, table};
-use crate::api::ApiError;
-use crate::api::grasps::GraspSettingsDto;
+use super::html::{self, PageError, esc, facts, field, figure, form, link, num, progress, table};
 use crate::grasp::{GraspResult, ObjectSpec, ShapeSpec};
 use crate::jobs::JobRecord;
 use crate::service::Context as AppState;
+use crate::service::grasps::GraspSettings;
 use crate::store::demonstrations::{self as demo_repo, DemonstrationFilter};
 use crate::store::grasps as grasp_repo;
 use crate::store::jobs::JobFilter;
 use crate::store::robots as robot_repo;
 
-type Page = Result<Response, ApiError>;
+type Page = Result<Response, PageError>;
 
 fn job_link(j: &JobRecord) -> String {
     link(&format!("/ui/jobs/{}", j.id), &j.id.to_string()[..8])
@@ -86,7 +85,7 @@ fn synthetic_form() -> String {
     )
 }
 
-async fn map_form(state: &AppState, job_id: &str) -> Result<String, ApiError> {
+async fn map_form(state: &AppState, job_id: &str) -> Result<String, PageError> {
     let robots = robot_repo::list(&state.db).await?;
     let robot_opts: String = robots.iter().map(|r| format!("{}|", r.id)).collect();
     Ok(form(
@@ -120,7 +119,7 @@ async fn map_form(state: &AppState, job_id: &str) -> Result<String, ApiError> {
     ))
 }
 
-async fn grasp_form(state: &AppState, object: Option<&str>) -> Result<String, ApiError> {
+async fn grasp_form(state: &AppState, object: Option<&str>) -> Result<String, PageError> {
     let robots = robot_repo::list(&state.db).await?;
     let robot_opts: String = robots.iter().map(|r| format!("{}|", r.id)).collect();
     let objects = grasp_repo::list_objects(&state.db).await?;
@@ -359,8 +358,8 @@ pub async fn object(State(state): State<AppState>, Path(id): Path<String>) -> Pa
     let Some(row) = grasp_repo::get_object(&state.db, &id).await? else {
         return Ok(html::not_found("object", &id, "/ui/objects", "objects"));
     };
-    let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(ApiError::internal)?;
-    let pretty = serde_json::to_string_pretty(&spec).map_err(ApiError::internal)?;
+    let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(PageError::internal)?;
+    let pretty = serde_json::to_string_pretty(&spec).map_err(PageError::internal)?;
     let body = format!(
         "{}{}<h2>Specification</h2><pre>{}</pre>",
         facts(&[
@@ -597,12 +596,11 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
     let Some(g) = grasp_repo::get_grasp(&state.db, &id).await? else {
         return Ok(html::not_found("grasp", &id, "/ui/grasps", "grasps"));
     };
-    let object: ObjectSpec = serde_json::from_str(&g.object).map_err(ApiError::internal)?;
-    let settings: GraspSettingsDto =
-        serde_json::from_str(&g.request).map_err(ApiError::internal)?;
-    let result: GraspResult = serde_json::from_str(&g.result).map_err(ApiError::internal)?;
-    let terms = serde_json::to_value(&result.terms).map_err(ApiError::internal)?;
-    let residuals = serde_json::to_value(&result.residuals).map_err(ApiError::internal)?;
+    let object: ObjectSpec = serde_json::from_str(&g.object).map_err(PageError::internal)?;
+    let settings: GraspSettings = serde_json::from_str(&g.request).map_err(PageError::internal)?;
+    let result: GraspResult = serde_json::from_str(&g.result).map_err(PageError::internal)?;
+    let terms = serde_json::to_value(&result.terms).map_err(PageError::internal)?;
+    let residuals = serde_json::to_value(&result.residuals).map_err(PageError::internal)?;
     let owned: Vec<(String, String)> = number_facts(&terms)
         .into_iter()
         .chain(number_facts(&residuals))

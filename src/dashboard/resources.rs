@@ -4,17 +4,16 @@
 use axum::extract::{Path, Query, State};
 use serde::Deserialize;
 
-use super::html::{self, esc, facts, field, figure, form, link, num, progress, table};
-use crate::api::ApiError;
+use super::html::{self, PageError, esc, facts, field, figure, form, link, num, progress, table};
 use crate::bridge::Mode;
 use crate::service::Context as AppState;
-use crate::store::executions as execution_repo;
+use crate::store::executions::{self as execution_repo, ExecutionState};
 use crate::store::grasps as grasp_repo;
 use crate::store::mappings as mapping_repo;
 use crate::store::models as model_repo;
 use crate::store::trajectories as trajectory_repo;
 
-type Page = Result<axum::response::Response, ApiError>;
+type Page = Result<axum::response::Response, PageError>;
 
 fn short(id: &str) -> &str {
     &id[..8.min(id.len())]
@@ -27,8 +26,8 @@ fn pretty(json: &str) -> String {
 }
 
 /// A live progress bar for an execution (the script follows its Server-Sent Events).
-fn execution_progress(id: &str, state: &str, fraction: f64) -> String {
-    progress(id, state, fraction)
+fn execution_progress(id: &str, state: ExecutionState, fraction: f64) -> String {
+    progress(id, state.as_str(), fraction)
         .replacen(
             "class=\"job-status\"",
             "class=\"job-status exec-status\"",
@@ -58,7 +57,7 @@ fn train_form(robot: &str, mapping: &str) -> String {
     )
 }
 
-async fn trajectory_form(state: &AppState, model: &str, robot: &str) -> Result<String, ApiError> {
+async fn trajectory_form(state: &AppState, model: &str, robot: &str) -> Result<String, PageError> {
     let system = state.robots.system(robot).await?;
     let m = &system.model;
     let neutral: Vec<String> = m.neutral().iter().map(|v| num(*v, 4)).collect();
@@ -495,8 +494,12 @@ pub async fn executions(State(state): State<AppState>, Query(q): Query<PageQuery
                 esc(&e.mode),
                 execution_progress(
                     &e.id,
-                    &e.state,
-                    if e.state == "succeeded" { 1.0 } else { 0.0 },
+                    e.state,
+                    if e.state == ExecutionState::Succeeded {
+                        1.0
+                    } else {
+                        0.0
+                    },
                 ),
                 esc(e.assigned_worker.as_deref().unwrap_or("")),
                 esc(&e.created_at),
@@ -529,8 +532,8 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
     let view = crate::service::executions::view(&state, row);
     let mode = Mode::parse(&view.row.mode).unwrap_or(Mode::OpenLoop);
     let dto = &view.row;
-    let fraction = match (&view.last_feedback, dto.state.as_str()) {
-        (_, "succeeded") => 1.0,
+    let fraction = match (&view.last_feedback, dto.state) {
+        (_, ExecutionState::Succeeded) => 1.0,
         (Some(f), _) => f.progress,
         _ => 0.0,
     };
@@ -567,7 +570,7 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
                     .unwrap_or(""))
             ),
             ("source", source),
-            ("progress", execution_progress(&id, &dto.state, fraction)),
+            ("progress", execution_progress(&id, dto.state, fraction)),
             ("reason", esc(dto.reason.as_deref().unwrap_or(""))),
             (
                 "worker",

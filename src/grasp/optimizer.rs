@@ -1454,22 +1454,8 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
     }
     let req = &req;
     let threads = req.threads.clamp(1, req.starts);
-    let mut outcomes: Vec<StartOutcome> = std::thread::scope(|s| {
-        let handles: Vec<_> = (0..threads)
-            .map(|w| {
-                s.spawn(move || {
-                    (w..req.starts)
-                        .step_by(threads)
-                        .map(|k| run_start(sys, req, k))
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .flat_map(|h| h.join().expect("grasp worker panicked"))
-            .collect()
-    });
+    let mut outcomes: Vec<StartOutcome> =
+        crate::parallel::map_indexed(req.starts, threads, || (), |_, k| run_start(sys, req, k));
     outcomes.sort_by_key(|o| o.start);
     let starts_feasible = outcomes.iter().filter(|o| o.feasible).count();
     let best = outcomes

@@ -462,67 +462,33 @@ pub fn map_batch(
             total,
         });
     };
-    let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
-    let threads = threads.clamp(1, total.max(1));
-    let mut results: Vec<Option<Result<MappedTrajectory, MappingError>>> = vec![None; total];
-    let chunks: Vec<Vec<(usize, Result<MappedTrajectory, MappingError>)>> =
-        std::thread::scope(|s| {
-            let handles: Vec<_> = (0..threads)
-                .map(|_| {
-                    s.spawn(|| {
-                        let mut mine = Vec::new();
-                        let mut mapper = match Mapper::new(mm.clone(), weights, options) {
-                            Ok(m) => m,
-                            Err(e) => {
-                                // Configuration errors apply to every item; report them all.
-                                loop {
-                                    let i = next.fetch_add(1, Ordering::Relaxed);
-                                    if i >= total {
-                                        return mine;
-                                    }
-                                    mine.push((i, Err(e.clone())));
-                                }
-                            }
-                        };
-                        loop {
-                            if cancel.load(Ordering::Relaxed) {
-                                return mine;
-                            }
-                            let i = next.fetch_add(1, Ordering::Relaxed);
-                            if i >= total {
-                                return mine;
-                            }
-                            let item = items[i];
-                            let r = mapper.map_cancellable(
-                                item.frames,
-                                item.registration,
-                                robot,
-                                starts[i].as_ref(),
-                                cancel,
-                            );
-                            match r {
-                                Some(r) => {
-                                    mine.push((i, r));
-                                    let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                                    progress(d, total);
-                                }
-                                None => return mine,
-                            }
-                        }
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().expect("mapping worker panicked"))
-                .collect()
-        });
-    for chunk in chunks {
-        for (i, r) in chunk {
-            results[i] = Some(r);
-        }
-    }
+    let results: Vec<Option<Result<MappedTrajectory, MappingError>>> = crate::parallel::map_indexed(
+        total,
+        threads,
+        || Mapper::new(mm.clone(), weights, options),
+        |mapper, i| {
+            let mapper = match mapper {
+                Ok(m) => m,
+                // Configuration errors apply to every item; report them all.
+                Err(e) => return Some(Err(e.clone())),
+            };
+            if cancel.load(Ordering::Relaxed) {
+                return None;
+            }
+            let item = items[i];
+            let r = mapper.map_cancellable(
+                item.frames,
+                item.registration,
+                robot,
+                starts[i].as_ref(),
+                cancel,
+            )?;
+            let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+            progress(d, total);
+            Some(r)
+        },
+    );
     if cancel.load(Ordering::Relaxed) || results.iter().any(Option::is_none) {
         return Err(Cancelled {
             completed: done.load(Ordering::Relaxed),

@@ -27,7 +27,7 @@ pub struct ExecutionView {
 }
 
 pub fn view(ctx: &Context, row: ExecutionRow) -> ExecutionView {
-    let live = (row.state == repo::RUNNING)
+    let live = (row.state == repo::ExecutionState::Running)
         .then(|| ctx.bridges.live(&row.id))
         .flatten();
     let (last_feedback, tracking, feedback_samples) = match live {

@@ -13,12 +13,20 @@
 //! 2. `store` (SQLite rows, the robot library) and `shutdown`;
 //! 3. `jobs` and `bridge` (the job runner, the bridge hub and its worker protocol);
 //! 4. `service` and `config` (this layer);
-//! 5. the edges: `api`, `dashboard`, `app`, the CLI (`main.rs`).
+//! 5. the edges that reach the use cases without HTTP: `dashboard`, `seed`;
+//! 6. `api` (HTTP handlers, DTOs, problem+json);
+//! 7. the process: `app` (wiring) and the CLI (`main.rs`), which takes from `api` only the
+//!    OpenAPI document and the rendering of a plan.
 
 pub mod demonstrations;
 pub mod executions;
+pub mod grasps;
+pub mod mappings;
+pub mod models;
 pub mod plans;
+pub mod robots;
 pub mod seed;
+pub mod trajectories;
 
 use std::fmt;
 use std::sync::Arc;
@@ -172,6 +180,21 @@ impl From<BridgeError> for Error {
     }
 }
 
+/// Standard base64 (RFC 4648) as uploads carry binary files (meshes): whitespace is ignored,
+/// and padding may be left off, as clients wrap and trim encoded text.
+pub fn decode_base64(s: &str) -> Option<Vec<u8>> {
+    use base64::Engine;
+    use base64::engine::{DecodePaddingMode, GeneralPurpose, GeneralPurposeConfig};
+    const LENIENT: GeneralPurpose = GeneralPurpose::new(
+        &base64::alphabet::STANDARD,
+        GeneralPurposeConfig::new()
+            .with_decode_padding_mode(DecodePaddingMode::Indifferent)
+            .with_decode_allow_trailing_bits(true),
+    );
+    let compact: String = s.chars().filter(|c| !c.is_ascii_whitespace()).collect();
+    LENIENT.decode(compact).ok()
+}
+
 /// A context over a fresh database in `dir` with the bundled robots, for the use cases' tests.
 #[cfg(test)]
 pub(crate) async fn test_context(dir: &std::path::Path) -> Context {
@@ -202,5 +225,20 @@ pub(crate) async fn test_context(dir: &std::path::Path) -> Context {
         bridges,
         seed: seed::SeedStatus::default(),
         shutdown,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::decode_base64;
+
+    #[test]
+    fn base64_decodes_rfc4648_vectors_with_or_without_padding() {
+        assert_eq!(decode_base64("").unwrap(), b"");
+        assert_eq!(decode_base64("Zg==").unwrap(), b"f");
+        assert_eq!(decode_base64("Zg").unwrap(), b"f");
+        assert_eq!(decode_base64("Zm9v\nYmFy").unwrap(), b"foobar");
+        assert_eq!(decode_base64("Zm9vYg==").unwrap(), b"foob");
+        assert!(decode_base64("Zm9v!").is_none());
     }
 }

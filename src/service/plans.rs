@@ -6,12 +6,300 @@
 //! leaves no grasp behind). The dispatcher is woken only after the commit; it reads the queue
 //! through other connections, so it never sees an execution whose plan was rolled back.
 
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use super::grasps::GraspIn;
+use super::models::{AutoOr, JointValues};
+use super::trajectories::{CreateTrajectory, GoalIn, Rejected};
 use super::{Context, Error};
 use crate::bridge::{ExecutionPayload, Hub, Mode, WorkerName};
 use crate::motion::ControlParams;
 use crate::store::grasps::{self as grasp_repo, GraspRow, NewGrasp};
+use crate::store::models as model_repo;
 use crate::store::plans::{self as plan_repo, NewPlan, PlanRow};
 use crate::store::trajectories::{self, StoredTrajectory, TrajectoryDraft};
+
+/// Where the trajectory starts.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(untagged)]
+pub enum StartIn {
+    /// A configuration: every independent joint of the robot once, any order.
+    Configuration(JointValues),
+    /// `"current"`: the measured state of the connected worker for the robot (the one named by
+    /// `worker`, if given), as its last heartbeat or feedback reported it.
+    Current(String),
+}
+
+/// Object and task in, humanlike motion to a task-specific grasp out.
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+pub struct PlanIn {
+    /// Robot, object (`object_id` or inline `object`), task directions, quality measure and the
+    /// grasp optimiser's settings: the body of `POST /v1/grasps`.
+    #[serde(flatten)]
+    pub grasp: GraspIn,
+    /// Start of the motion: a configuration, or `"current"` (the connected worker's state).
+    pub start: StartIn,
+    /// Motion model id (default: the robot's default model).
+    pub model: Option<String>,
+    /// `"auto"` (learned from the demonstrations, default) or seconds.
+    pub duration: Option<AutoOr>,
+    /// Trajectory output rate, Hz (default 100).
+    pub rate: Option<f64>,
+    /// Queue the motion for execution on a bridge worker.
+    #[serde(default)]
+    pub execute: bool,
+    /// Execution mode (default `open_loop`: follow the trajectory; `closed_loop`: the worker
+    /// runs the model's control law to the grasp configuration).
+    pub mode: Option<Mode>,
+    /// Worker to execute on (default: any idle worker of the robot); also the worker whose
+    /// state `"current"` reads.
+    pub worker: Option<String>,
+}
+
+/// How long each step took (s).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct PlanTimings {
+    pub grasp_s: f64,
+    pub trajectory_s: f64,
+    pub total_s: f64,
+}
+
+/// The model to plan with: the named one, or the robot's default. While first-start seeding
+/// is still training the default, 503 `not-ready` names the job to watch.
+async fn resolve_model(ctx: &Context, body: &PlanIn) -> Result<String, Error> {
+    if let Some(m) = &body.model {
+        return Ok(m.clone());
+    }
+    let robot = &body.grasp.robot;
+    if let Some(row) = model_repo::default_model_for(&ctx.db, robot).await? {
+        return Ok(row.id);
+    }
+    if let Some(job) = ctx.seed.pending_job(robot) {
+        return Err(Error::NotReady {
+            message: format!(
+                "the default model of '{robot}' is still being prepared by first-start seeding; \
+                 retry when job {job} has finished (GET /v1/jobs/{job})"
+            ),
+            job,
+        });
+    }
+    Err(Error::invalid(
+        "$.model",
+        format!(
+            "robot '{robot}' has no trained model; train one (POST /v1/models) or name one here"
+        ),
+    ))
+}
+
+/// The start configuration; `"current"` reads the connected worker's last measured state.
+fn resolve_start(ctx: &Context, body: &PlanIn) -> Result<JointValues, Error> {
+    match &body.start {
+        StartIn::Configuration(v) => Ok(v.clone()),
+        StartIn::Current(s) if s == "current" => {
+            let robot = &body.grasp.robot;
+            let worker = ctx
+                .bridges
+                .workers()
+                .into_iter()
+                .filter(|w| w.robot == *robot && !w.positions.is_empty())
+                .find(|w| body.worker.as_ref().is_none_or(|n| *n == w.name))
+                .ok_or_else(|| {
+                    Error::invalid(
+                        "$.start",
+                        match &body.worker {
+                            Some(n) => format!(
+                                "\"current\" needs worker '{n}' connected for robot '{robot}' and reporting its state"
+                            ),
+                            None => format!(
+                                "\"current\" needs a worker connected for robot '{robot}' and reporting its state; give a configuration instead"
+                            ),
+                        },
+                    )
+                })?;
+            Ok(JointValues {
+                joint_names: worker.joint_names,
+                positions: worker.positions,
+            })
+        }
+        StartIn::Current(other) => Err(Error::invalid(
+            "$.start",
+            format!(
+                "must be a configuration {{joint_names, positions}} or \"current\", got \"{other}\""
+            ),
+        )),
+    }
+}
+
+/// Plans (and optionally queues) one grasping motion; the work of `POST /v1/plans` and
+/// `reachgrasp plan`. Everything is computed first; the rows are then stored as one unit of
+/// work ([`store`]).
+pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
+    let t0 = Instant::now();
+    let robot = body.grasp.robot.clone();
+    let worker = body.worker.as_deref().map(WorkerName::parse).transpose()?;
+    super::robots::robot_field(ctx, &robot, "$.robot").await?;
+    let model_id = resolve_model(ctx, body).await?;
+    let start = resolve_start(ctx, body)?;
+    let model_robot = super::trajectories::check_start(ctx, &model_id, &start).await?;
+    if model_robot != robot {
+        return Err(Error::invalid(
+            "$.model",
+            format!("model '{model_id}' is of robot '{model_robot}', not '{robot}'"),
+        ));
+    }
+
+    // A plan's grasp must land in the model's certified goal regions: the search starts at
+    // their centre (the arm branch and hand posture the demonstrations end on) and keeps inside.
+    let regions = super::models::goal_regions(ctx, &model_id).await?;
+    let (new_grasp, result) = super::grasps::compute(ctx, &body.grasp, &regions).await?;
+    let grasp_s = t0.elapsed().as_secs_f64();
+    let mut reason = (!result.feasible).then(|| {
+        format!(
+            "no feasible grasp: {}",
+            result.reason.as_deref().unwrap_or("no reason given")
+        )
+    });
+    let mut trajectory = None;
+    if reason.is_none() {
+        let (joint_names, positions) = result
+            .q_arm
+            .iter()
+            .chain(&result.q_hand)
+            .map(|j| (j.name.clone(), j.value))
+            .unzip();
+        let request = CreateTrajectory {
+            model: model_id.clone(),
+            start: start.clone(),
+            goal: GoalIn {
+                joint_names: Some(joint_names),
+                positions: Some(positions),
+                grasp: None,
+            },
+            duration: body.duration.clone(),
+            rate: body.rate,
+        };
+        match super::trajectories::compute(ctx, &request).await {
+            Ok(t) => trajectory = Some(t),
+            // The grasp is the goal: a goal the model cannot certify (outside its goal region
+            // or its joint limits) makes the plan infeasible, not the request bad.
+            Err(Rejected::Goal(reasons)) => {
+                let why: Vec<&str> = reasons.iter().map(|f| f.message.as_str()).collect();
+                reason = Some(format!(
+                    "the grasp is no goal the model can reach with its convergence guarantee: {}",
+                    why.join("; ")
+                ));
+            }
+            Err(Rejected::Other(e)) => return Err(e),
+        }
+    }
+    let trajectory_s = t0.elapsed().as_secs_f64() - grasp_s;
+
+    let execution = match (body.execute, &trajectory) {
+        (true, Some(_)) => {
+            let mode = body.mode.unwrap_or(Mode::OpenLoop);
+            let law = match mode {
+                Mode::OpenLoop => None,
+                Mode::ClosedLoop => Some((
+                    model_id.clone(),
+                    model_repo::load_params(&ctx.db, &model_id)
+                        .await?
+                        .ok_or_else(|| {
+                            Error::internal(anyhow::anyhow!("model {model_id} has no parameters"))
+                        })?,
+                )),
+            };
+            Some(ExecutionRequest { mode, worker, law })
+        }
+        _ => None,
+    };
+    let timings = PlanTimings {
+        grasp_s,
+        trajectory_s,
+        total_s: t0.elapsed().as_secs_f64(),
+    };
+    let rows = PlanRows {
+        grasp: new_grasp,
+        trajectory,
+        execution,
+        plan: plan_repo::NewPlan {
+            robot: robot.clone(),
+            model_id: Some(model_id.clone()),
+            grasp_id: String::new(),
+            trajectory_id: None,
+            execution_id: None,
+            feasible: reason.is_none(),
+            reason: reason.clone(),
+            request: request_json(body)?,
+            timings: serde_json::to_string(&timings).map_err(Error::internal)?,
+        },
+    };
+    let stored = store(ctx, rows).await?;
+    Ok(Planned {
+        stored,
+        reason,
+        timings,
+    })
+}
+
+/// The request as stored with the plan (what was asked, including the resolved start).
+fn request_json(body: &PlanIn) -> Result<String, Error> {
+    let value = serde_json::json!({
+        "robot": body.grasp.robot,
+        "object_id": body.grasp.object_id,
+        "inline_object": body.grasp.object.is_some(),
+        "start": body.start,
+        "model": body.model,
+        "duration": body.duration,
+        "rate": body.rate,
+        "execute": body.execute,
+        "mode": body.mode,
+        "worker": body.worker,
+    });
+    serde_json::to_string(&value).map_err(Error::internal)
+}
+
+/// Stored plan `id` with its grasp and trajectory (a plan whose grasp or trajectory has been
+/// deleted since conflicts with the stored state).
+pub async fn get(ctx: &Context, id: &str) -> Result<StoredPlan, Error> {
+    let plan = plan_repo::get(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("plan", id))?;
+    let grasp = grasp_repo::get_grasp(&ctx.db, &plan.grasp_id)
+        .await?
+        .ok_or_else(|| {
+            Error::Conflict(format!(
+                "the plan's grasp {} no longer exists",
+                plan.grasp_id
+            ))
+        })?;
+    let trajectory = match &plan.trajectory_id {
+        Some(t) => Some(
+            trajectories::get_trajectory(&ctx.db, t)
+                .await?
+                .ok_or_else(|| {
+                    Error::Conflict(format!("the plan's trajectory {t} no longer exists"))
+                })?,
+        ),
+        None => None,
+    };
+    Ok(StoredPlan {
+        grasp,
+        trajectory,
+        execution_id: plan.execution_id.clone(),
+        plan,
+    })
+}
+
+/// A stored plan with why it is infeasible, if it is, and how long its steps took.
+#[derive(Debug, Clone)]
+pub struct Planned {
+    pub stored: StoredPlan,
+    pub reason: Option<String>,
+    pub timings: PlanTimings,
+}
 
 /// What to queue with a plan.
 #[derive(Debug, Clone)]

@@ -13,22 +13,13 @@ use super::{blob, now};
 use crate::motion::TrajectoryPoint;
 use crate::store::payload::ExecutionPayload;
 
-/// Execution states. `queued` and `running` are live; the others are final.
-pub const QUEUED: &str = "queued";
-pub const RUNNING: &str = "running";
-pub const SUCCEEDED: &str = "succeeded";
-pub const FAILED: &str = "failed";
-pub const ABORTED: &str = "aborted";
-pub const CANCELLED: &str = "cancelled";
-pub const INTERRUPTED: &str = "interrupted";
-
-pub fn is_final(state: &str) -> bool {
-    !matches!(state, QUEUED | RUNNING)
-}
-
-/// An execution's state, typed; stored and sent as the snake_case strings above.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+/// An execution's state: `queued` and `running` are live, the others final. Stored and sent as
+/// its snake_case name.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize, sqlx::Type,
+)]
 #[serde(rename_all = "snake_case")]
+#[sqlx(rename_all = "snake_case")]
 pub enum ExecutionState {
     Queued,
     Running,
@@ -52,13 +43,13 @@ impl ExecutionState {
 
     pub const fn as_str(self) -> &'static str {
         match self {
-            ExecutionState::Queued => QUEUED,
-            ExecutionState::Running => RUNNING,
-            ExecutionState::Succeeded => SUCCEEDED,
-            ExecutionState::Failed => FAILED,
-            ExecutionState::Aborted => ABORTED,
-            ExecutionState::Cancelled => CANCELLED,
-            ExecutionState::Interrupted => INTERRUPTED,
+            ExecutionState::Queued => "queued",
+            ExecutionState::Running => "running",
+            ExecutionState::Succeeded => "succeeded",
+            ExecutionState::Failed => "failed",
+            ExecutionState::Aborted => "aborted",
+            ExecutionState::Cancelled => "cancelled",
+            ExecutionState::Interrupted => "interrupted",
         }
     }
 
@@ -87,7 +78,7 @@ pub struct ExecutionRow {
     pub kind: String,
     pub source_id: String,
     pub worker: Option<String>,
-    pub state: String,
+    pub state: ExecutionState,
     pub assigned_worker: Option<String>,
     pub reason: Option<String>,
     pub cancel_requested: bool,
@@ -210,7 +201,7 @@ pub async fn insert_in(
         kind: payload.kind().to_owned(),
         source_id: payload.source_id().to_owned(),
         worker: worker.map(str::to_owned),
-        state: QUEUED.to_owned(),
+        state: ExecutionState::Queued,
         assigned_worker: None,
         reason: None,
         cancel_requested: false,
@@ -233,7 +224,7 @@ pub async fn insert_in(
     .bind(&json)
     .bind(&points)
     .bind(&row.worker)
-    .bind(&row.state)
+    .bind(row.state)
     .bind(&row.created_at)
     .execute(conn)
     .await?;
@@ -275,7 +266,7 @@ pub async fn joint_names(pool: &SqlitePool, id: &str) -> Result<Option<Vec<Strin
 /// A page of executions, newest first, optionally of one state and/or robot.
 pub async fn list(
     pool: &SqlitePool,
-    state: Option<&str>,
+    state: Option<ExecutionState>,
     robot: Option<&str>,
     limit: u32,
     offset: u32,
@@ -377,13 +368,13 @@ async fn append_history_and_commit(
 pub async fn finish(
     pool: &SqlitePool,
     id: &str,
-    state: &str,
+    state: ExecutionState,
     reason: Option<&str>,
     last_feedback: Option<&str>,
     tracking: Option<&str>,
     history: Option<&Chunk>,
 ) -> Result<bool, sqlx::Error> {
-    debug_assert!(is_final(state));
+    debug_assert!(state.is_final());
     let mut tx = super::begin_write(pool).await?;
     let r = sqlx::query(
         "UPDATE executions SET state = ?, reason = ?, finished_at = ?, \
@@ -508,11 +499,19 @@ mod tests {
         assert!(!mark_running(&pool, &row.id, "w").await.unwrap());
         assert_eq!(recover_interrupted(&pool).await.unwrap(), 1);
         let after = get(&pool, &row.id).await.unwrap().unwrap();
-        assert_eq!(after.state, INTERRUPTED);
+        assert_eq!(after.state, ExecutionState::Interrupted);
         assert!(
-            !finish(&pool, &row.id, FAILED, None, None, None, None)
-                .await
-                .unwrap()
+            !finish(
+                &pool,
+                &row.id,
+                ExecutionState::Failed,
+                None,
+                None,
+                None,
+                None
+            )
+            .await
+            .unwrap()
         );
     }
 }

@@ -1,0 +1,578 @@
+//! Grasps: task-specific arm configurations and robust grasps of an object (paper eq. 10-29),
+//! one at a time, in batches (a job), or offline for the CLI; and the objects they grasp.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+
+use nalgebra::{Point3, Vector3};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use super::{Context, Error, Invalid};
+use crate::grasp::objects::{ObjectSpec, ShapeSpec, SupportPlane, parse_obj, parse_stl};
+use crate::grasp::{
+    Goal, GoalRegion, GraspError, GraspRequest, GraspResult, HandArm, Object, QualityMeasure, TaskDirection,
+    Transmission, Weights, plan_grasp,
+};
+use crate::jobs::{JobError, JobOutput, JobRecord, ResultRef};
+use crate::kinematics::System;
+use crate::store::grasps as repo;
+
+/// Most grasps in one batch request.
+pub const MAX_BATCH: usize = 200;
+
+// ---------------------------------------------------------------------------------------------
+// Inputs (the request bodies of `/v1/objects` and `/v1/grasps`, and the CLI's request files)
+
+/// An uploaded mesh: Wavefront OBJ text, or STL (ASCII text, or binary as base64).
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+pub struct MeshIn {
+    /// `obj` or `stl`.
+    pub format: String,
+    /// File contents: text, or base64 when `encoding` is `base64`.
+    pub data: String,
+    /// `text` (default) or `base64`.
+    #[serde(default)]
+    pub encoding: Option<String>,
+}
+
+/// An object description. Give `shape` (a primitive or explicit mesh) or `mesh` (a file).
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+pub struct ObjectIn {
+    pub name: String,
+    pub shape: Option<ShapeSpec>,
+    pub mesh: Option<MeshIn>,
+    /// Centroid position (m, robot base frame).
+    pub position: [f64; 3],
+    /// Orientation quaternion `[w, x, y, z]` (default identity).
+    pub orientation: Option<[f64; 4]>,
+    /// Support plane the object rests on (optional).
+    pub support: Option<SupportPlane>,
+}
+
+/// A task direction (world frame; normalised by the service).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct TaskDirectionIn {
+    pub direction: [f64; 3],
+    pub kind: Transmission,
+    pub goal: Goal,
+}
+
+/// The object of a grasp request: a stored object's id, or an inline description.
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+pub struct GraspIn {
+    /// Robot (arm-hand system) id: a bundled system such as `wam_ihy`, or the id of one registered
+    /// with `POST /v1/robots`.
+    pub robot: String,
+    /// Id of a stored object (give this or `object`).
+    pub object_id: Option<String>,
+    /// Inline object (give this or `object_id`).
+    pub object: Option<ObjectIn>,
+    /// Task directions for TC (arm) and GC (hand).
+    #[serde(default)]
+    pub task_directions: Vec<TaskDirectionIn>,
+    /// Grasp quality measure (default `centroid_distance`).
+    pub quality: Option<QualityMeasure>,
+    /// Weights of eq. 22 (defaults: tc 1, gc 0, q 1, d 1).
+    pub weights: Option<Weights>,
+    /// Starts of the multi-start search, 1 to 64 (default 4).
+    pub starts: Option<usize>,
+    /// Seed of the start perturbations (default 0).
+    pub seed: Option<u64>,
+    /// Human elbow reference for the anthropomorphism term D (m, world).
+    pub elbow_reference: Option<[f64; 3]>,
+}
+
+/// A batch: the same robot and task settings over many objects or placements.
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+pub struct GraspBatchIn {
+    /// Robot id (bundled or registered), as in `POST /v1/grasps`.
+    pub robot: String,
+    /// Each item is an object id or an inline object (e.g. the same shape at several poses).
+    pub items: Vec<BatchItemIn>,
+    #[serde(default)]
+    pub task_directions: Vec<TaskDirectionIn>,
+    pub quality: Option<QualityMeasure>,
+    pub weights: Option<Weights>,
+    pub starts: Option<usize>,
+    pub seed: Option<u64>,
+}
+
+/// One batch item.
+#[derive(Debug, Clone, Deserialize, ToSchema)]
+pub struct BatchItemIn {
+    pub object_id: Option<String>,
+    pub object: Option<ObjectIn>,
+}
+
+/// Task settings echoed with a grasp.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[schema(as = GraspSettingsDto)]
+pub struct GraspSettings {
+    pub task_directions: Vec<TaskDirectionIn>,
+    pub quality: QualityMeasure,
+    pub weights: Weights,
+    pub starts: usize,
+    pub seed: u64,
+    pub elbow_reference: Option<[f64; 3]>,
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parsing (bad input never reaches the numerics)
+
+fn grasp_error(prefix: &str, e: GraspError) -> Error {
+    let path = match &e {
+        GraspError::InvalidDimension { field, .. } | GraspError::NonFinite { field } => {
+            format!("{prefix}.{field}")
+        }
+        GraspError::MalformedMesh { .. }
+        | GraspError::NonManifoldMesh { .. }
+        | GraspError::MeshTooLarge { .. } => {
+            format!("{prefix}.mesh")
+        }
+        GraspError::InvalidDirection { index } => format!("$.task_directions[{index}].direction"),
+        GraspError::InvalidWeight { field, .. } => format!("$.weights.{field}"),
+        GraspError::UnusableQuality { .. } => "$.quality".to_owned(),
+        GraspError::InvalidParameter { field, .. } => format!("$.{field}"),
+    };
+    Error::invalid(path, e.to_string())
+}
+
+fn parse_object(prefix: &str, o: &ObjectIn) -> Result<Object, Error> {
+    if o.name.trim().is_empty() {
+        return Err(Error::invalid(
+            format!("{prefix}.name"),
+            "must not be empty",
+        ));
+    }
+    let shape = match (&o.shape, &o.mesh) {
+        (Some(s), None) => s.clone(),
+        (None, Some(m)) => {
+            let bytes = match m.encoding.as_deref().unwrap_or("text") {
+                "text" => m.data.as_bytes().to_vec(),
+                "base64" => super::decode_base64(&m.data).ok_or_else(|| {
+                    Error::invalid(format!("{prefix}.mesh.data"), "invalid base64")
+                })?,
+                other => {
+                    return Err(Error::invalid(
+                        format!("{prefix}.mesh.encoding"),
+                        format!("unknown encoding '{other}' (text or base64)"),
+                    ));
+                }
+            };
+            match m.format.as_str() {
+                "obj" => {
+                    let text = std::str::from_utf8(&bytes).map_err(|_| {
+                        Error::invalid(format!("{prefix}.mesh.data"), "OBJ data is not UTF-8 text")
+                    })?;
+                    parse_obj(text).map_err(|e| grasp_error(prefix, e))?
+                }
+                "stl" => parse_stl(&bytes).map_err(|e| grasp_error(prefix, e))?,
+                other => {
+                    return Err(Error::invalid(
+                        format!("{prefix}.mesh.format"),
+                        format!("unknown mesh format '{other}' (obj or stl)"),
+                    ));
+                }
+            }
+        }
+        _ => {
+            return Err(Error::invalid(
+                format!("{prefix}.shape"),
+                "give exactly one of shape and mesh",
+            ));
+        }
+    };
+    Object::new(ObjectSpec {
+        name: o.name.clone(),
+        shape,
+        position: o.position,
+        orientation: o.orientation.unwrap_or([1.0, 0.0, 0.0, 0.0]),
+        support: o.support,
+    })
+    .map_err(|e| grasp_error(prefix, e))
+}
+
+/// Grasp views of the systems, by robot id, with the loaded system they were built from: a view
+/// is rebuilt only when [`super::robots::system`] hands out a different system (the robot's row
+/// changed), since building one samples every link's collision spheres.
+type ViewCache = Mutex<HashMap<String, (Arc<System>, Arc<HandArm>)>>;
+
+fn view_cache() -> &'static ViewCache {
+    static CACHE: OnceLock<ViewCache> = OnceLock::new();
+    CACHE.get_or_init(|| Mutex::new(HashMap::new()))
+}
+
+fn hand_arm_of(key: &str, sys: &Arc<System>) -> Result<Arc<HandArm>, Error> {
+    if let Some((s, v)) = view_cache().lock().expect("cache lock").get(key)
+        && Arc::ptr_eq(s, sys)
+    {
+        return Ok(v.clone());
+    }
+    let view = Arc::new(HandArm::from_system(sys).map_err(|e| grasp_error("$.robot", e))?);
+    view_cache()
+        .lock()
+        .expect("cache lock")
+        .insert(key.to_owned(), (sys.clone(), view.clone()));
+    Ok(view)
+}
+
+/// A grasp request's robot: any system of the robots store (bundled or registered), resolved
+/// like every other resource does; an unknown id in the body is a 422 naming `$.robot`.
+async fn robot_view(ctx: &Context, robot: &str) -> Result<Arc<HandArm>, Error> {
+    let sys = super::robots::robot_field(ctx, robot, "$.robot").await?;
+    let key = robot.to_owned();
+    tokio::task::spawn_blocking(move || hand_arm_of(&key, &sys))
+        .await
+        .map_err(Error::internal)?
+}
+
+/// Resolve a bundled system by file name to its grasp view, for the offline CLI (no database);
+/// blocking (file I/O + parsing).
+pub fn load_system(robots: &std::path::Path, name: &str) -> Result<Arc<HandArm>, Error> {
+    let valid = !name.is_empty()
+        && name.len() <= 64
+        && name
+            .bytes()
+            .all(|c| c.is_ascii_alphanumeric() || c == b'_' || c == b'-');
+    let path = robots.join("systems").join(format!("{name}.toml"));
+    if !valid || !path.is_file() {
+        return Err(Error::invalid("$.robot", format!("unknown robot '{name}'")));
+    }
+    let sys = System::from_file(&path).map_err(|e| Error::invalid("$.robot", e.to_string()))?;
+    Ok(Arc::new(
+        HandArm::from_system(&sys).map_err(|e| grasp_error("$.robot", e))?,
+    ))
+}
+
+struct Settings {
+    task: Vec<TaskDirection>,
+    dto: GraspSettings,
+}
+
+fn parse_settings(
+    task_directions: &[TaskDirectionIn],
+    quality: Option<QualityMeasure>,
+    weights: Option<Weights>,
+    starts: Option<usize>,
+    seed: Option<u64>,
+    elbow_reference: Option<[f64; 3]>,
+) -> Result<Settings, Error> {
+    let mut errors = Vec::new();
+    let mut task = Vec::new();
+    for (i, t) in task_directions.iter().enumerate() {
+        let d = Vector3::from(t.direction);
+        let n = d.norm();
+        if !n.is_finite() || n < 1e-9 {
+            errors.push(Invalid::new(
+                format!("$.task_directions[{i}].direction"),
+                "must be a finite non-zero vector",
+            ));
+        } else {
+            task.push(TaskDirection {
+                direction: d / n,
+                kind: t.kind,
+                goal: t.goal,
+            });
+        }
+    }
+    let weights = weights.unwrap_or_default();
+    for (name, v) in [
+        ("tc", weights.tc),
+        ("gc", weights.gc),
+        ("q", weights.q),
+        ("d", weights.d),
+    ] {
+        if !v.is_finite() || v < 0.0 {
+            errors.push(Invalid::new(
+                format!("$.weights.{name}"),
+                format!("must be finite and non-negative, got {v}"),
+            ));
+        }
+    }
+    let starts = starts.unwrap_or(4);
+    if !(1..=64).contains(&starts) {
+        errors.push(Invalid::new(
+            "$.starts",
+            format!("must be between 1 and 64, got {starts}"),
+        ));
+    }
+    if let Some(e) = elbow_reference
+        && e.iter().any(|x| !x.is_finite())
+    {
+        errors.push(Invalid::new("$.elbow_reference", "must be finite"));
+    }
+    if !errors.is_empty() {
+        return Err(Error::Invalid(errors));
+    }
+    Ok(Settings {
+        task,
+        dto: GraspSettings {
+            task_directions: task_directions.to_vec(),
+            quality: quality.unwrap_or(QualityMeasure::CentroidDistance),
+            weights,
+            starts,
+            seed: seed.unwrap_or(0),
+            elbow_reference,
+        },
+    })
+}
+
+fn make_request(object: Object, s: &Settings) -> GraspRequest {
+    let mut req = GraspRequest::new(object, s.task.clone(), s.dto.quality);
+    req.weights = s.dto.weights;
+    req.starts = s.dto.starts;
+    req.seed = s.dto.seed;
+    req.elbow_reference = s.dto.elbow_reference.map(Point3::from);
+    req
+}
+
+async fn resolve_object(
+    ctx: &Context,
+    prefix: &str,
+    id: &Option<String>,
+    inline: &Option<ObjectIn>,
+) -> Result<(Option<String>, Object), Error> {
+    match (id, inline) {
+        (Some(id), None) => {
+            let row = repo::get_object(&ctx.db, id).await?.ok_or_else(|| {
+                Error::invalid(
+                    format!("{prefix}object_id"),
+                    format!("unknown object '{id}'"),
+                )
+            })?;
+            let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(Error::internal)?;
+            let obj = Object::new(spec).map_err(Error::internal)?;
+            Ok((Some(row.id), obj))
+        }
+        (None, Some(o)) => Ok((None, parse_object(&format!("{prefix}object"), o)?)),
+        _ => Err(Error::invalid(
+            format!("{prefix}object_id"),
+            "give exactly one of object_id and object",
+        )),
+    }
+}
+
+fn new_grasp(
+    robot: &str,
+    object_id: Option<String>,
+    obj: &Object,
+    s: &GraspSettings,
+    r: &GraspResult,
+) -> repo::NewGrasp {
+    repo::NewGrasp {
+        robot: robot.to_owned(),
+        object_id,
+        object: serde_json::to_string(obj.spec()).expect("serialisable"),
+        request: serde_json::to_string(s).expect("serialisable"),
+        result: serde_json::to_string(r).expect("serialisable"),
+        feasible: r.feasible,
+    }
+}
+
+/// Computes one grasp, ready to store (shared with [`super::plans`], which stores it only once
+/// the rest of the plan has been checked).
+///
+/// With a motion model's goal `regions` (a plan's), every start begins at their centre and the
+/// grasp must lie inside them ([`crate::grasp::GraspRequest::goal_regions`]).
+pub async fn compute(
+    ctx: &Context,
+    body: &GraspIn,
+    regions: &[super::models::NamedGoalRegion],
+) -> Result<(repo::NewGrasp, GraspResult), Error> {
+    let settings = parse_settings(
+        &body.task_directions,
+        body.quality,
+        body.weights,
+        body.starts,
+        body.seed,
+        body.elbow_reference,
+    )?;
+    let (object_id, object) = resolve_object(ctx, "$.", &body.object_id, &body.object).await?;
+    let sys = robot_view(ctx, &body.robot).await?;
+    let names = sys.model.joint_names();
+    let index = |n: &String| names.iter().position(|m| m == n);
+    let goal_regions: Vec<GoalRegion> = regions
+        .iter()
+        .map(|r| {
+            let joints = r.joints.iter().map(index).collect::<Option<Vec<usize>>>();
+            joints
+                .map(|joints| GoalRegion {
+                    name: r.group.clone(),
+                    joints,
+                    mean: r.mean.clone(),
+                    components: r.components.clone(),
+                    center: r.center.clone(),
+                    radius: r.radius,
+                })
+                .ok_or_else(|| {
+                    Error::invalid(
+                        "$.model",
+                        format!("the model's joints are not all joints of '{}'", body.robot),
+                    )
+                })
+        })
+        .collect::<Result<_, _>>()?;
+    // The regions' centre: mean + W c per group.
+    let arm_seed = (!goal_regions.is_empty()).then(|| {
+        let mut q = sys.model.neutral();
+        for g in &goal_regions {
+            let d = g.center.len();
+            for (gi, &j) in g.joints.iter().enumerate() {
+                q[j] = g.mean[gi]
+                    + (0..d)
+                        .map(|i| g.components[gi * d + i] * g.center[i])
+                        .sum::<f64>();
+            }
+        }
+        q
+    });
+    let (result, object) = tokio::task::spawn_blocking(move || {
+        let mut req = make_request(object.clone(), &settings);
+        req.arm_seed = arm_seed;
+        req.goal_regions = goal_regions;
+        let r = plan_grasp(&sys, &req).map_err(|e| grasp_error("$", e))?;
+        Ok::<_, Error>(((r, settings.dto), object))
+    })
+    .await
+    .map_err(Error::internal)??;
+    let (result, dto) = result;
+    Ok((
+        new_grasp(&body.robot, object_id, &object, &dto, &result),
+        result,
+    ))
+}
+
+/// The stored objects, the seeded everyday objects first.
+pub async fn objects(ctx: &Context) -> Result<Vec<repo::ObjectRow>, Error> {
+    Ok(repo::list_objects(&ctx.db).await?)
+}
+
+/// Stored object `id`.
+pub async fn object(ctx: &Context, id: &str) -> Result<repo::ObjectRow, Error> {
+    repo::get_object(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("object", id))
+}
+
+/// Deletes object `id` (grasps computed for it keep their own copy).
+pub async fn delete_object(ctx: &Context, id: &str) -> Result<(), Error> {
+    if repo::delete_object(&ctx.db, id).await? {
+        Ok(())
+    } else {
+        Err(Error::not_found("object", id))
+    }
+}
+
+/// Stored grasp `id`.
+pub async fn get(ctx: &Context, id: &str) -> Result<repo::GraspRow, Error> {
+    repo::get_grasp(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("grasp", id))
+}
+
+/// Finished batch `id` with its grasp ids in item order.
+pub async fn batch(ctx: &Context, id: &str) -> Result<(repo::BatchRow, Vec<String>), Error> {
+    repo::get_batch(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("grasp batch", id))
+}
+
+/// Computes and stores one grasp. An infeasible request (object out of reach, too large) is a
+/// stored result with `feasible: false` and a reason.
+pub async fn create(ctx: &Context, body: &GraspIn) -> Result<repo::GraspRow, Error> {
+    let (new, _) = compute(ctx, body).await?;
+    Ok(repo::insert_grasp(&ctx.db, &new).await?)
+}
+
+/// Validates and stores an object.
+pub async fn create_object(ctx: &Context, body: ObjectIn) -> Result<repo::ObjectRow, Error> {
+    let obj = tokio::task::spawn_blocking(move || parse_object("$", &body))
+        .await
+        .map_err(Error::internal)??;
+    let spec = serde_json::to_string(obj.spec()).map_err(Error::internal)?;
+    Ok(repo::insert_object(&ctx.db, &obj.spec().name, &spec).await?)
+}
+
+/// Validates a batch and submits it as a job whose result is the stored batch.
+pub async fn submit_batch(ctx: &Context, body: &GraspBatchIn) -> Result<JobRecord, Error> {
+    if body.items.is_empty() || body.items.len() > MAX_BATCH {
+        return Err(Error::invalid(
+            "$.items",
+            format!("must hold 1 to {MAX_BATCH} items, got {}", body.items.len()),
+        ));
+    }
+    let settings = parse_settings(
+        &body.task_directions,
+        body.quality,
+        body.weights,
+        body.starts,
+        body.seed,
+        None,
+    )?;
+    let mut objects = Vec::with_capacity(body.items.len());
+    for (i, it) in body.items.iter().enumerate() {
+        objects
+            .push(resolve_object(ctx, &format!("$.items[{i}]."), &it.object_id, &it.object).await?);
+    }
+    let robot = body.robot.clone();
+    let sys = robot_view(ctx, &robot).await?;
+    // Checked once before the job exists, so a bad quality measure is a 422, not a failed job.
+    if let Some((_, o)) = objects.first() {
+        make_request(o.clone(), &settings)
+            .validate(&sys)
+            .map_err(|e| grasp_error("$", e))?;
+    }
+    Ok(ctx
+        .jobs
+        .submit("grasp_batch", move |job| {
+            let n = objects.len();
+            let mut rows = Vec::with_capacity(n);
+            for (i, (oid, obj)) in objects.into_iter().enumerate() {
+                job.check_cancelled()?;
+                let r = plan_grasp(&sys, &make_request(obj.clone(), &settings))
+                    .map_err(JobError::failed)?;
+                rows.push(new_grasp(&robot, oid, &obj, &settings.dto, &r));
+                job.progress((i + 1) as f64 / n as f64, format!("grasp {} of {n}", i + 1));
+            }
+            Ok(JobOutput::persist_with(move |job_id, tx| {
+                Box::pin(async move {
+                    let id = repo::insert_batch(tx, &job_id.to_string(), &robot, &rows).await?;
+                    Ok(ResultRef::new("grasps/batches", id))
+                })
+            }))
+        })
+        .await?)
+}
+
+/// The offline path of the `reachgrasp grasp` command: the `POST /v1/grasps` body, where
+/// `object_id` names a seeded object (`ball`, `bottle`, `kitchen_timer`, `pencil`,
+/// `sunglasses`, placed 0.5 m in front of the robot on a table at z = 0). Blocking.
+pub fn offline(robots: &std::path::Path, body: &GraspIn) -> Result<GraspResult, Error> {
+    let settings = parse_settings(
+        &body.task_directions,
+        body.quality,
+        body.weights,
+        body.starts,
+        body.seed,
+        body.elbow_reference,
+    )?;
+    let object = match (&body.object_id, &body.object) {
+        (Some(name), None) => {
+            let spec =
+                crate::grasp::objects::seeded_object(name, 0.5, 0.0, 0.0).ok_or_else(|| {
+                    Error::invalid("$.object_id", format!("unknown seeded object '{name}'"))
+                })?;
+            Object::new(spec).map_err(Error::internal)?
+        }
+        (None, Some(o)) => parse_object("$.object", o)?,
+        _ => {
+            return Err(Error::invalid(
+                "$.object_id",
+                "give exactly one of object_id and object",
+            ));
+        }
+    };
+    let sys = load_system(robots, &body.robot)?;
+    plan_grasp(&sys, &make_request(object, &settings)).map_err(|e| grasp_error("$", e))
+}

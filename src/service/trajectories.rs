@@ -1,0 +1,412 @@
+//! Trajectories: humanlike motions generated from a motion model between a start and a goal
+//! (a configuration or a stored grasp), with fingertip and elbow paths, stored.
+
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use super::models::{
+    AutoOr, CertificateDto, JointValues, MAX_DURATION, MAX_RATE, certificate_dto, check_limits,
+    group_name, joint_values, loaded_model, region_error,
+};
+use super::{Context, Error, Invalid};
+use crate::grasp::GraspResult;
+use crate::kinematics::{Data, System, forward_kinematics};
+use crate::motion::{MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint};
+use crate::store::grasps as grasp_repo;
+use crate::store::library::LibraryError;
+use crate::store::trajectories::{self, TrajectoryDraft};
+
+/// Why no trajectory was computed.
+#[derive(Debug)]
+pub enum Rejected {
+    /// The goal is none the model can reach with its convergence guarantee (outside its joint
+    /// limits or its certified goal region, or no goal of this model): every reason. A plan
+    /// whose grasp this is becomes infeasible; the request is not bad.
+    Goal(Vec<Invalid>),
+    /// Anything else.
+    Other(Error),
+}
+
+impl Rejected {
+    /// A failure while resolving or checking the goal: bad input about the goal is the goal's
+    /// rejection, anything else (a store failure) stays what it is.
+    fn goal(e: Error) -> Self {
+        match e {
+            Error::Invalid(reasons) => Rejected::Goal(reasons),
+            other => Rejected::Other(other),
+        }
+    }
+}
+
+impl From<Error> for Rejected {
+    fn from(e: Error) -> Self {
+        Rejected::Other(e)
+    }
+}
+
+impl From<sqlx::Error> for Rejected {
+    fn from(e: sqlx::Error) -> Self {
+        Rejected::Other(e.into())
+    }
+}
+
+impl From<Rejected> for Error {
+    fn from(r: Rejected) -> Self {
+        match r {
+            Rejected::Goal(reasons) => Error::Invalid(reasons),
+            Rejected::Other(e) => e,
+        }
+    }
+}
+
+/// A trajectory goal: a configuration (`joint_names` + `positions`), or `{"grasp": id}` (the
+/// stored grasp's arm and hand joint values, `/v1/grasps`).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GoalIn {
+    pub joint_names: Option<Vec<String>>,
+    pub positions: Option<Vec<f64>>,
+    pub grasp: Option<String>,
+}
+
+/// Generate a humanlike trajectory with a model.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CreateTrajectory {
+    /// Model id.
+    pub model: String,
+    pub start: JointValues,
+    pub goal: GoalIn,
+    /// `"auto"` (learned from the demonstrations, default) or seconds. A duration too short for
+    /// the joint limits is replaced by the shortest feasible one (`stretched`, `note`).
+    pub duration: Option<AutoOr>,
+    /// Output rate, Hz (default 100, at most 1000).
+    pub rate: Option<f64>,
+}
+
+/// A path of one frame in Cartesian space (robot base frame, metres), one position per point.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct FramePathDto {
+    /// Finger name, or the frame name for the elbow.
+    pub name: String,
+    pub frame: String,
+    pub positions: Vec<[f64; 3]>,
+}
+
+/// Where the flow of one group stopped.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct GroupErrorDto {
+    pub group: String,
+    /// Distance to the goal (rad, joint space of the group's manifold) where the flow stopped,
+    /// before the exact goal closed the path.
+    pub error: f64,
+    pub flow_steps: usize,
+}
+
+/// How a trajectory was generated (stored with it).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct TrajectoryReportDto {
+    /// Seconds (the last point's `t`).
+    pub duration: f64,
+    /// The duration asked for (`None`: auto).
+    pub requested_duration: Option<f64>,
+    /// The duration learned from the demonstrations for this distance.
+    pub learned_duration: f64,
+    /// The duration was lengthened to respect the velocity/acceleration limits.
+    pub stretched: bool,
+    /// Why the duration differs from the request, when it does.
+    pub note: Option<String>,
+    pub rate: f64,
+    /// Every group's flow reached the goal within tolerance (`γ` decreasing, certified).
+    pub converged: bool,
+    /// Largest group error (rad), see `errors`.
+    pub final_error: f64,
+    pub errors: Vec<GroupErrorDto>,
+    pub certificates: Vec<CertificateDto>,
+    /// Largest fraction of a velocity / acceleration limit used (≤ 1).
+    pub max_velocity_ratio: f64,
+    pub max_acceleration_ratio: f64,
+    pub fingertip_paths: Vec<FramePathDto>,
+    pub elbow_paths: Vec<FramePathDto>,
+    /// The grasp the goal came from, if any.
+    pub grasp: Option<String>,
+}
+
+/// FK along the points: fingertip and elbow paths (robot base frame).
+fn cartesian_paths(
+    system: &System,
+    points: &[TrajectoryPoint],
+) -> (Vec<FramePathDto>, Vec<FramePathDto>) {
+    let model = &system.model;
+    let mut data = Data::new(model);
+    let mut tips: Vec<FramePathDto> = system
+        .fingers
+        .iter()
+        .map(|f| FramePathDto {
+            name: f.name.clone(),
+            frame: model.frame_name(f.tip).to_owned(),
+            positions: Vec::with_capacity(points.len()),
+        })
+        .collect();
+    let mut elbows: Vec<FramePathDto> = system
+        .elbow_frames
+        .iter()
+        .map(|&f| FramePathDto {
+            name: model.frame_name(f).to_owned(),
+            frame: model.frame_name(f).to_owned(),
+            positions: Vec::with_capacity(points.len()),
+        })
+        .collect();
+    for p in points {
+        forward_kinematics(model, &mut data, &p.positions);
+        for (path, f) in tips.iter_mut().zip(&system.fingers) {
+            path.positions
+                .push(data.frame(f.tip).translation.vector.into());
+        }
+        for (path, &f) in elbows.iter_mut().zip(&system.elbow_frames) {
+            path.positions.push(data.frame(f).translation.vector.into());
+        }
+    }
+    (tips, elbows)
+}
+
+fn trajectory_report(
+    system: &System,
+    model: &MotionModel,
+    t: &Trajectory,
+    requested: Option<f64>,
+    rate: f64,
+    grasp: Option<String>,
+) -> TrajectoryReportDto {
+    let ng = model.manifolds.len();
+    let (fingertip_paths, elbow_paths) = cartesian_paths(system, &t.points);
+    let note = t.stretched.then(|| match requested {
+        Some(r) => format!(
+            "the requested duration {r} s is too short for the joint velocity/acceleration limits; the shortest feasible duration {:.4} s was used",
+            t.duration
+        ),
+        None => format!(
+            "the learned duration {:.4} s was lengthened to {:.4} s to respect the joint velocity/acceleration limits",
+            t.learned_duration, t.duration
+        ),
+    });
+    TrajectoryReportDto {
+        duration: t.duration,
+        requested_duration: requested,
+        learned_duration: t.learned_duration,
+        stretched: t.stretched,
+        note,
+        rate,
+        converged: t.converged,
+        final_error: t.final_errors.iter().copied().fold(0.0, f64::max),
+        errors: t
+            .final_errors
+            .iter()
+            .zip(&t.flow_steps)
+            .enumerate()
+            .map(|(g, (&error, &flow_steps))| GroupErrorDto {
+                group: group_name(ng, g),
+                error,
+                flow_steps,
+            })
+            .collect(),
+        certificates: t
+            .certificates
+            .iter()
+            .enumerate()
+            .map(|(g, c)| certificate_dto(group_name(ng, g), c))
+            .collect(),
+        max_velocity_ratio: t.max_velocity_ratio,
+        max_acceleration_ratio: t.max_acceleration_ratio,
+        fingertip_paths,
+        elbow_paths,
+        grasp,
+    }
+}
+
+/// The goal configuration (model order) and the grasp it came from.
+async fn resolve_goal(
+    ctx: &Context,
+    system: &System,
+    robot: &str,
+    goal: &GoalIn,
+) -> Result<(Vec<f64>, Option<Vec<String>>, Option<String>), Error> {
+    match (&goal.grasp, &goal.joint_names, &goal.positions) {
+        (Some(id), None, None) => {
+            let row = grasp_repo::get_grasp(&ctx.db, id)
+                .await?
+                .ok_or_else(|| Error::invalid("$.goal.grasp", format!("unknown grasp '{id}'")))?;
+            if row.robot != robot {
+                return Err(Error::invalid(
+                    "$.goal.grasp",
+                    format!(
+                        "grasp '{id}' was computed for robot '{}', the model is of '{robot}'",
+                        row.robot
+                    ),
+                ));
+            }
+            let result: GraspResult = serde_json::from_str(&row.result).map_err(Error::internal)?;
+            if !result.feasible {
+                return Err(Error::invalid(
+                    "$.goal.grasp",
+                    format!(
+                        "grasp '{id}' is infeasible ({}); it is no goal to move to",
+                        result.reason.as_deref().unwrap_or("no reason given")
+                    ),
+                ));
+            }
+            let (names, values): (Vec<String>, Vec<f64>) = result
+                .q_arm
+                .iter()
+                .chain(&result.q_hand)
+                .map(|j| (j.name.clone(), j.value))
+                .unzip();
+            let q = joint_values(
+                system,
+                &JointValues {
+                    joint_names: names,
+                    positions: values,
+                },
+                "$.goal.grasp",
+            )?;
+            Ok((q, None, Some(id.clone())))
+        }
+        (None, Some(names), Some(positions)) => {
+            let v = JointValues {
+                joint_names: names.clone(),
+                positions: positions.clone(),
+            };
+            Ok((
+                joint_values(system, &v, "$.goal")?,
+                Some(names.clone()),
+                None,
+            ))
+        }
+        _ => Err(Error::invalid(
+            "$.goal",
+            "give either joint_names and positions, or grasp (a grasp id)",
+        )),
+    }
+}
+
+/// Checks that `model` is trained and that `start` is a valid configuration for it (names,
+/// finite values, joint limits) before a caller does expensive work; returns the model's robot.
+pub async fn check_start(ctx: &Context, model: &str, start: &JointValues) -> Result<String, Error> {
+    let l = loaded_model(ctx, model, Some("$.model")).await?;
+    let system = super::robots::system(ctx, &l.robot).await?;
+    let q = joint_values(&system, start, "$.start")?;
+    check_limits(&l.model, &l.names, &q, Some(&start.joint_names), "$.start")?;
+    Ok(l.robot.clone())
+}
+
+/// Stored trajectory `id`.
+pub async fn get(ctx: &Context, id: &str) -> Result<trajectories::StoredTrajectory, Error> {
+    trajectories::get_trajectory(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("trajectory", id))
+}
+
+/// Generates and stores one trajectory (`POST /v1/trajectories`).
+pub async fn create(
+    ctx: &Context,
+    body: &CreateTrajectory,
+) -> Result<trajectories::StoredTrajectory, Error> {
+    let draft = compute(ctx, body).await?;
+    Ok(trajectories::insert_trajectory(&ctx.db, &draft.as_new()).await?)
+}
+
+/// Generates one trajectory, not yet stored (shared with `/v1/plans`, which stores it with its
+/// grasp).
+pub async fn compute(ctx: &Context, body: &CreateTrajectory) -> Result<TrajectoryDraft, Rejected> {
+    let requested = match &body.duration {
+        None => None,
+        Some(AutoOr::Auto(s)) if s == "auto" => None,
+        Some(AutoOr::Value(t)) if *t > 0.0 && *t <= MAX_DURATION => Some(*t),
+        Some(other) => {
+            return Err(Error::invalid(
+                "$.duration",
+                format!("must be \"auto\" or seconds in (0, {MAX_DURATION}], got {other:?}"),
+            )
+            .into());
+        }
+    };
+    let rate = body.rate.unwrap_or(100.0);
+    if !(rate > 0.0 && rate <= MAX_RATE) {
+        return Err(Error::invalid(
+            "$.rate",
+            format!("must be in (0, {MAX_RATE}] Hz, got {rate}"),
+        )
+        .into());
+    }
+    let l = loaded_model(ctx, &body.model, Some("$.model")).await?;
+    let system = match ctx.robots.system(&l.robot).await {
+        Err(LibraryError::UnknownRobot(_)) => {
+            return Err(Error::Conflict(format!(
+                "the model's robot '{}' no longer exists",
+                l.robot
+            ))
+            .into());
+        }
+        other => other.map_err(Error::from)?,
+    };
+    let start = joint_values(&system, &body.start, "$.start")?;
+    let (goal, goal_names, grasp) = resolve_goal(ctx, &system, &l.robot, &body.goal)
+        .await
+        .map_err(Rejected::goal)?;
+    check_limits(
+        &l.model,
+        &l.names,
+        &start,
+        Some(&body.start.joint_names),
+        "$.start",
+    )?;
+    let goal_base = if grasp.is_some() {
+        "$.goal.grasp"
+    } else {
+        "$.goal"
+    };
+    check_limits(&l.model, &l.names, &goal, goal_names.as_deref(), goal_base)
+        .map_err(Rejected::goal)?;
+    let opts = TrajectoryOptions {
+        duration: requested,
+        rate,
+        ..TrajectoryOptions::default()
+    };
+    let (traj, report) = {
+        let (l, system, start, goal, grasp) = (
+            l.clone(),
+            system.clone(),
+            start.clone(),
+            goal.clone(),
+            grasp.clone(),
+        );
+        tokio::task::spawn_blocking(move || {
+            let traj = l.model.trajectory(&start, &goal, &opts).map_err(|e| {
+                let outside = matches!(e, MotionError::GoalOutsideRegion { .. });
+                let e = region_error(e, l.model.manifolds.len(), "$.start", goal_base);
+                if outside {
+                    Rejected::goal(e)
+                } else {
+                    Rejected::Other(e)
+                }
+            })?;
+            let report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
+            Ok::<_, Rejected>((traj, report))
+        })
+        .await
+        .map_err(Error::internal)??
+    };
+    let request = serde_json::to_string(&body).map_err(Error::internal)?;
+    let summary = serde_json::to_string(&report).map_err(Error::internal)?;
+    Ok(TrajectoryDraft {
+        model_id: Some(body.model.clone()),
+        robot: l.robot.clone(),
+        joint_names: l.names.clone(),
+        points: traj.points,
+        start,
+        goal,
+        duration: traj.duration,
+        request,
+        summary,
+    })
+}
