@@ -11,8 +11,8 @@ use utoipa::ToSchema;
 use super::{Context, Error, Invalid};
 use crate::grasp::objects::{ObjectSpec, ShapeSpec, SupportPlane, parse_obj, parse_stl};
 use crate::grasp::{
-    Goal, GoalRegion, GraspError, GraspRequest, GraspResult, HandArm, Object, QualityMeasure, TaskDirection,
-    Transmission, Weights, plan_grasp,
+    Goal, GoalRegion, GraspError, GraspRequest, GraspResult, HandArm, Object, QualityMeasure,
+    TaskDirection, Transmission, Weights, plan_grasp,
 };
 use crate::jobs::{JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::System;
@@ -481,7 +481,7 @@ pub async fn batch(ctx: &Context, id: &str) -> Result<(repo::BatchRow, Vec<Strin
 /// Computes and stores one grasp. An infeasible request (object out of reach, too large) is a
 /// stored result with `feasible: false` and a reason.
 pub async fn create(ctx: &Context, body: &GraspIn) -> Result<repo::GraspRow, Error> {
-    let (new, _) = compute(ctx, body).await?;
+    let (new, _) = compute(ctx, body, &[]).await?;
     Ok(repo::insert_grasp(&ctx.db, &new).await?)
 }
 
