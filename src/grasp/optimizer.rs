@@ -1489,7 +1489,7 @@ fn explain(sys: &HandArm, req: &GraspRequest, r: &GraspResult, u: &[f64]) -> Str
     let out_of_region = req.goal_regions.iter().find_map(|g| {
         let mut diff = vec![0.0; g.center.len()];
         let d = g.distance(&q, &mut diff);
-        (d > g.radius).then(|| (g, d))
+        (d > g.radius).then_some((g, d))
     });
     let cg = req.object.centroid();
     let palm_reach = r
