@@ -1637,3 +1637,67 @@ fn survey_exact_verdict() {
         all_pens[all_pens.len() - 1] * 1e3
     );
 }
+
+/// Distance between a segment `[a, b]` and a point (closed form), for the independent check below.
+fn segment_point_distance(a: &Point3<f64>, b: &Point3<f64>, p: &Point3<f64>) -> f64 {
+    let ab = b - a;
+    let t = ((p - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0);
+    (a + ab * t - p).norm()
+}
+
+/// The contact repair puts a finger that was pressed into the ball, or opened off it, back onto
+/// its surface: afterwards the deepest of that finger's links is within [-0.5, +0.25] mm of the
+/// ball. Checked against closed-form capsule-sphere distances of the test system's finger
+/// capsules (not the exact checker the repair uses).
+#[test]
+fn contact_repair_puts_a_displaced_finger_back_onto_the_object() {
+    let sys = test_system();
+    let (center, radius) = ([0.5, 0.1, 0.2], 0.033);
+    let req = GraspRequest::new(
+        ball(center, radius),
+        vec![],
+        QualityMeasure::CentroidDistance,
+    );
+    let r = plan_grasp(&sys, &req).unwrap();
+    assert!(r.feasible, "{:?}", r.reason);
+    let u0: Vec<f64> = r.q_arm.iter().chain(&r.q_hand).map(|j| j.value).collect();
+    let na = r.q_arm.len();
+    let model = &*sys.model;
+    let c = Point3::from(center);
+    for k in 0..2 {
+        for delta in [0.15, -0.3] {
+            let mut u = u0.clone();
+            u[na + k] += delta;
+            let mut e = Eval::new(&sys, &req);
+            let note = e.repair(&mut u);
+            assert!(note.is_none(), "finger {k} {delta}: {note:?}");
+            let mut q = model.neutral();
+            for (j, &v) in r.q_arm.iter().chain(&r.q_hand).zip(&u) {
+                q[model.q_index(&j.name).unwrap()] = v;
+            }
+            let mut data = Data::new(model);
+            forward_kinematics(model, &mut data, &q);
+            // The test system's finger capsules: proximal z 0.012..0.05, distal z 0..0.036,
+            // radius 8 mm, in their link frames.
+            let gap = [
+                (format!("f{k}_prox_link"), 0.012, 0.05),
+                (format!("f{k}_dist_link"), 0.0, 0.036),
+            ]
+            .iter()
+            .map(|(link, z0, z1)| {
+                let f = data.frame(model.frame_id(link).unwrap());
+                let (a, b) = (
+                    f * Point3::new(0.0, 0.0, *z0),
+                    f * Point3::new(0.0, 0.0, *z1),
+                );
+                segment_point_distance(&a, &b, &c) - 0.008 - radius
+            })
+            .fold(f64::INFINITY, f64::min);
+            assert!(
+                (-5e-4 - 1e-9..=2.5e-4 + 1e-9).contains(&gap),
+                "finger {k} displaced by {delta} rad: {:.3} mm from the ball after repair",
+                gap * 1e3
+            );
+        }
+    }
+}
