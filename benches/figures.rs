@@ -47,6 +47,12 @@ fn mapped(sys: &System, frames: usize) -> MappedTrajectory {
         objective: 0.0,
         iterations: 1,
         converged: true,
+        swivel_human: f64::NAN,
+        swivel_robot: f64::NAN,
+        swivel_difference: f64::NAN,
+        elbow_bound: f64::NAN,
+        support_clearance: f64::NAN,
+        object_clearance: f64::NAN,
     };
     MappedTrajectory {
         joint_names: m.joint_names().to_vec(),

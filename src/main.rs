@@ -418,6 +418,7 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
             position: Some(p),
             orientation: Some(o),
             elbow: Some(e),
+            swivel: None,
         },
         Some(_) => anyhow::bail!("--weights takes three numbers: position,orientation,elbow"),
     };
@@ -463,7 +464,8 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
             position_index: demo.labels.position_index,
             trial: demo.labels.trial,
         };
-        demos.push((labels, demo.frames));
+        let object = reachgrasp::mapping::human_object(&demo.object);
+        demos.push((labels, demo.frames, Some(object)));
     }
     let bar = progress_bar(demos.len(), "mapping demonstrations")?;
     let threads = args

@@ -16,8 +16,8 @@ use utoipa_axum::routes;
 use super::{ApiError, AppState, FieldError, Json, Path, Problem, robots};
 use crate::grasp::objects::{ObjectSpec, ShapeSpec, SupportPlane, parse_obj, parse_stl};
 use crate::grasp::{
-    Goal, GraspError, GraspRequest, GraspResult, HandArm, Object, QualityMeasure, TaskDirection,
-    Transmission, Weights, plan_grasp,
+    Goal, GoalRegion, GraspError, GraspRequest, GraspResult, HandArm, Object, QualityMeasure,
+    TaskDirection, Transmission, Weights, plan_grasp,
 };
 use crate::jobs::{JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::System;
@@ -554,7 +554,7 @@ async fn create_grasp(
     State(state): State<AppState>,
     Json(body): Json<GraspIn>,
 ) -> Result<Response, ApiError> {
-    let (new, _) = compute_grasp(&state, &body).await?;
+    let (new, _) = compute_grasp(&state, &body, &[]).await?;
     let out = store_grasp(&state, &new).await?;
     Ok(super::created(
         StatusCode::CREATED,
@@ -565,9 +565,13 @@ async fn create_grasp(
 
 /// Computes one grasp, ready to store (the work of `POST /v1/grasps`, shared with `/v1/plans`,
 /// which stores it only once the rest of the plan has been checked).
+///
+/// With a motion model's goal `regions` (a plan's), every start begins at their centre and the
+/// grasp must lie inside them ([`crate::grasp::GraspRequest::goal_regions`]).
 pub(crate) async fn compute_grasp(
     state: &AppState,
     body: &GraspIn,
+    regions: &[super::models::NamedGoalRegion],
 ) -> Result<(repo::NewGrasp, GraspResult), ApiError> {
     let settings = parse_settings(
         &body.task_directions,
@@ -579,8 +583,47 @@ pub(crate) async fn compute_grasp(
     )?;
     let (object_id, object) = resolve_object(state, "$.", &body.object_id, &body.object).await?;
     let sys = robot_view(state, &body.robot).await?;
+    let names = sys.model.joint_names();
+    let index = |n: &String| names.iter().position(|m| m == n);
+    let goal_regions: Vec<GoalRegion> = regions
+        .iter()
+        .map(|r| {
+            let joints = r.joints.iter().map(index).collect::<Option<Vec<usize>>>();
+            joints
+                .map(|joints| GoalRegion {
+                    name: r.group.clone(),
+                    joints,
+                    mean: r.mean.clone(),
+                    components: r.components.clone(),
+                    center: r.center.clone(),
+                    radius: r.radius,
+                })
+                .ok_or_else(|| {
+                    ApiError::invalid_field(
+                        "$.model",
+                        format!("the model's joints are not all joints of '{}'", body.robot),
+                    )
+                })
+        })
+        .collect::<Result<_, _>>()?;
+    // The regions' centre: mean + W c per group.
+    let arm_seed = (!goal_regions.is_empty()).then(|| {
+        let mut q = sys.model.neutral();
+        for g in &goal_regions {
+            let d = g.center.len();
+            for (gi, &j) in g.joints.iter().enumerate() {
+                q[j] = g.mean[gi]
+                    + (0..d)
+                        .map(|i| g.components[gi * d + i] * g.center[i])
+                        .sum::<f64>();
+            }
+        }
+        q
+    });
     let (result, object) = tokio::task::spawn_blocking(move || {
-        let req = make_request(object.clone(), &settings);
+        let mut req = make_request(object.clone(), &settings);
+        req.arm_seed = arm_seed;
+        req.goal_regions = goal_regions;
         let r = plan_grasp(&sys, &req).map_err(|e| grasp_error("$", e))?;
         Ok::<_, ApiError>(((r, settings.dto), object))
     })

@@ -25,9 +25,9 @@ use crate::human::{HumanFrame, unpack_frames};
 use crate::jobs::{JobContext, JobError, JobFailure, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::System;
 use crate::mapping::{
-    BatchItem, BodyAxes, FrameMetrics, MappedTrajectory, MappingError, MappingModel,
-    RegistrationSpec, RobotAnchor, Scale, SolverOptions, Weights, map_batch, registration_for,
-    resample_frames,
+    BatchItem, BodyAxes, FrameMetrics, HumanObject, MappedTrajectory, MappingError, MappingModel,
+    RegistrationSpec, RobotAnchor, Scale, SceneRegistration, SolverOptions, Weights, human_object,
+    map_batch, registration_for, resample_frames, shape_spec,
 };
 use crate::store::mappings::{
     self as repo, DemoLabels, DemoSelection, MappedDemoRow, NewMappedDemo, NewMapping,
@@ -75,7 +75,8 @@ pub struct DemoFilterIn {
     pub job_id: Option<String>,
 }
 
-/// Weights of eq. 5; a missing one keeps its default (position 1, orientation 1e-4, elbow 1e-2).
+/// Weights of eq. 5 and the swivel term; a missing one keeps its default (position 1,
+/// orientation 1e-4, elbow 0.1, swivel 1e-2).
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct WeightsIn {
@@ -85,9 +86,12 @@ pub struct WeightsIn {
     pub orientation: Option<f64>,
     /// `w_D`, on squared human-elbow-to-robot-joint distances (per m²).
     pub elbow: Option<f64>,
+    /// On `2 (1 − cos Δφ)`, the elbow swivel-angle difference (not in the paper).
+    pub swivel: Option<f64>,
 }
 
-/// Uniform scale of the human data: a positive number, or `"auto"` (robot reach / human reach).
+/// Scale of the human arm transport (horizontal, about the object): a positive number, or
+/// `"auto"` (robot reach / human reach). With `transform`: the uniform scale of the similarity.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 #[serde(untagged)]
 pub enum ScaleIn {
@@ -103,13 +107,20 @@ pub struct TransformIn {
     pub orientation: [f64; 4],
 }
 
-/// Human (tracker) frame → robot base frame. Default: the subject's mean shoulder on the robot's
-/// shoulder centre, the subject's forward/up axes on the base's, scale `auto`. With `transform`:
-/// `p_robot = transform · (scale · p_human)` (scale a number, default 1).
+/// Human (tracker) frame → robot base frame. Default (scene-keeping, `mapping::registration`):
+/// each demonstration's object lands on `placement` (default: where the subject had it relative
+/// to the shoulder, resting on the robot's table at z = 0), its table on the robot's table, the
+/// subject's forward/up axes on the base's; arm transport scaled horizontally by `scale`
+/// (default `"auto"`), fingertips relative to the wrist by `hand_scale` (default 1). With `transform`:
+/// `p_robot = transform · (scale · p_human)` for every point (scale a number, default 1).
 #[derive(Debug, Clone, Default, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RegistrationIn {
     pub scale: Option<ScaleIn>,
+    /// Robot-frame position of the object's centre (every demonstration of the mapping), m.
+    pub placement: Option<[f64; 3]>,
+    /// Scale of the fingertips relative to the wrist, > 0 (default 1: the subject's hand).
+    pub hand_scale: Option<f64>,
     /// The subject's forward axis in the tracker frame (default `[1, 0, 0]`).
     pub subject_forward: Option<[f64; 3]>,
     /// The subject's up axis in the tracker frame (default `[0, 0, 1]`).
@@ -155,6 +166,9 @@ pub struct WeightsDto {
     pub position: f64,
     pub orientation: f64,
     pub elbow: f64,
+    /// Absent in mappings stored before the swivel term.
+    #[serde(default)]
+    pub swivel: f64,
 }
 
 /// Aggregate metrics over frames (of one demonstration or of a whole mapping).
@@ -177,6 +191,25 @@ pub struct MappingSummary {
     pub mean_iterations: f64,
     /// Frames whose solve did not converge (kept and reported, never hidden).
     pub unconverged_frames: usize,
+    /// Median and 95th percentile over frames and robot fingers of the fingertip error, m.
+    #[serde(default)]
+    pub median_fingertip_error_m: f64,
+    #[serde(default)]
+    pub p95_fingertip_error_m: f64,
+    /// Median over frames of the human-vs-robot elbow swivel-angle difference, rad (null without
+    /// arm frames).
+    #[serde(default)]
+    pub median_swivel_difference_rad: Option<f64>,
+    /// Mean over frames of the lower bound on the elbow distance that the robot's link lengths
+    /// allow (distance of the human elbow to the robot elbow's circle), m.
+    #[serde(default)]
+    pub mean_elbow_bound_m: Option<f64>,
+    /// Smallest exact clearance of any robot link or fingertip to the support plane and to the
+    /// object over all frames, m (negative: penetration; null: not measured).
+    #[serde(default)]
+    pub min_support_clearance_m: Option<f64>,
+    #[serde(default)]
+    pub min_object_clearance_m: Option<f64>,
 }
 
 impl MappingSummary {
@@ -185,7 +218,8 @@ impl MappingSummary {
         let mut s = MappingSummary::default();
         let (mut tips, mut tip_sum, mut ori_sum) = (0usize, 0.0, 0.0);
         let (mut elbow, mut d, mut f, mut it) = (0.0, 0.0, 0.0, 0.0);
-        for metrics in trajectories {
+        let all: Vec<&[FrameMetrics]> = trajectories.into_iter().collect();
+        for metrics in all.iter().copied() {
             s.demonstrations += 1;
             for m in metrics {
                 s.frames += 1;
@@ -202,6 +236,37 @@ impl MappingSummary {
                 s.unconverged_frames += usize::from(!m.converged);
             }
         }
+        let mut tip_errors = Vec::new();
+        let mut swivels = Vec::new();
+        let (mut bound_sum, mut bounds) = (0.0, 0usize);
+        let (mut support, mut object) = (None::<f64>, None::<f64>);
+        for metrics in &all {
+            for m in *metrics {
+                tip_errors.extend_from_slice(&m.position_error[..m.fingers]);
+                if m.swivel_difference.is_finite() {
+                    swivels.push(m.swivel_difference);
+                }
+                if m.elbow_bound.is_finite() {
+                    bound_sum += m.elbow_bound;
+                    bounds += 1;
+                }
+                let min = |acc: Option<f64>, x: f64| {
+                    if x.is_finite() {
+                        Some(acc.map_or(x, |a| a.min(x)))
+                    } else {
+                        acc
+                    }
+                };
+                support = min(support, m.support_clearance);
+                object = min(object, m.object_clearance);
+            }
+        }
+        s.median_fingertip_error_m = quantile(&mut tip_errors, 0.5).unwrap_or(0.0);
+        s.p95_fingertip_error_m = quantile(&mut tip_errors, 0.95).unwrap_or(0.0);
+        s.median_swivel_difference_rad = quantile(&mut swivels, 0.5);
+        s.mean_elbow_bound_m = (bounds > 0).then(|| bound_sum / bounds as f64);
+        s.min_support_clearance_m = support;
+        s.min_object_clearance_m = object;
         let per_tip = 1.0 / tips.max(1) as f64;
         let per_frame = 1.0 / s.frames.max(1) as f64;
         s.mean_fingertip_error_m = tip_sum * per_tip;
@@ -212,6 +277,16 @@ impl MappingSummary {
         s.mean_iterations = it * per_frame;
         s
     }
+}
+
+/// The `q`-quantile (nearest rank) of `v` (sorted in place); `None` when empty.
+fn quantile(v: &mut [f64], q: f64) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let k = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
+    Some(v[k])
 }
 
 /// A robot joint trajectory: independent joints (mimic joints follow their drivers).
@@ -241,15 +316,37 @@ pub struct FrameMetricsDto {
     pub objective: Vec<f64>,
     pub iterations: Vec<usize>,
     pub converged: Vec<bool>,
+    /// Elbow swivel angle of the registered human arm and of the robot arm, and their absolute
+    /// difference, rad (null without arm frames).
+    pub swivel_human: Vec<Option<f64>>,
+    pub swivel_robot: Vec<Option<f64>>,
+    pub swivel_difference: Vec<Option<f64>>,
+    /// Lower bound on the elbow distance from the robot's link lengths, m.
+    pub elbow_bound: Vec<Option<f64>>,
+    /// Smallest exact clearance of any robot link or fingertip to the support plane and to the
+    /// object, m (negative: penetration; null: not measured).
+    pub support_clearance: Vec<Option<f64>>,
+    pub object_clearance: Vec<Option<f64>>,
 }
 
-/// The resolved registration `p_robot = translation + scale · rotation · p_human`.
+/// The resolved registration (see `mapping::registration`): arm points
+/// `robot_anchor + transport_scale · horizontal(R (p − human_anchor)) + vertical_scale ·
+/// vertical(R (p − human_anchor))`, fingertips rigid with the wrist up to `hand_scale`.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct RegistrationDto {
-    /// `[w, x, y, z]`.
+    /// `R`, `[w, x, y, z]`.
     pub rotation: [f64; 4],
-    pub translation: [f64; 3],
-    pub scale: f64,
+    /// The human point the map is anchored at (the object's centre), tracker frame.
+    pub human_anchor: [f64; 3],
+    /// Where it lands (the object's placement), robot base frame.
+    pub robot_anchor: [f64; 3],
+    pub transport_scale: f64,
+    pub vertical_scale: f64,
+    pub hand_scale: f64,
+    /// The registered object in the robot base frame, in the form `POST /v1/grasps` and plans
+    /// take (`support`: the robot's table), so grasps and plans use the object the mapping
+    /// registered. Null without an object or with an explicit transform.
+    pub object: Option<crate::grasp::ObjectSpec>,
 }
 
 /// One mapped demonstration.
@@ -359,12 +456,14 @@ pub fn parse_params(
         position: weights.position.unwrap_or(d.position),
         orientation: weights.orientation.unwrap_or(d.orientation),
         elbow: weights.elbow.unwrap_or(d.elbow),
+        swivel: weights.swivel.unwrap_or(d.swivel),
     };
     let mut weights_ok = true;
     for (name, v) in [
         ("position", w.position),
         ("orientation", w.orientation),
         ("elbow", w.elbow),
+        ("swivel", w.swivel),
     ] {
         if !(v.is_finite() && v >= 0.0) {
             weights_ok = false;
@@ -377,7 +476,7 @@ pub fn parse_params(
     if weights_ok && w.validate().is_err() {
         errors.push(FieldError::new(
             "$.weights",
-            "at least one weight must be positive (all three are zero)",
+            "at least one weight must be positive (all four are zero)",
         ));
     }
     if let Some(r) = output_rate_hz
@@ -403,10 +502,15 @@ pub fn parse_params(
     };
     let spec = match &reg.transform {
         Some(t) => {
-            if reg.subject_forward.is_some() || reg.subject_up.is_some() {
+            if reg.subject_forward.is_some()
+                || reg.subject_up.is_some()
+                || reg.placement.is_some()
+                || reg.hand_scale.is_some()
+            {
                 errors.push(FieldError::new(
                     "$.registration.transform",
-                    "an explicit transform replaces the subject axes; give one or the other",
+                    "an explicit transform replaces the subject axes, placement and hand scale; \
+                     give one or the other",
                 ));
             }
             let factor = match scale {
@@ -415,7 +519,7 @@ pub fn parse_params(
                 Some(_) => {
                     errors.push(FieldError::new(
                         "$.registration.scale",
-                        "\"auto\" needs the default (shoulder-aligned) registration; give a \
+                        "\"auto\" needs the default (scene-keeping) registration; give a \
                          number with an explicit transform",
                     ));
                     1.0
@@ -464,10 +568,28 @@ pub fn parse_params(
                     "subject_forward and subject_up must be finite, non-zero and not parallel",
                 ));
             }
-            RegistrationSpec::ShoulderAligned {
-                subject_axes: axes,
-                scale: scale.unwrap_or(Scale::Auto),
+            if let Some(p) = reg.placement
+                && !finite3(&p)
+            {
+                errors.push(FieldError::new(
+                    "$.registration.placement",
+                    "must be a finite position [x, y, z] in metres",
+                ));
             }
+            let hand_scale = reg.hand_scale.unwrap_or(1.0);
+            if !(hand_scale.is_finite() && hand_scale > 0.0) {
+                errors.push(FieldError::new(
+                    "$.registration.hand_scale",
+                    format!("must be a positive finite number, got {hand_scale}"),
+                ));
+            }
+            RegistrationSpec::Scene(SceneRegistration {
+                subject_axes: axes,
+                transport_scale: scale.unwrap_or(Scale::Auto),
+                hand_scale,
+                placement: reg.placement.map(nalgebra::Point3::from),
+                ..SceneRegistration::default()
+            })
         }
     };
     if !errors.is_empty() {
@@ -480,11 +602,13 @@ pub fn parse_params(
     })
 }
 
-/// A demonstration ready to map: labels and frames at the output rate.
+/// A demonstration ready to map: labels, frames at the output rate and its registration (the
+/// request's, with the demonstration's object).
 #[derive(Debug, Clone)]
 pub struct PreparedDemo {
     pub labels: DemoLabels,
     pub frames: Vec<HumanFrame>,
+    pub registration: RegistrationSpec,
 }
 
 /// Resamples (at the output rate) and checks that the demonstration's arm can be registered.
@@ -492,6 +616,7 @@ pub struct PreparedDemo {
 pub fn prepare_demo(
     labels: DemoLabels,
     frames: Vec<HumanFrame>,
+    object: Option<HumanObject>,
     params: &MappingParams,
     anchor: &RobotAnchor,
     path: &str,
@@ -500,7 +625,13 @@ pub fn prepare_demo(
         Some(rate) => resample_frames(&frames, rate),
         None => frames,
     };
-    if let Err(e) = registration_for(&frames, &params.registration, anchor) {
+    let registration = params.registration.for_object(object);
+    if let Err(e) = registration_for(&frames, &registration, anchor) {
+        // A bad placement is the request's field, whichever demonstration shows it.
+        let path = match e {
+            MappingError::InvalidPlacement { .. } => "$.registration.placement",
+            _ => path,
+        };
         return Err(FieldError::new(
             path,
             format!(
@@ -509,7 +640,11 @@ pub fn prepare_demo(
             ),
         ));
     }
-    Ok(PreparedDemo { labels, frames })
+    Ok(PreparedDemo {
+        labels,
+        frames,
+        registration,
+    })
 }
 
 /// The robot's mapping view; a hand the mapping cannot handle is bad input on `$.robot`.
@@ -551,7 +686,7 @@ pub fn run_mapping(
         .iter()
         .map(|d| BatchItem {
             frames: &d.frames,
-            registration: &params.registration,
+            registration: &d.registration,
         })
         .collect();
     let flag = AtomicBool::new(false);
@@ -598,10 +733,28 @@ pub fn run_mapping(
 fn registration_dto(t: &MappedTrajectory) -> RegistrationDto {
     let r = &t.registration;
     let q = r.rotation.quaternion();
+    let p3 = |p: &nalgebra::Point3<f64>| [p.x, p.y, p.z];
     RegistrationDto {
         rotation: [q.w, q.i, q.j, q.k],
-        translation: [r.translation.x, r.translation.y, r.translation.z],
-        scale: r.scale,
+        human_anchor: p3(&r.human_anchor),
+        robot_anchor: p3(&r.robot_anchor),
+        transport_scale: r.transport_scale,
+        vertical_scale: r.vertical_scale,
+        hand_scale: r.hand_scale,
+        object: r.object.map(|o| {
+            let c = o.pose.translation.vector;
+            let q = o.pose.rotation.quaternion();
+            crate::grasp::ObjectSpec {
+                name: "object".into(),
+                shape: shape_spec(&o.shape),
+                position: [c.x, c.y, c.z],
+                orientation: [q.w, q.i, q.j, q.k],
+                support: r.support.map(|h| crate::grasp::SupportPlane {
+                    normal: [r.up.x, r.up.y, r.up.z],
+                    offset: h,
+                }),
+            }
+        }),
     }
 }
 
@@ -630,7 +783,17 @@ fn metrics_dto(ms: &[FrameMetrics]) -> FrameMetricsDto {
         objective: ms.iter().map(|m| m.objective).collect(),
         iterations: ms.iter().map(|m| m.iterations).collect(),
         converged: ms.iter().map(|m| m.converged).collect(),
+        swivel_human: ms.iter().map(|m| finite(m.swivel_human)).collect(),
+        swivel_robot: ms.iter().map(|m| finite(m.swivel_robot)).collect(),
+        swivel_difference: ms.iter().map(|m| finite(m.swivel_difference)).collect(),
+        elbow_bound: ms.iter().map(|m| finite(m.elbow_bound)).collect(),
+        support_clearance: ms.iter().map(|m| finite(m.support_clearance)).collect(),
+        object_clearance: ms.iter().map(|m| finite(m.object_clearance)).collect(),
     }
+}
+
+fn finite(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
 }
 
 /// The DTO of one mapped demonstration (with its arrays).
@@ -671,7 +834,7 @@ pub struct OfflineMapping {
 pub fn map_offline(
     robot: &str,
     system: &System,
-    demos: Vec<(DemoLabels, Vec<HumanFrame>)>,
+    demos: Vec<(DemoLabels, Vec<HumanFrame>, Option<HumanObject>)>,
     params: &MappingParams,
     threads: usize,
     progress: &(dyn Fn(usize, usize) + Sync),
@@ -680,8 +843,8 @@ pub fn map_offline(
     let anchor = mm.anchor();
     let mut prepared = Vec::with_capacity(demos.len());
     let mut errors = Vec::new();
-    for (i, (labels, frames)) in demos.into_iter().enumerate() {
-        match prepare_demo(labels, frames, params, &anchor, &format!("$[{i}]")) {
+    for (i, (labels, frames, object)) in demos.into_iter().enumerate() {
+        match prepare_demo(labels, frames, object, params, &anchor, &format!("$[{i}]")) {
             Ok(p) => prepared.push(p),
             Err(e) => errors.push(e),
         }
@@ -711,6 +874,7 @@ fn weights_dto(w: &Weights) -> WeightsDto {
         position: w.position,
         orientation: w.orientation,
         elbow: w.elbow,
+        swivel: w.swivel,
     }
 }
 
@@ -805,8 +969,11 @@ async fn resolve_selection(
     }
 }
 
-/// Loads and decodes a stored demonstration's labels and frames.
-async fn load_demo(state: &AppState, id: &str) -> Result<(DemoLabels, Vec<HumanFrame>), ApiError> {
+/// Loads and decodes a stored demonstration's labels, frames and object.
+async fn load_demo(
+    state: &AppState,
+    id: &str,
+) -> Result<(DemoLabels, Vec<HumanFrame>, Option<HumanObject>), ApiError> {
     let row = demo_repo::get(&state.db, id)
         .await?
         .ok_or_else(|| ApiError::not_found("demonstration", id))?;
@@ -829,7 +996,8 @@ async fn load_demo(state: &AppState, id: &str) -> Result<(DemoLabels, Vec<HumanF
         position_index: u32_of(row.position_index)?,
         trial: u32_of(row.trial)?,
     };
-    Ok((labels, frames))
+    let object = row.object().ok().map(|o| human_object(&o));
+    Ok((labels, frames, object))
 }
 
 /// Map demonstrations onto a robot (202 + job). The robot, every demonstration and the
@@ -858,8 +1026,8 @@ async fn create_mapping(
         let anchor = mm.anchor();
         let mut prepared = Vec::with_capacity(loaded.len());
         let mut errors = Vec::new();
-        for ((labels, frames), path) in loaded {
-            match prepare_demo(labels, frames, &params, &anchor, &path) {
+        for ((labels, frames, object), path) in loaded {
+            match prepare_demo(labels, frames, object, &params, &anchor, &path) {
                 Ok(p) => prepared.push(p),
                 Err(e) => errors.push(e),
             }
@@ -1169,6 +1337,7 @@ mod tests {
                 position: Some(-1.0),
                 orientation: Some(f64::NAN),
                 elbow: None,
+                swivel: None,
             },
             RegistrationIn::default(),
             None,
@@ -1178,6 +1347,7 @@ mod tests {
             position: Some(0.0),
             orientation: Some(0.0),
             elbow: Some(0.0),
+            swivel: Some(0.0),
         };
         assert_eq!(
             paths(&bad(zero, RegistrationIn::default(), None)),
@@ -1261,6 +1431,7 @@ mod tests {
         let e = prepare_demo(
             labels("d7"),
             frames,
+            None,
             &params(),
             &mm.anchor(),
             "$.demonstrations[3]",
@@ -1281,7 +1452,7 @@ mod tests {
         let sys = wam();
         let mm = mapping_model(&sys).unwrap();
         let p = params();
-        let good = prepare_demo(labels("ok"), study_frames(), &p, &mm.anchor(), "$").unwrap();
+        let good = prepare_demo(labels("ok"), study_frames(), None, &p, &mm.anchor(), "$").unwrap();
         let mut bad = good.clone();
         bad.labels.demonstration_id = "broken".into();
         let t = bad.frames[1].t;
@@ -1313,6 +1484,12 @@ mod tests {
             objective: 2.0,
             iterations: 4,
             converged,
+            swivel_human: 0.1,
+            swivel_robot: 0.2,
+            swivel_difference: e,
+            elbow_bound: 0.1,
+            support_clearance: e,
+            object_clearance: -e,
         };
         let a = [m(0.01, true), m(0.02, false)];
         let b = [m(0.03, true)];
@@ -1326,5 +1503,15 @@ mod tests {
         assert!((s.mean_orientation_error_rad - 0.2).abs() < 1e-15);
         assert!((s.mean_elbow_distance_m - 0.2).abs() < 1e-15);
         assert_eq!(s.mean_iterations, 4.0);
+        // Tip errors {0.01, 0.03, 0.02, 0.06, 0.03, 0.09}: nearest-rank median 0.03, p95 0.09.
+        assert_eq!(
+            (s.median_fingertip_error_m, s.p95_fingertip_error_m),
+            (0.03, 0.09)
+        );
+        assert_eq!(s.median_swivel_difference_rad, Some(0.02));
+        assert_eq!(
+            (s.min_support_clearance_m, s.min_object_clearance_m),
+            (Some(0.01), Some(-0.03))
+        );
     }
 }

@@ -1373,6 +1373,39 @@ pub(crate) async fn check_start(
     Ok(l.robot.clone())
 }
 
+/// A trained model's certified goal region of one joint group, joints by name: where a plan's
+/// grasp must end for the model to take the arm there with its convergence guarantee.
+pub(crate) struct NamedGoalRegion {
+    pub group: String,
+    pub joints: Vec<String>,
+    pub mean: Vec<f64>,
+    pub components: Vec<f64>,
+    pub center: Vec<f64>,
+    pub radius: f64,
+}
+
+/// The goal regions of a trained model, one per joint group.
+pub(crate) async fn goal_regions(
+    state: &AppState,
+    model: &str,
+) -> Result<Vec<NamedGoalRegion>, ApiError> {
+    let l = loaded_model(state, model, Some("$.model")).await?;
+    let groups = l.model.manifolds.len();
+    Ok(l.model
+        .manifolds
+        .iter()
+        .enumerate()
+        .map(|(gi, m)| NamedGoalRegion {
+            group: group_name(groups, gi),
+            joints: m.joints.iter().map(|&j| l.names[j].clone()).collect(),
+            mean: m.pca.mean.clone(),
+            components: m.pca.components.clone(),
+            center: m.certificate.goal_center[..m.pca.d()].to_vec(),
+            radius: m.certificate.goal_radius,
+        })
+        .collect())
+}
+
 /// Why no trajectory was computed.
 #[derive(Debug)]
 pub(crate) enum Rejected {

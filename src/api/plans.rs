@@ -217,7 +217,10 @@ pub async fn plan(state: &AppState, body: &PlanIn) -> Result<PlanDto, ApiError> 
         ));
     }
 
-    let (new_grasp, result) = compute_grasp(state, &body.grasp).await?;
+    // A plan's grasp must land in the model's certified goal regions: the search starts at
+    // their centre (the arm branch and hand posture the demonstrations end on) and keeps inside.
+    let regions = super::models::goal_regions(state, &model_id).await?;
+    let (new_grasp, result) = compute_grasp(state, &body.grasp, &regions).await?;
     let grasp_s = t0.elapsed().as_secs_f64();
     let mut reason = (!result.feasible).then(|| {
         format!(

@@ -458,8 +458,53 @@ pub struct MappingInput<'a> {
 
 const HUMAN_FINGERS: [&str; 5] = ["thumb", "index", "middle", "ring", "little"];
 
+/// The mapping's stored metrics in one line (issue 16): median / p95 fingertip error, mean elbow
+/// distance and its link-length bound, median swivel difference, smallest exact clearances.
+pub fn metrics_caption(ms: &[crate::mapping::FrameMetrics]) -> String {
+    let sorted = |mut v: Vec<f64>| {
+        v.retain(|x| x.is_finite());
+        v.sort_by(f64::total_cmp);
+        v
+    };
+    let at = |v: &[f64], q: f64| {
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            v[((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1]
+        }
+    };
+    let tips = sorted(
+        ms.iter()
+            .flat_map(|m| m.position_error[..m.fingers].iter().copied())
+            .collect(),
+    );
+    let swivel = sorted(ms.iter().map(|m| m.swivel_difference).collect());
+    let mean = |f: &dyn Fn(&crate::mapping::FrameMetrics) -> f64| {
+        let v = sorted(ms.iter().map(f).collect());
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    };
+    let min = |f: &dyn Fn(&crate::mapping::FrameMetrics) -> f64| {
+        sorted(ms.iter().map(f).collect())
+            .first()
+            .copied()
+            .unwrap_or(f64::NAN)
+    };
+    format!(
+        "tip error median {:.1} mm, p95 {:.1} mm; elbow distance {:.0} mm (bound {:.0} mm); \
+         swivel diff median {:.0}°; clearance support {:.1} mm, object {:.1} mm",
+        at(&tips, 0.5) * 1e3,
+        at(&tips, 0.95) * 1e3,
+        mean(&|m| m.elbow_distance_mean) * 1e3,
+        mean(&|m| m.elbow_bound) * 1e3,
+        at(&swivel, 0.5).to_degrees(),
+        min(&|m| m.support_clearance) * 1e3,
+        min(&|m| m.object_clearance) * 1e3,
+    )
+}
+
 /// Fig. 2: the human fingertip and elbow paths (registered into the robot base frame) against
-/// the robot fingertip and elbow paths, with a few robot postures along the motion.
+/// the robot fingertip and elbow paths, with a few robot postures along the motion, the human
+/// arm at the same instants, the registered object and table, and the mapping's metrics.
 pub fn mapping_scene(input: &MappingInput<'_>) -> Result<Scene, FigureError> {
     if input.postures > 10 {
         return Err(FigureError::OutOfRange {
@@ -492,20 +537,81 @@ pub fn mapping_scene(input: &MappingInput<'_>) -> Result<Scene, FigureError> {
         .collect();
     let reg: &Registration = &traj.registration;
     let mut scene = Scene {
-        title: format!("{}: human vs robot fingertip and elbow paths", sys.name),
+        title: format!(
+            "{}: human vs robot fingertip and elbow paths; {}",
+            sys.name,
+            metrics_caption(&traj.metrics)
+        ),
         ..Scene::default()
     };
+    // The scene the mapping registered: the object on its placement and the robot's table.
+    if let Some(o) = &reg.object {
+        let c = o.pose.translation.vector;
+        let q = o.pose.rotation.quaternion();
+        let spec = ObjectSpec {
+            name: "object".into(),
+            shape: crate::mapping::shape_spec(&o.shape),
+            position: [c.x, c.y, c.z],
+            orientation: [q.w, q.i, q.j, q.k],
+            support: None,
+        };
+        for l in object_wireframe(&spec) {
+            scene.line("object", OBJECT, 1, l);
+        }
+        if let Some(h) = reg.support {
+            // A 0.3 m square of the table around the object (the plane's trace).
+            let (x, y, z) = (c.x, c.y, h);
+            let d = 0.15;
+            scene.line(
+                "support plane",
+                RGBColor(150, 150, 150),
+                1,
+                vec![
+                    Point3::new(x - d, y - d, z),
+                    Point3::new(x + d, y - d, z),
+                    Point3::new(x + d, y + d, z),
+                    Point3::new(x - d, y + d, z),
+                    Point3::new(x - d, y - d, z),
+                ],
+            );
+        }
+    }
     let human_color = |i: usize| PALETTE[(i + 1) % PALETTE.len()];
     for (i, name) in HUMAN_FINGERS.iter().enumerate() {
         let path = input
             .human
             .iter()
-            .map(|f| reg.point(&Point3::from(f.fingertips[i].translation.vector)))
+            .map(|f| {
+                reg.hand_point(
+                    &Point3::from(f.fingertips[i].translation.vector),
+                    &Point3::from(f.wrist.translation.vector),
+                )
+            })
             .collect();
         scene.line(&format!("human {name} tip"), human_color(i), 1, path);
     }
     let elbow = input.human.iter().map(|f| reg.point(&f.elbow)).collect();
     scene.line("human elbow", HUMAN_ELBOW, 2, elbow);
+    // The human arm (shoulder, elbow, wrist) at the drawn postures: the swivel to compare.
+    let drawn = |k: usize, n: usize, frames: usize| match n {
+        0 => false,
+        1 => k == frames - 1,
+        n => (0..n).any(|j| j * (frames - 1) / (n - 1) == k),
+    };
+    for (k, f) in input.human.iter().enumerate() {
+        if drawn(k, input.postures, input.human.len()) {
+            scene.line(
+                "human arm",
+                HUMAN_ELBOW,
+                1,
+                vec![
+                    reg.point(&f.shoulder),
+                    reg.point(&f.elbow),
+                    reg.point(&Point3::from(f.wrist.translation.vector)),
+                ],
+            );
+        }
+    }
 
     let mut data = Data::new(model);
     let mut q = model.neutral();

@@ -437,10 +437,26 @@ impl CollisionChecker {
 
     /// [`Self::clearance`] at the posture of the last [`Self::update`].
     pub fn clearance_at_update(&self, data: &mut CheckData) -> Clearance {
+        self.clearance_in(data, &Category::ALL)
+    }
+
+    /// [`Self::clearance`] over the pairs of the given categories only (e.g. support and object
+    /// without the self-collision pairs), at `q`.
+    pub fn category_clearance(
+        &self,
+        data: &mut CheckData,
+        q: &[f64],
+        categories: &[Category],
+    ) -> Clearance {
+        self.update(data, q);
+        self.clearance_in(data, categories)
+    }
+
+    fn clearance_in(&self, data: &mut CheckData, categories: &[Category]) -> Clearance {
         let mut out = Clearance::default();
         let mut first: [Option<(usize, f64)>; 4] = [None; 4];
         for i in 0..self.pairs.len() {
-            if self.allowed[i] {
+            if self.allowed[i] || !categories.contains(&self.pairs[i].category) {
                 continue;
             }
             let b = self.sphere_bound(data, i);
@@ -491,11 +507,26 @@ impl CollisionChecker {
         data: &mut CheckData,
         q: &[f64],
         cutoff: f64,
+        f: impl FnMut(usize, &SignedDistance),
+    ) {
+        self.for_each_within_in(data, q, cutoff, &Category::ALL, f);
+    }
+
+    /// [`Self::for_each_within`] over the pairs of the given categories only.
+    pub fn for_each_within_in(
+        &self,
+        data: &mut CheckData,
+        q: &[f64],
+        cutoff: f64,
+        categories: &[Category],
         mut f: impl FnMut(usize, &SignedDistance),
     ) {
         self.update(data, q);
         for i in 0..self.pairs.len() {
-            if self.allowed[i] || self.sphere_bound(data, i) >= cutoff {
+            if self.allowed[i]
+                || !categories.contains(&self.pairs[i].category)
+                || self.sphere_bound(data, i) >= cutoff
+            {
                 continue;
             }
             let d = self.pair_distance(data, i);

@@ -141,6 +141,60 @@ impl Default for Weights {
 }
 
 /// One grasp request.
+/// A motion model's certified goal region for one group of joints: a ball in the group's PCA
+/// coordinates, `‖Wᵀ(q_g − μ) − c‖ ≤ radius`. A grasp for a plan must end inside it, or the
+/// model cannot take the arm there with its convergence guarantee.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GoalRegion {
+    /// Name of the group (`arm`, `hand`), for the infeasibility reason.
+    pub name: String,
+    /// `q` indices (system order) of the group's joints.
+    pub joints: Vec<usize>,
+    /// PCA mean per joint.
+    pub mean: Vec<f64>,
+    /// PCA components, row-major `joints × centre.len()`.
+    pub components: Vec<f64>,
+    pub center: Vec<f64>,
+    pub radius: f64,
+}
+
+/// A grasp's goal region rows keep it this fraction of the radius inside, so that a grasp the
+/// optimiser accepts is inside the model's region by more than its tolerance.
+pub const GOAL_REGION_MARGIN: f64 = 0.95;
+
+impl GoalRegion {
+    /// The distance of `q`'s projection from the centre, and (with `grad`) its gradient in the
+    /// PCA coordinates `y − c` (length `center.len()`).
+    fn distance(&self, q: &[f64], diff: &mut [f64]) -> f64 {
+        let d = self.center.len();
+        for (i, di) in diff.iter_mut().enumerate().take(d) {
+            let mut y = 0.0;
+            for (g, &j) in self.joints.iter().enumerate() {
+                y += self.components[g * d + i] * (q[j] - self.mean[g]);
+            }
+            *di = y - self.center[i];
+        }
+        diff[..d].iter().map(|v| v * v).sum::<f64>().sqrt()
+    }
+
+    fn check(&self, nq: usize) -> bool {
+        let (n, d) = (self.joints.len(), self.center.len());
+        n > 0
+            && d > 0
+            && self.mean.len() == n
+            && self.components.len() == n * d
+            && self.joints.iter().all(|&j| j < nq)
+            && self.radius.is_finite()
+            && self.radius > 0.0
+            && self
+                .mean
+                .iter()
+                .chain(&self.components)
+                .chain(&self.center)
+                .all(|x| x.is_finite())
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct GraspRequest {
     /// The object (pose included).
@@ -159,6 +213,14 @@ pub struct GraspRequest {
     pub elbow_reference: Option<Point3<f64>>,
     /// Worker threads for the starts.
     pub threads: usize,
+    /// A configuration (`q` of the system) every start begins from instead of mid-range: the
+    /// arm joints seed its inverse kinematics, the hand joints its preshape (where the fingers
+    /// do not cross). A plan passes its motion model's goal-region centre, so the grasp lands
+    /// on the arm branch and near the hand posture the demonstrations end on.
+    pub arm_seed: Option<Vec<f64>>,
+    /// Goal regions the grasp's configuration must lie in (a plan's motion model's), as
+    /// inequality rows of the optimisation (paper: not part of eq. 22-29; issue 23 item 5).
+    pub goal_regions: Vec<GoalRegion>,
 }
 
 impl GraspRequest {
@@ -173,6 +235,8 @@ impl GraspRequest {
             seed: 0,
             elbow_reference: None,
             threads: 2,
+            arm_seed: None,
+            goal_regions: Vec::new(),
         }
     }
 
@@ -199,6 +263,26 @@ impl GraspRequest {
                 measure: self.quality.name(),
                 needed: self.quality.min_fingers(),
                 fingers: sys.fingers.len(),
+            });
+        }
+        if let Some(q) = &self.arm_seed {
+            let nq = sys.model.nq();
+            if q.len() != nq || !q.iter().all(|x| x.is_finite()) {
+                return Err(GraspError::InvalidParameter {
+                    field: "arm_seed",
+                    reason: format!("must be {nq} finite joint values, got {}", q.len()),
+                });
+            }
+        }
+        let nq = sys.model.nq();
+        if let Some(g) = self.goal_regions.iter().find(|g| !g.check(nq)) {
+            return Err(GraspError::InvalidParameter {
+                field: "goal_regions",
+                reason: format!(
+                    "the '{}' goal region is malformed (joints, mean, components, centre and a \
+                     positive radius must agree)",
+                    g.name
+                ),
             });
         }
         if self.starts == 0 || self.starts > 64 {
@@ -449,6 +533,8 @@ struct Eval<'a> {
     plane: bool,
     /// Finger pairs `(i, j)`, `i < j`, whose contact spheres must stay disjoint.
     pairs: Vec<(usize, usize)>,
+    /// `y − c` of a goal region (scratch, the largest region's dimension).
+    region_diff: Vec<f64>,
 }
 /// The grasp's scene for the exact checker: the object and its support half-space.
 fn grasp_checker(sys: &HandArm, req: &GraspRequest) -> CollisionChecker {
@@ -540,6 +626,14 @@ impl<'a> Eval<'a> {
             pairs: (0..m)
                 .flat_map(|i| (i + 1..m).map(move |j| (i, j)))
                 .collect(),
+            region_diff: vec![
+                0.0;
+                req.goal_regions
+                    .iter()
+                    .map(|g| g.center.len())
+                    .max()
+                    .unwrap_or(0)
+            ],
         }
     }
 
@@ -560,6 +654,12 @@ impl<'a> Eval<'a> {
             + if self.plane { m } else { 0 }
             + self.pairs.len()
             + self.sys.link_pairs.len()
+            + self.req.goal_regions.len()
+    }
+
+    /// Index of the first goal-region row (the last rows).
+    fn region_row(&self) -> usize {
+        self.n_eq() + self.n_ineq() - self.req.goal_regions.len()
     }
 
     /// Index of the first contact-sphere support row (with a support): per finger the contact
@@ -575,9 +675,9 @@ impl<'a> Eval<'a> {
         self.link_pair_row() - self.pairs.len()
     }
 
-    /// Index of the first link-pair row (the last rows).
+    /// Index of the first link-pair row.
     fn link_pair_row(&self) -> usize {
-        self.n_eq() + self.n_ineq() - self.sys.link_pairs.len()
+        self.region_row() - self.sys.link_pairs.len()
     }
 
     /// World centre and radius of the other sphere of a link pair.
@@ -859,6 +959,14 @@ impl<'a> Eval<'a> {
                 self.sys.link_spheres[a].radius + rb + FINGER_CLEARANCE - (self.s_p[a] - c).norm();
             k += 1;
         }
+        // (‖y − c‖² − (m r)²) / 2r: about the distance past the margin near the boundary, smooth
+        // at the centre.
+        for g in &self.req.goal_regions {
+            let dist = g.distance(&self.q, &mut self.region_diff);
+            let rm = GOAL_REGION_MARGIN * g.radius;
+            r[k] = (dist * dist - rm * rm) / (2.0 * g.radius);
+            k += 1;
+        }
     }
 
     fn jacobian_t(&mut self, u: &[f64], d: &[f64], out: &mut [f64]) {
@@ -957,6 +1065,20 @@ impl<'a> Eval<'a> {
                 LinkPair::Tip(_, f) => {
                     add_point_gradient(&mut self.grad_q, &self.tip_j[f], &(e * dp));
                 }
+            }
+        }
+        let k0 = self.region_row();
+        for (p, g) in self.req.goal_regions.iter().enumerate() {
+            let dp = d[k0 + p];
+            if dp == 0.0 {
+                continue;
+            }
+            g.distance(&self.q, &mut self.region_diff);
+            let dim = g.center.len();
+            for (gi, &j) in g.joints.iter().enumerate() {
+                let row = &g.components[gi * dim..(gi + 1) * dim];
+                let v: f64 = row.iter().zip(&self.region_diff).map(|(w, y)| w * y).sum();
+                self.grad_q[j] += dp * v / g.radius;
             }
         }
         for (k, &i) in self.sel.iter().enumerate() {
@@ -1216,6 +1338,11 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
         ChaCha8Rng::seed_from_u64(req.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ start as u64);
     let mut q = model.neutral();
     let (lo, hi) = (model.lower_limits(), model.upper_limits());
+    if let Some(seed) = &req.arm_seed {
+        for &a in &sys.arm_joints {
+            q[a] = seed[a].clamp(lo[a], hi[a]);
+        }
+    }
     // Hand preshape: mid-range, jittered on later starts. Where fingers cross each other there
     // (the T42's and the iHY's overlap at mid-range) the hand is opened towards the lower limits,
     // where the bundled hands are open, a tenth of the range at a time until the fingers are
@@ -1249,6 +1376,19 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
         }
     }
     preshape(chosen, &mut q);
+    // A seed's hand posture (a plan's demonstrated final grasp) replaces the preshape where its
+    // fingers are clear of each other.
+    if let Some(seed) = &req.arm_seed {
+        let before = q.clone();
+        for (&h, j) in sys.hand_joints.iter().zip(&jitter) {
+            let (l, u) = (finite_or(lo[h], -1.0), finite_or(hi[h], 1.0));
+            q[h] = (seed[h] + j * (u - l)).clamp(l, u);
+        }
+        forward_kinematics(model, data, &q);
+        if sys.min_crossing_gap(data) < FINGER_CLEARANCE {
+            q = before;
+        }
+    }
     // Fingertip geometry in the palm frame at the preshape.
     forward_kinematics(model, data, &q);
     let palm = *data.frame(sys.palm);
@@ -1440,15 +1580,17 @@ fn run_start_with(
         .solve(&problem, &mut u)
         .expect("problem is well-formed");
     // The optimiser's answer is a posture on the sphere model; place it on the exact geometry
-    // and judge it there (see `repair`).
+    // and judge it there (see `repair`), inside the goal regions a plan asks for.
     let mut e = eval.borrow_mut();
     let note = e.repair(&mut u);
     let v = e.verdict(&u);
-    let feasible = report.status != SolveStatus::NumericalFailure && v.passed();
+    let outside = region_excess(sys, req, &u);
+    let feasible =
+        report.status != SolveStatus::NumericalFailure && v.passed() && outside.is_none();
     let score = if feasible {
         e.cost(&u) - PAD_WEIGHT * e.pad_penalty()
     } else {
-        v.violation()
+        v.violation() + outside.map_or(0.0, |(_, d, g)| d - g.radius)
     };
     drop(e);
     StartOutcome {
@@ -1517,7 +1659,9 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
     } else {
         // Far from the surface on the optimiser's own model too: the object is out of reach
         // or too large, which says more than the exact pad distance.
-        let mut why = if result.residuals.max_surface_distance > SURFACE_TOLERANCE
+        let mut why = if let Some(why) = region_reason(sys, req, &best.u) {
+            why
+        } else if result.residuals.max_surface_distance > SURFACE_TOLERANCE
             && result.exact.max_pad_distance > SURFACE_TOLERANCE
         {
             out_of_reach(sys, req, &result)
@@ -1565,6 +1709,63 @@ fn out_of_reach(sys: &HandArm, req: &GraspRequest, r: &GraspResult) -> String {
         req.object.bounding_radius() * 1e3,
         palm_reach * 1e3
     )
+}
+
+/// The goal region `u` is furthest outside, with its distance from the centre (`None`: inside
+/// every region).
+fn region_excess<'r>(
+    sys: &HandArm,
+    req: &'r GraspRequest,
+    u: &[f64],
+) -> Option<(Vec<f64>, f64, &'r GoalRegion)> {
+    if req.goal_regions.is_empty() {
+        return None;
+    }
+    let mut q = sys.model.neutral();
+    for (&i, &v) in sys.arm_joints.iter().chain(&sys.hand_joints).zip(u) {
+        q[i] = v;
+    }
+    req.goal_regions
+        .iter()
+        .filter_map(|g| {
+            let mut diff = vec![0.0; g.center.len()];
+            let d = g.distance(&q, &mut diff);
+            (d > g.radius).then_some((d - g.radius, d, g))
+        })
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, d, g)| (q, d, g))
+}
+
+/// Why `u` is no goal of the plan's model: the region, and the joints furthest from its centre.
+fn region_reason(sys: &HandArm, req: &GraspRequest, u: &[f64]) -> Option<String> {
+    let (q, d, g) = region_excess(sys, req, u)?;
+    let names = sys.model.joint_names();
+    let dim = g.center.len();
+    let mut worst: Vec<(f64, usize)> = g
+        .joints
+        .iter()
+        .enumerate()
+        .map(|(gi, &j)| {
+            let c = g.mean[gi]
+                + (0..dim)
+                    .map(|i| g.components[gi * dim + i] * g.center[i])
+                    .sum::<f64>();
+            ((q[j] - c).abs(), j)
+        })
+        .collect();
+    worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let list: Vec<String> = worst
+        .iter()
+        .take(3)
+        .map(|(dq, j)| format!("{} {:.2} rad from the region's centre", names[*j], dq))
+        .collect();
+    Some(format!(
+        "the grasp lies outside the motion model's certified goal region of the {} joints \
+         ({d:.3} from its centre, radius {:.3}; furthest: {})",
+        g.name,
+        g.radius,
+        list.join(", ")
+    ))
 }
 
 /// Evaluate every term, index, residual and ellipsoid at a decision vector.

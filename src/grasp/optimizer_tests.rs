@@ -200,6 +200,18 @@ fn cost_gradient_and_constraint_jacobian_match_central_differences() {
         d: 2.0,
     };
     req.elbow_reference = Some(Point3::new(0.1, -0.3, 0.4));
+    // A goal-region row (a plan's motion model) over the arm, two PCA components.
+    let arm = sys.arm_joints.clone();
+    req.goal_regions = vec![GoalRegion {
+        name: "arm".into(),
+        joints: arm.clone(),
+        mean: arm.iter().map(|&j| 0.1 * j as f64).collect(),
+        components: (0..arm.len() * 2)
+            .map(|k| (k as f64 * 0.7).sin() * 0.5)
+            .collect(),
+        center: vec![0.2, -0.1],
+        radius: 0.3,
+    }];
     for quality in [
         QualityMeasure::CentroidDistance,
         QualityMeasure::PolygonArea,
@@ -436,6 +448,73 @@ fn grasps_of_a_ball_are_feasible_with_every_residual_in_tolerance() {
         assert_eq!(r.q_arm.len(), 7);
         assert_eq!(r.q_hand[0].name, "f0_proximal");
     }
+}
+
+/// A plan's grasp stays in its motion model's goal region: a region (identity components over
+/// the arm joints) 0.35 rad off the unconstrained grasp's arm configuration moves the grasp into
+/// it, measured here from the returned joint values alone; a region no grasp reaches makes the
+/// answer infeasible with a reason naming the region and the joints furthest out.
+#[test]
+fn a_goal_region_keeps_the_grasp_inside_it_or_says_which_joints_are_out() {
+    let sys = test_system();
+    let req = GraspRequest::new(
+        ball([0.5, 0.1, 0.2], 0.033),
+        vec![],
+        QualityMeasure::CentroidDistance,
+    );
+    let free = plan_grasp(&sys, &req).unwrap();
+    assert!(free.feasible);
+    let arm: Vec<f64> = free.q_arm.iter().map(|j| j.value).collect();
+    let n = arm.len();
+    let identity: Vec<f64> = (0..n * n)
+        .map(|k| if k / n == k % n { 1.0 } else { 0.0 })
+        .collect();
+    let region = |center: Vec<f64>, radius: f64| GoalRegion {
+        name: "arm".into(),
+        joints: sys.arm_joints.clone(),
+        mean: vec![0.0; n],
+        components: identity.clone(),
+        center,
+        radius,
+    };
+    let distance = |r: &GraspResult, c: &[f64]| {
+        r.q_arm
+            .iter()
+            .zip(c)
+            .map(|(j, c)| (j.value - c).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let mut centre = arm.clone();
+    centre[0] += 0.35;
+    centre[3] -= 0.2;
+    let radius = 0.25;
+    assert!(
+        distance(&free, &centre) > radius,
+        "the free grasp must start outside"
+    );
+    let mut inside = req.clone();
+    inside.goal_regions = vec![region(centre.clone(), radius)];
+    let r = plan_grasp(&sys, &inside).unwrap();
+    assert!(r.feasible, "{:?}", r.reason);
+    let d = distance(&r, &centre);
+    assert!(d <= radius, "{d} from the centre, radius {radius}");
+    assert!(r.residuals.max_surface_distance <= 1e-3);
+    let mut far = req.clone();
+    far.goal_regions = vec![region(arm.iter().map(|v| v + 2.5).collect(), 0.1)];
+    let r = plan_grasp(&sys, &far).unwrap();
+    assert!(!r.feasible);
+    let why = r.reason.unwrap();
+    assert!(why.contains("goal region of the arm joints"), "{why}");
+    let mut bad = req.clone();
+    bad.goal_regions = vec![region(vec![0.0; n], -1.0)];
+    assert!(matches!(
+        plan_grasp(&sys, &bad),
+        Err(GraspError::InvalidParameter {
+            field: "goal_regions",
+            ..
+        })
+    ));
 }
 
 /// Fig. 3: maximising the velocity ratio along d aligns the velocity ellipsoid's major axis

@@ -15,9 +15,9 @@
 //! Typical use: `MappingModel::from_system(&system)`, `anchor()`, then one [`Mapper`] per worker
 //! (`Mapper::map(frames, &RegistrationSpec::default(), &anchor)`), or [`map_batch`] for many
 //! demonstrations across threads. A batch is mapped consistently: every demonstration's first
-//! frame is solved locally from one reference posture ([`batch_reference`],
-//! [`Mapper::map_from`]), so the same rest pose maps to the same robot posture in every
-//! demonstration; a demonstration mapped alone starts from its own multi-start solution.
+//! frame is solved locally from the nearest already-solved first frame ([`batch_starts`],
+//! [`Mapper::map_from`]), so one posture branch serves every subject and trial; a
+//! demonstration mapped alone starts from its own multi-start solution.
 
 pub mod goals;
 pub mod objective;
@@ -29,13 +29,20 @@ pub mod trajectory;
 
 pub use goals::{CatmullRom4, FingerGoal, MAX_FINGERS};
 pub use objective::{
-    Evaluator, FrameGoals, MappingModel, Objective, Term, Weights, quaternion_distance,
+    ArmFrames, Evaluator, FrameGoals, MappingModel, Objective, Term, Weights, quaternion_distance,
+    swivel_angle, swivel_direction,
 };
-pub use registration::{ArmPoints, BodyAxes, Registration, RegistrationSpec, RobotAnchor, Scale};
-pub use solve::{FIRST_FRAME_FALLBACK, FrameMetrics, Mapper, SolverOptions, StartReference};
+pub use registration::{
+    ArmPoints, BodyAxes, HumanObject, Registration, RegistrationSpec, RobotAnchor, Scale,
+    SceneRegistration, human_object,
+};
+pub use solve::{
+    FIRST_FRAME_FALLBACK, FrameMetrics, Mapper, SolverOptions, StartReference,
+    elbow_circle_distance,
+};
 pub use trajectory::{
-    BatchItem, Cancelled, MappedTrajectory, batch_reference, map_batch, registration_for,
-    resample_frames,
+    BatchItem, Cancelled, MappedTrajectory, batch_starts, map_batch, registration_for,
+    resample_frames, scene_of, shape_spec,
 };
 
 /// Everything that can go wrong in the mapping layer; the API turns it into 4xx problem+json.
@@ -56,6 +63,10 @@ pub enum MappingError {
     },
     #[error("registration: {reason}")]
     InvalidRegistration { reason: String },
+    #[error("placement: {reason}")]
+    InvalidPlacement { reason: String },
+    #[error("{field} must be a positive finite number, got {value}")]
+    InvalidFactor { field: &'static str, value: f64 },
     #[error("scale must be a positive finite number, got {value}")]
     InvalidScale { value: f64 },
     #[error("weight `{field}` must be finite and non-negative, got {value}")]

@@ -11,8 +11,17 @@ use rand_chacha::ChaCha8Rng;
 
 use super::MappingError;
 use super::goals::MAX_FINGERS;
-use super::objective::{Evaluator, FrameGoals, MappingModel, Objective, Term, Weights};
+use super::objective::{
+    Evaluator, FrameGoals, MappingModel, Objective, Term, Weights, swivel_angle,
+};
+use crate::geometry::{Category, CheckData, CollisionChecker, SignedDistance};
 use crate::optim::{BoxReport, BoxSolver, PairOrder};
+use nalgebra::Point3;
+
+/// How far (rad, per joint) a batch's local first-frame solve may move from the reference
+/// posture: a wrist flip (about π on two wrist joints) is another branch, not a nearby posture,
+/// and an unbounded local solve slid into it on 12 of 25 pa10_ob4f demonstrations.
+pub const FIRST_FRAME_RADIUS: f64 = 1.0;
 
 /// Default of [`SolverOptions::first_frame_fallback`] (measured: see `probe_first_frame_reference`).
 pub const FIRST_FRAME_FALLBACK: f64 = 2.0;
@@ -52,6 +61,17 @@ pub struct SolverOptions {
     pub step_scale: f64,
     /// Joint speed used for the step bound when a joint has no positive finite velocity limit.
     pub fallback_speed: f64,
+    /// Weight of the clearance penalty `Σ max(0, margin − d)²` over the exact signed distances
+    /// `d` of the robot's collision shapes to the support plane (every frame) and to the object
+    /// (before `object_free_until` of the reach), per m². Not in the paper (its eq. 1-7 have no
+    /// scene); without it a robot fingertip pad reaching the subject's fingertip resting on the
+    /// table sinks its own radius into the table. Active only with [`MappingModel::geometry`].
+    pub clearance_weight: f64,
+    /// Distance below which the clearance penalty acts, m.
+    pub clearance_margin: f64,
+    /// Fraction of the demonstration's duration during which the object is kept out of (the
+    /// final part is the grasp, where the fingers meet it).
+    pub object_free_until: f64,
 }
 
 impl Default for SolverOptions {
@@ -66,6 +86,9 @@ impl Default for SolverOptions {
             first_frame_fallback: FIRST_FRAME_FALLBACK,
             step_scale: 2.0,
             fallback_speed: 3.0,
+            clearance_weight: 1e3,
+            clearance_margin: 0.005,
+            object_free_until: 0.9,
         }
     }
 }
@@ -98,12 +121,21 @@ impl SolverOptions {
         if !(self.fallback_speed.is_finite() && self.fallback_speed > 0.0) {
             return bad("fallback_speed", self.fallback_speed);
         }
+        if !(self.clearance_weight.is_finite() && self.clearance_weight >= 0.0) {
+            return bad("clearance_weight", self.clearance_weight);
+        }
+        if !(self.clearance_margin.is_finite() && self.clearance_margin >= 0.0) {
+            return bad("clearance_margin", self.clearance_margin);
+        }
+        if !(self.object_free_until.is_finite() && (0.0..=1.0).contains(&self.object_free_until)) {
+            return bad("object_free_until", self.object_free_until);
+        }
         Ok(())
     }
 }
 
-/// What one frame's solve achieved.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// What one frame's solve achieved. Equality treats NaN ("not measured") as equal to NaN.
+#[derive(Clone, Copy, Debug)]
 pub struct FrameMetrics {
     pub t: f64,
     /// Robot finger count `m`; the per-finger arrays are valid in `[0..fingers]`.
@@ -120,6 +152,70 @@ pub struct FrameMetrics {
     pub objective: f64,
     pub iterations: usize,
     pub converged: bool,
+    /// Elbow swivel angles ([`super::objective::swivel_angle`]) of the registered human arm and
+    /// of the robot arm, and the absolute difference wrapped to `[0, π]`, rad (NaN without arm
+    /// frames).
+    pub swivel_human: f64,
+    pub swivel_robot: f64,
+    pub swivel_difference: f64,
+    /// Lower bound on the human-elbow-to-robot-elbow distance at this frame: the distance from
+    /// the human elbow to the circle the robot elbow can lie on given its shoulder, its wrist and
+    /// its upper-arm and forearm lengths, m (NaN without arm frames).
+    pub elbow_bound: f64,
+    /// Smallest exact signed distance of any robot link or fingertip shape to the support plane
+    /// and to the object (parry, URDF collision shapes; `src/geometry`), m. NaN when the mapping
+    /// ran without geometry or the scene has no such member.
+    pub support_clearance: f64,
+    pub object_clearance: f64,
+}
+
+impl PartialEq for FrameMetrics {
+    fn eq(&self, o: &Self) -> bool {
+        let same = |a: f64, b: f64| a == b || (a.is_nan() && b.is_nan());
+        let scalars = [
+            (self.t, o.t),
+            (self.elbow_distance, o.elbow_distance),
+            (self.elbow_distance_mean, o.elbow_distance_mean),
+            (self.objective, o.objective),
+            (self.swivel_human, o.swivel_human),
+            (self.swivel_robot, o.swivel_robot),
+            (self.swivel_difference, o.swivel_difference),
+            (self.elbow_bound, o.elbow_bound),
+            (self.support_clearance, o.support_clearance),
+            (self.object_clearance, o.object_clearance),
+        ];
+        self.fingers == o.fingers
+            && self.iterations == o.iterations
+            && self.converged == o.converged
+            && scalars.iter().all(|&(a, b)| same(a, b))
+            && (0..MAX_FINGERS).all(|i| {
+                same(self.position_error[i], o.position_error[i])
+                    && same(self.orientation_error[i], o.orientation_error[i])
+            })
+    }
+}
+
+/// Distance from `p` to the circle of points at `l1` from `s` and `l2` from `w` (closest point of
+/// the sphere `‖x − s‖ = l1` when the two spheres do not meet).
+pub fn elbow_circle_distance(
+    s: &Point3<f64>,
+    w: &Point3<f64>,
+    l1: f64,
+    l2: f64,
+    p: &Point3<f64>,
+) -> f64 {
+    let axis = w - s;
+    let d = axis.norm();
+    if d < 1e-12 {
+        return ((p - s).norm() - l1).abs();
+    }
+    let a = axis / d;
+    let x = ((l1 * l1 - l2 * l2 + d * d) / (2.0 * d)).clamp(-l1, l1);
+    let rho = (l1 * l1 - x * x).max(0.0).sqrt();
+    let v = p - (s + a * x);
+    let along = v.dot(&a);
+    let across = (v - a * along).norm();
+    (along * along + (across - rho).powi(2)).sqrt()
 }
 
 /// The reusable per-worker mapping solver: FK scratch, solver cache, bound buffers. Mapping a
@@ -136,6 +232,64 @@ pub struct Mapper {
     pub(super) orders: Vec<PairOrder>,
     pub(super) best: Vec<f64>,
     pub(super) local: Vec<f64>,
+    /// Collision shapes for the exact clearance metrics (`None`: not measured).
+    pub(super) geometry: Option<std::sync::Arc<crate::geometry::RobotGeometry>>,
+    /// The current demonstration's scene (set by the trajectory mapping), its scratch, and
+    /// whether the object is kept out of at the frame being solved.
+    pub(super) clearance: Option<Clearance>,
+}
+
+/// The clearance penalty's state for one demonstration.
+pub(super) struct Clearance {
+    pub checker: CollisionChecker,
+    pub data: CheckData,
+    pub object: bool,
+    /// `(pair, distance)` within the margin at the last evaluation; capacity = pair count.
+    pub near: Vec<(usize, SignedDistance)>,
+    pub tmp: Vec<f64>,
+}
+
+impl Clearance {
+    pub fn new(checker: CollisionChecker, nq: usize) -> Self {
+        Self {
+            data: checker.data(),
+            near: Vec::with_capacity(checker.pairs().len()),
+            checker,
+            object: true,
+            tmp: vec![0.0; nq],
+        }
+    }
+
+    /// `w Σ max(0, m − d)²` over the support (and object) pairs at `q`; `grad +=` its gradient.
+    fn penalty(&mut self, q: &[f64], weight: f64, margin: f64, grad: Option<&mut [f64]>) -> f64 {
+        if weight == 0.0 {
+            return 0.0;
+        }
+        let cats: &[Category] = if self.object {
+            &[Category::Support, Category::Object]
+        } else {
+            &[Category::Support]
+        };
+        self.near.clear();
+        let near = &mut self.near;
+        self.checker
+            .for_each_within_in(&mut self.data, q, margin, cats, |i, d| near.push((i, *d)));
+        let mut value = 0.0;
+        let mut grad = grad;
+        for &(pair, d) in &self.near {
+            let e = margin - d.distance;
+            value += weight * e * e;
+            if let Some(g) = grad.as_deref_mut() {
+                self.tmp.fill(0.0);
+                self.checker
+                    .add_distance_gradient(&self.data, pair, &d, &mut self.tmp);
+                for (gi, ti) in g.iter_mut().zip(&self.tmp) {
+                    *gi -= 2.0 * weight * e * ti;
+                }
+            }
+        }
+        value
+    }
 }
 
 impl Mapper {
@@ -154,6 +308,7 @@ impl Mapper {
         }
         let nq = mm.model.nq();
         Ok(Self {
+            geometry: mm.geometry.clone(),
             solver: BoxSolver::new(nq, options.tolerance),
             orders: mm.orders.clone(),
             eval: Evaluator::new(mm),
@@ -165,7 +320,19 @@ impl Mapper {
             q: vec![0.0; nq],
             best: vec![0.0; nq],
             local: vec![0.0; nq],
+            clearance: None,
         })
+    }
+
+    /// Measures the exact support and object clearances of every mapped frame with these
+    /// collision shapes (built from the same model, e.g. `RobotGeometry::from_system`; the
+    /// default is the [`MappingModel::geometry`]); `None` skips them (NaN in the metrics).
+    pub fn with_geometry(
+        mut self,
+        geometry: Option<std::sync::Arc<crate::geometry::RobotGeometry>>,
+    ) -> Self {
+        self.geometry = geometry;
+        self
     }
 
     pub fn model(&self) -> &MappingModel {
@@ -186,11 +353,19 @@ impl Mapper {
             hi,
             q,
             orders,
+            clearance,
+            options,
             ..
         } = self;
-        let mut f = |x: &[f64], g: Option<&mut [f64]>| match g {
-            Some(g) => eval.value_and_gradient(terms, goals, x, g),
-            None => eval.value(terms, goals, x),
+        let (w, margin) = (options.clearance_weight, options.clearance_margin);
+        let mut f = |x: &[f64], g: Option<&mut [f64]>| match (g, clearance.as_mut()) {
+            (Some(g), Some(c)) => {
+                let v = eval.value_and_gradient(terms, goals, x, g);
+                v + c.penalty(x, w, margin, Some(g))
+            }
+            (Some(g), None) => eval.value_and_gradient(terms, goals, x, g),
+            (None, Some(c)) => eval.value(terms, goals, x) + c.penalty(x, w, margin, None),
+            (None, None) => eval.value(terms, goals, x),
         };
         solver.solve(lo, hi, orders, &mut f, q, max_iter, tolerance)
     }
@@ -219,7 +394,7 @@ impl Mapper {
                 self.options.first_frame_tolerance,
             );
             total_iter += report.iterations;
-            let f = self.eval.value(&self.terms, goals, &self.q);
+            let f = self.total_value(goals);
             if best.is_none_or(|(bf, _, _)| f < bf) {
                 best = Some((f, report.iterations, report.converged));
                 self.best.copy_from_slice(&self.q);
@@ -242,8 +417,10 @@ impl Mapper {
         reference: &StartReference,
     ) -> FrameMetrics {
         let mm = &self.eval.mm;
-        self.lo.copy_from_slice(&mm.lower);
-        self.hi.copy_from_slice(&mm.upper);
+        for (i, &r) in reference.q.iter().enumerate() {
+            self.lo[i] = mm.lower[i].max(r - FIRST_FRAME_RADIUS);
+            self.hi[i] = mm.upper[i].min(r + FIRST_FRAME_RADIUS);
+        }
         self.q.copy_from_slice(&reference.q);
         let report = self.solve_in_box(
             goals,
@@ -288,6 +465,16 @@ impl Mapper {
         self.metrics(goals, t, report.iterations, report.converged)
     }
 
+    /// The objective plus the clearance penalty at the current solution.
+    fn total_value(&mut self, goals: &FrameGoals) -> f64 {
+        let v = self.eval.value(&self.terms, goals, &self.q);
+        let (w, m) = (self.options.clearance_weight, self.options.clearance_margin);
+        match &mut self.clearance {
+            Some(c) => v + c.penalty(&self.q, w, m, None),
+            None => v,
+        }
+    }
+
     /// The current solution (the last solved frame).
     pub fn solution(&self) -> &[f64] {
         &self.q
@@ -327,6 +514,17 @@ impl Mapper {
                 .sum::<f64>()
                 / n as f64
         };
+        let (mut swivel_human, mut swivel_robot, mut swivel_difference, mut elbow_bound) =
+            (f64::NAN, f64::NAN, f64::NAN, f64::NAN);
+        if let Some([s, e, w]) = self.eval.arm_points() {
+            let up = nalgebra::Vector3::z();
+            swivel_human = swivel_angle(&goals.shoulder, &goals.elbow, &goals.wrist, &up);
+            swivel_robot = swivel_angle(&s, &e, &w, &up);
+            let d = (swivel_robot - swivel_human).rem_euclid(std::f64::consts::TAU);
+            swivel_difference = d.min(std::f64::consts::TAU - d);
+            elbow_bound =
+                elbow_circle_distance(&s, &w, (e - s).norm(), (w - e).norm(), &goals.elbow);
+        }
         FrameMetrics {
             t,
             fingers: m,
@@ -337,6 +535,12 @@ impl Mapper {
             objective,
             iterations,
             converged,
+            swivel_human,
+            swivel_robot,
+            swivel_difference,
+            elbow_bound,
+            support_clearance: f64::NAN,
+            object_clearance: f64::NAN,
         }
     }
 }
@@ -391,6 +595,7 @@ mod tests {
             position: 1.0,
             orientation: 1e-3,
             elbow: 0.0,
+            swivel: 0.0,
         };
         let mut mapper = Mapper::new(mm.clone(), w, SolverOptions::default()).unwrap();
         let mut rng = ChaCha8Rng::seed_from_u64(3);

@@ -5,10 +5,15 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use super::MappingError;
 use super::goals::finger_goals;
-use super::objective::{FrameGoals, MappingModel, Weights};
+use super::objective::{FrameGoals, MappingModel, Weights, swivel_direction};
 use super::registration::{ArmPoints, Registration, RegistrationSpec, RobotAnchor};
-use super::solve::{FrameMetrics, Mapper, SolverOptions, StartReference};
-use crate::human::HumanFrame;
+use super::solve::{Clearance, FrameMetrics, Mapper, SolverOptions, StartReference};
+use crate::geometry::{
+    AllowedContacts, Category, CollisionChecker, Member, Plane, Scene, SceneShape, ShapeSpec,
+    build_shape,
+};
+use crate::human::{HumanFrame, ObjectShape};
+use nalgebra::Point3;
 
 /// A demonstration mapped onto the robot.
 #[derive(Clone, Debug, PartialEq)]
@@ -43,16 +48,33 @@ impl MappedTrajectory {
 impl Mapper {
     /// Goals of one human frame in the robot base frame.
     pub fn goals(&self, frame: &HumanFrame, reg: &Registration, out: &mut FrameGoals) {
+        let wrist = Point3::from(frame.wrist.translation.vector);
         let tips: [_; 5] = std::array::from_fn(|i| {
             let iso = &frame.fingertips[i];
-            (
-                reg.point(&iso.translation.vector.into()),
-                reg.orientation(&iso.rotation),
-            )
+            reg.hand_tip(iso, &frame.wrist).unwrap_or_else(|| {
+                (
+                    reg.hand_point(&iso.translation.vector.into(), &wrist),
+                    reg.orientation(&iso.rotation),
+                )
+            })
         });
         let mm = self.eval.model();
         finger_goals(&tips, mm.fingers(), mm.thumb, &mut out.fingers);
         out.elbow = reg.point(&frame.elbow);
+        out.shoulder = reg.point(&frame.shoulder);
+        out.wrist = reg.point(&wrist);
+        out.swivel = swivel_direction(&out.shoulder, &out.elbow, &out.wrist);
+    }
+
+    /// The clearance penalty and metrics of the next frames act in this registration's scene
+    /// (with [`MappingModel::geometry`]).
+    pub fn set_scene(&mut self, reg: &Registration) {
+        let nq = self.eval.nq();
+        self.clearance = self.geometry.as_ref().map(|g| {
+            let checker = CollisionChecker::new(g.clone(), scene_of(reg))
+                .with_allowed(&standing_contacts(g, &reg.up));
+            Clearance::new(checker, nq)
+        });
     }
 
     /// Maps a whole demonstration on its own: its first frame is solved by the multi-start.
@@ -98,6 +120,7 @@ impl Mapper {
         check_frame(0, first)?;
         let mut goals = FrameGoals::default();
         self.goals(first, &reg, &mut goals);
+        self.set_scene(&reg);
         let m = self.solve_first(&goals, first.t);
         Ok(StartReference {
             q: self.q.clone(),
@@ -128,6 +151,12 @@ impl Mapper {
             registration: reg,
         };
         let mut goals = FrameGoals::default();
+        self.set_scene(&reg);
+        let (t0, t1) = (
+            frames.first().map_or(0.0, |f| f.t),
+            frames.last().map_or(0.0, |f| f.t),
+        );
+        let object_until = t0 + self.options.object_free_until * (t1 - t0);
         for (k, frame) in frames.iter().enumerate() {
             if cancel.load(Ordering::Relaxed) {
                 return None;
@@ -144,6 +173,9 @@ impl Mapper {
                 }));
             }
             self.goals(frame, &reg, &mut goals);
+            if let Some(c) = &mut self.clearance {
+                c.object = frame.t < object_until;
+            }
             let metrics = if k > 0 {
                 self.solve_next(&goals, frame.t, frame.t - frames[k - 1].t)
             } else if let Some(r) = reference {
@@ -151,11 +183,86 @@ impl Mapper {
             } else {
                 self.solve_first(&goals, frame.t)
             };
+            let mut metrics = metrics;
+            if let Some(c) = &mut self.clearance {
+                let cl = c.checker.category_clearance(
+                    &mut c.data,
+                    &self.q,
+                    &[Category::Support, Category::Object],
+                );
+                let finite = |x: f64| if x.is_finite() { x } else { f64::NAN };
+                metrics.support_clearance = finite(cl.category_distance(Category::Support));
+                metrics.object_clearance = finite(cl.category_distance(Category::Object));
+            }
             out.times.push(frame.t);
             out.positions.extend_from_slice(&self.q);
             out.metrics.push(metrics);
         }
         Some(Ok(out))
+    }
+}
+
+/// Shapes the first joint alone moves about an axis along `up` (the arm's base yaw link): they
+/// stand on the support the robot stands on and keep their height in every posture, so their
+/// contact with the support is the robot's footing, not a collision.
+pub fn standing_contacts(
+    geometry: &crate::geometry::RobotGeometry,
+    up: &nalgebra::Vector3<f64>,
+) -> AllowedContacts {
+    let model = geometry.model();
+    let mut data = crate::kinematics::Data::new(model);
+    crate::kinematics::forward_kinematics(model, &mut data, &vec![0.0; model.nq()]);
+    let mut acm = AllowedContacts::none();
+    for (i, shape) in geometry.shapes().iter().enumerate() {
+        let [joint] = shape.chain.as_slice() else {
+            continue;
+        };
+        let frame = crate::kinematics::FrameId(joint.frame);
+        let Some(axis) = model.joint_of_frame(frame).and_then(|j| j.kind.axis()) else {
+            continue;
+        };
+        let world = data.frame(frame).rotation * axis.into_inner();
+        if world.cross(up).norm() < 1e-9 {
+            acm.allow(Member::Shape(i), Member::Support);
+        }
+    }
+    acm
+}
+
+/// The robot-frame scene of a registration: the registered object and the robot's support plane
+/// (the half-space below it solid), for the exact clearance metrics.
+pub fn scene_of(reg: &Registration) -> Scene {
+    let mut scene = Scene::new();
+    if let Some(h) = reg.support {
+        // `up` is a unit vector (the robot's base axes), so this cannot fail.
+        if let Ok(p) = Plane::new(reg.up, h) {
+            scene = scene.with_support(p);
+        }
+    }
+    if let Some(o) = &reg.object {
+        let mut spec = shape_spec(&o.shape);
+        if let Ok(built) = build_shape(&mut spec, "object.shape") {
+            scene = scene.with_object(SceneShape::new(
+                "object",
+                built.shape,
+                o.pose * built.local_fix,
+            ));
+        }
+    }
+    scene
+}
+
+/// A demonstration's object shape as a geometry shape (same axes: cylinders and capsules along
+/// local `z`; the human capsule's `height` is its cylindrical part).
+pub fn shape_spec(shape: &ObjectShape) -> ShapeSpec {
+    match *shape {
+        ObjectShape::Sphere { radius } => ShapeSpec::Sphere { radius },
+        ObjectShape::Cylinder { radius, height } => ShapeSpec::Cylinder { radius, height },
+        ObjectShape::Box { size } => ShapeSpec::Box { size },
+        ObjectShape::Capsule { radius, height } => ShapeSpec::Capsule {
+            radius,
+            length: height,
+        },
     }
 }
 
@@ -209,7 +316,7 @@ pub fn registration_for(
 /// own rate reproduces its frames. The output rate of a mapping is the rate of its trajectory.
 pub fn resample_frames(frames: &[HumanFrame], rate_hz: f64) -> Vec<HumanFrame> {
     use crate::human::resample::{Cursor, lerp, slerp};
-    use nalgebra::{Isometry3, Point3, Translation3};
+    use nalgebra::{Isometry3, Translation3};
     let (Some(first), Some(last)) = (frames.first(), frames.last()) else {
         return Vec::new();
     };
@@ -245,23 +352,68 @@ pub fn resample_frames(frames: &[HumanFrame], rate_hz: f64) -> Vec<HumanFrame> {
         .collect()
 }
 
-/// The reference first-frame posture of a batch: [`Mapper::start_reference`] of the first
-/// demonstration whose registration and first frame are valid (`None` if there is none, or once
-/// `cancel` is set; the demonstrations then fail or are cancelled on their own).
-pub fn batch_reference(
+/// The first-frame postures of a batch, one per demonstration (`None` where its registration
+/// or first frame is invalid; it then fails on its own), or `None` once `cancel` is set.
+///
+/// One consistent posture branch across subjects and trials: the first valid demonstration's
+/// first frame is solved by the multi-start ([`Mapper::start_reference`]); every later one, in
+/// input order, locally from the first-frame posture of the nearest already-solved
+/// demonstration ([`Mapper::solve_first_from`]). "Nearest" compares the registered first-frame
+/// goals (fingertip goal positions and the human elbow, summed squared distances); a tie goes
+/// to the earlier demonstration. Sequential and on the calling thread, so the result depends
+/// only on the batch, never on scheduling.
+pub fn batch_starts(
     mapper: &mut Mapper,
     robot: &RobotAnchor,
     items: &[BatchItem<'_>],
     cancel: &AtomicBool,
-) -> Option<StartReference> {
-    items.iter().find_map(|item| {
+) -> Option<Vec<Option<StartReference>>> {
+    let m = mapper.eval.model().fingers();
+    let mut solved: Vec<(FrameGoals, StartReference)> = Vec::new();
+    let mut out = Vec::with_capacity(items.len());
+    for item in items {
         if cancel.load(Ordering::Relaxed) {
             return None;
         }
-        mapper
-            .start_reference(item.frames, item.registration, robot)
-            .ok()
-    })
+        let Some(first) = item.frames.first() else {
+            out.push(None);
+            continue;
+        };
+        let Ok(reg) = registration_for(item.frames, item.registration, robot) else {
+            out.push(None);
+            continue;
+        };
+        if check_frame(0, first).is_err() {
+            out.push(None);
+            continue;
+        }
+        let mut goals = FrameGoals::default();
+        mapper.goals(first, &reg, &mut goals);
+        mapper.set_scene(&reg);
+        let distance = |g: &FrameGoals| {
+            (0..m)
+                .map(|i| (g.fingers[i].position - goals.fingers[i].position).norm_squared())
+                .sum::<f64>()
+                + (g.elbow - goals.elbow).norm_squared()
+        };
+        // `min_by` keeps the first of equal elements: ties go to the earlier demonstration.
+        let nearest = solved
+            .iter()
+            .map(|(g, r)| (distance(g), r))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, r)| r.clone());
+        let metrics = match &nearest {
+            Some(r) => mapper.solve_first_from(&goals, first.t, r),
+            None => mapper.solve_first(&goals, first.t),
+        };
+        let start = StartReference {
+            q: mapper.q.clone(),
+            objective: metrics.objective,
+        };
+        solved.push((goals, start.clone()));
+        out.push(Some(start));
+    }
+    Some(out)
 }
 
 /// One demonstration of a batch.
@@ -283,10 +435,10 @@ pub struct Cancelled {
 /// order. `progress(done, total)` is called after each demonstration; `cancel` is polled between
 /// demonstrations and between frames of one.
 ///
-/// The batch is mapped consistently: first, on the calling thread, one reference posture
-/// ([`batch_reference`]: the multi-start solution of the first valid demonstration's first
-/// frame); then every demonstration, in parallel, starts from it ([`Mapper::map_from`]). So the
-/// result of each demonstration depends on the batch's first valid one, never on scheduling.
+/// The batch is mapped consistently: first, on the calling thread, every demonstration's
+/// first-frame posture ([`batch_starts`]: one posture branch, each first frame solved from the
+/// nearest already-solved one); then every demonstration, in parallel, continues from its own
+/// ([`Mapper::map_from`]). So each result depends on the batch, never on scheduling.
 #[allow(clippy::too_many_arguments)]
 pub fn map_batch(
     mm: &MappingModel,
@@ -299,12 +451,17 @@ pub fn map_batch(
     cancel: &AtomicBool,
 ) -> Result<Vec<Result<MappedTrajectory, MappingError>>, Cancelled> {
     let total = items.len();
-    let reference = match Mapper::new(mm.clone(), weights, options) {
-        Ok(mut m) => batch_reference(&mut m, robot, items, cancel),
+    let starts = match Mapper::new(mm.clone(), weights, options) {
+        Ok(mut m) => batch_starts(&mut m, robot, items, cancel),
         // Reported per item by the workers below.
-        Err(_) => None,
+        Err(_) => Some(vec![None; total]),
     };
-    let reference = reference.as_ref();
+    let Some(starts) = starts else {
+        return Err(Cancelled {
+            completed: 0,
+            total,
+        });
+    };
     let next = AtomicUsize::new(0);
     let done = AtomicUsize::new(0);
     let threads = threads.clamp(1, total.max(1));
@@ -341,7 +498,7 @@ pub fn map_batch(
                                 item.frames,
                                 item.registration,
                                 robot,
-                                reference,
+                                starts[i].as_ref(),
                                 cancel,
                             );
                             match r {

@@ -65,7 +65,7 @@ struct FullDemoRow {
 }
 
 /// Column layout of the `metrics` BLOB (one row of f64 per frame).
-pub const METRIC_COLUMNS: [&str; 17] = [
+pub const METRIC_COLUMNS: [&str; 23] = [
     "t",
     "fingers",
     "position_error[0]",
@@ -83,8 +83,16 @@ pub const METRIC_COLUMNS: [&str; 17] = [
     "objective",
     "iterations",
     "converged",
+    "swivel_human",
+    "swivel_robot",
+    "swivel_difference",
+    "elbow_bound",
+    "support_clearance",
+    "object_clearance",
 ];
 const METRIC_WIDTH: usize = METRIC_COLUMNS.len();
+/// Rows stored before the swivel and clearance columns (read with those NaN).
+const METRIC_WIDTH_V1: usize = 17;
 const _: () = assert!(MAX_FINGERS == 5, "METRIC_COLUMNS spells out five fingers");
 
 /// A mapping row to create at submission.
@@ -127,12 +135,119 @@ pub struct DemoLabels {
     pub trial: u32,
 }
 
+/// A stored [`Registration`]. Rows written before the scene-keeping registration carry only
+/// `rotation`, `translation` and `scale` (a similarity anchored at the tracker origin).
 #[derive(serde::Serialize, serde::Deserialize)]
 struct RegistrationJson {
     /// `[w, x, y, z]`.
     rotation: [f64; 4],
-    translation: [f64; 3],
-    scale: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    translation: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    scale: Option<f64>,
+    #[serde(default)]
+    human_anchor: [f64; 3],
+    #[serde(default)]
+    robot_anchor: Option<[f64; 3]>,
+    #[serde(default)]
+    up: Option<[f64; 3]>,
+    #[serde(default)]
+    transport_scale: Option<f64>,
+    #[serde(default)]
+    vertical_scale: Option<f64>,
+    #[serde(default)]
+    hand_scale: Option<f64>,
+    #[serde(default)]
+    support: Option<f64>,
+    #[serde(default)]
+    object: Option<ObjectJson>,
+    /// Hand-only systems: the robot hand root's frame the fingertips are registered in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    hand_frame: Option<PoseJson>,
+}
+
+/// A pose: position and `[w, x, y, z]` orientation.
+#[derive(serde::Serialize, serde::Deserialize)]
+struct PoseJson {
+    position: [f64; 3],
+    orientation: [f64; 4],
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct ObjectJson {
+    shape: crate::human::ObjectShape,
+    position: [f64; 3],
+    /// `[w, x, y, z]`.
+    orientation: [f64; 4],
+}
+
+impl RegistrationJson {
+    fn of(r: &Registration) -> Self {
+        let q = r.rotation.quaternion();
+        let p3 = |p: &nalgebra::Point3<f64>| [p.x, p.y, p.z];
+        RegistrationJson {
+            rotation: [q.w, q.i, q.j, q.k],
+            translation: None,
+            scale: None,
+            human_anchor: p3(&r.human_anchor),
+            robot_anchor: Some(p3(&r.robot_anchor)),
+            up: Some([r.up.x, r.up.y, r.up.z]),
+            transport_scale: Some(r.transport_scale),
+            vertical_scale: Some(r.vertical_scale),
+            hand_scale: Some(r.hand_scale),
+            support: r.support,
+            object: r.object.map(|o| {
+                let t = o.pose.translation.vector;
+                let q = o.pose.rotation.quaternion();
+                ObjectJson {
+                    shape: o.shape,
+                    position: [t.x, t.y, t.z],
+                    orientation: [q.w, q.i, q.j, q.k],
+                }
+            }),
+            hand_frame: r.hand_frame.map(|f| {
+                let t = f.translation.vector;
+                let q = f.rotation.quaternion();
+                PoseJson {
+                    position: [t.x, t.y, t.z],
+                    orientation: [q.w, q.i, q.j, q.k],
+                }
+            }),
+        }
+    }
+
+    fn registration(&self) -> Registration {
+        let quat =
+            |[w, x, y, z]: [f64; 4]| UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+        let old = self.scale.unwrap_or(1.0);
+        Registration {
+            rotation: quat(self.rotation),
+            human_anchor: self.human_anchor.into(),
+            robot_anchor: self
+                .robot_anchor
+                .or(self.translation)
+                .unwrap_or_default()
+                .into(),
+            up: self.up.map_or(Vector3::z(), Vector3::from),
+            transport_scale: self.transport_scale.unwrap_or(old),
+            vertical_scale: self.vertical_scale.unwrap_or(old),
+            hand_scale: self.hand_scale.unwrap_or(old),
+            support: self.support,
+            object: self.object.as_ref().map(|o| crate::mapping::HumanObject {
+                shape: o.shape,
+                pose: nalgebra::Isometry3::from_parts(
+                    Vector3::from(o.position).into(),
+                    quat(o.orientation),
+                ),
+            }),
+            hand_frame: self.hand_frame.as_ref().map(|f| {
+                nalgebra::Isometry3::from_parts(
+                    Vector3::from(f.position).into(),
+                    quat(f.orientation),
+                )
+            }),
+        }
+    }
 }
 
 fn encode_err(e: impl std::fmt::Display) -> sqlx::Error {
@@ -171,15 +286,15 @@ pub fn encode_demo(
             m.objective,
             m.iterations as f64,
             if m.converged { 1.0 } else { 0.0 },
+            m.swivel_human,
+            m.swivel_robot,
+            m.swivel_difference,
+            m.elbow_bound,
+            m.support_clearance,
+            m.object_clearance,
         ]);
     }
-    let r = &trajectory.registration;
-    let q = r.rotation.quaternion();
-    let registration = RegistrationJson {
-        rotation: [q.w, q.i, q.j, q.k],
-        translation: [r.translation.x, r.translation.y, r.translation.z],
-        scale: r.scale,
-    };
+    let registration = RegistrationJson::of(&trajectory.registration);
     Ok(NewMappedDemo {
         demonstration_id: labels.demonstration_id,
         subject_id: labels.subject_id,
@@ -211,7 +326,12 @@ impl FullDemoRow {
             blob::decode::<f64>(&self.metrics).map_err(|e| decode_err("metrics", &id, e))?;
         let n = usize::try_from(self.meta.frame_count)
             .map_err(|e| decode_err("frame_count", &id, e))?;
-        if frames.shape != [n, 1 + nq] || metrics.shape != [n, METRIC_WIDTH] {
+        let width = metrics.shape.get(1).copied().unwrap_or(0);
+        if frames.shape != [n, 1 + nq]
+            || metrics.shape.len() != 2
+            || metrics.shape[0] != n
+            || !(width == METRIC_WIDTH || width == METRIC_WIDTH_V1)
+        {
             return Err(decode_err(
                 "frames/metrics",
                 &id,
@@ -229,7 +349,7 @@ impl FullDemoRow {
         }
         let metrics = metrics
             .data
-            .chunks_exact(METRIC_WIDTH)
+            .chunks_exact(width)
             .map(|r| FrameMetrics {
                 t: r[0],
                 fingers: r[1] as usize,
@@ -240,16 +360,17 @@ impl FullDemoRow {
                 objective: r[14],
                 iterations: r[15] as usize,
                 converged: r[16] != 0.0,
+                swivel_human: r.get(17).copied().unwrap_or(f64::NAN),
+                swivel_robot: r.get(18).copied().unwrap_or(f64::NAN),
+                swivel_difference: r.get(19).copied().unwrap_or(f64::NAN),
+                elbow_bound: r.get(20).copied().unwrap_or(f64::NAN),
+                support_clearance: r.get(21).copied().unwrap_or(f64::NAN),
+                object_clearance: r.get(22).copied().unwrap_or(f64::NAN),
             })
             .collect();
         let reg: RegistrationJson = serde_json::from_str(&self.registration)
             .map_err(|e| decode_err("registration", &id, e))?;
-        let [w, x, y, z] = reg.rotation;
-        let registration = Registration {
-            rotation: UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
-            translation: Vector3::from(reg.translation),
-            scale: reg.scale,
-        };
+        let registration = reg.registration();
         let u32_of = |what: &str, v: i64| u32::try_from(v).map_err(|e| decode_err(what, &id, e));
         Ok(StoredMappedDemo {
             position_index: u32_of("position_index", self.meta.position_index)?,
@@ -529,6 +650,12 @@ mod tests {
             objective: 1.5 + k as f64,
             iterations: 7 + k,
             converged: k != 1,
+            swivel_human: 0.3,
+            swivel_robot: -0.1 * k as f64,
+            swivel_difference: 0.3 + 0.1 * k as f64,
+            elbow_bound: 0.05,
+            support_clearance: 0.01 * k as f64,
+            object_clearance: -0.002,
         };
         MappedTrajectory {
             joint_names: vec!["a".into(), "b".into()],
@@ -537,8 +664,21 @@ mod tests {
             metrics: (0..3).map(metrics).collect(),
             registration: Registration {
                 rotation: UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3),
-                translation: Vector3::new(0.1, -0.2, 0.3),
-                scale: 1.25,
+                human_anchor: nalgebra::Point3::new(0.3, 0.1, 0.05),
+                robot_anchor: nalgebra::Point3::new(0.1, -0.2, 0.3),
+                up: Vector3::z(),
+                transport_scale: 1.25,
+                vertical_scale: 1.0,
+                hand_scale: 0.9,
+                support: Some(0.0),
+                object: Some(crate::mapping::HumanObject {
+                    shape: crate::human::ObjectShape::Sphere { radius: 0.04 },
+                    pose: nalgebra::Isometry3::translation(0.1, -0.2, 0.3),
+                }),
+                hand_frame: Some(nalgebra::Isometry3::from_parts(
+                    nalgebra::Translation3::new(0.0, 0.1, 0.2),
+                    UnitQuaternion::from_euler_angles(0.3, -0.2, 0.1),
+                )),
             },
         }
     }
@@ -614,8 +754,12 @@ mod tests {
         assert_eq!(back[0].trajectory.metrics, traj.metrics);
         let (r0, r1) = (back[0].trajectory.registration, traj.registration);
         assert!(r0.rotation.angle_to(&r1.rotation) < 1e-12);
-        assert_eq!(r0.translation, r1.translation);
-        assert_eq!(r0.scale, r1.scale);
+        assert_eq!(r0.robot_anchor, r1.robot_anchor);
+        assert_eq!(r0.human_anchor, r1.human_anchor);
+        assert_eq!(
+            (r0.transport_scale, r0.hand_scale, r0.support, r0.object),
+            (r1.transport_scale, r1.hand_scale, r1.support, r1.object)
+        );
         assert_eq!((back[0].position_index, back[0].trial), (2, 3));
         let (page, total) = list_demos(&pool, "m1", Some("d1"), 1, 1).await.unwrap();
         assert_eq!((page.len(), total, page[0].position), (1, 2, 1));

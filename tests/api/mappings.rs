@@ -181,6 +181,10 @@ async fn a_mapping_job_stores_trajectories_within_the_limits_and_serves_them_in_
             "objective",
             "iterations",
             "converged",
+            "swivel_difference",
+            "elbow_bound",
+            "support_clearance",
+            "object_clearance",
         ] {
             assert_eq!(metrics[key].as_array().unwrap().len(), times.len(), "{key}");
         }
@@ -331,8 +335,37 @@ async fn bad_input_is_a_4xx_naming_the_field_and_stores_nothing() {
         ),
         (
             json!({"robot": "wam_ihy", "demonstrations": [good],
-                   "weights": {"position": 0, "orientation": 0, "elbow": 0}}),
+                   "weights": {"position": 0, "orientation": 0, "elbow": 0, "swivel": 0}}),
             "$.weights",
+            "positive",
+        ),
+        (
+            json!({"robot": "wam_ihy", "demonstrations": [good], "weights": {"swivel": -1e-3}}),
+            "$.weights.swivel",
+            "non-negative",
+        ),
+        (
+            json!({"robot": "wam_ihy", "demonstrations": [good],
+                   "registration": {"placement": [3.0, 0.0, 0.3]}}),
+            "$.registration.placement",
+            "beyond its reach",
+        ),
+        (
+            json!({"robot": "wam_ihy", "demonstrations": [good],
+                   "registration": {"placement": [0.5, 0.0, -0.2]}}),
+            "$.registration.placement",
+            "under its support",
+        ),
+        (
+            json!({"robot": "wam_ihy", "demonstrations": [good],
+                   "registration": {"hand_scale": 0}}),
+            "$.registration.hand_scale",
+            "positive",
+        ),
+        (
+            json!({"robot": "wam_ihy", "demonstrations": [good],
+                   "registration": {"hand_scale": -1.5}}),
+            "$.registration.hand_scale",
             "positive",
         ),
         (

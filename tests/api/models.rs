@@ -275,6 +275,12 @@ async fn setup(app: &TestApp) -> Study {
                 objective: 0.0,
                 iterations: 1,
                 converged: true,
+                swivel_human: f64::NAN,
+                swivel_robot: f64::NAN,
+                swivel_difference: f64::NAN,
+                elbow_bound: f64::NAN,
+                support_clearance: f64::NAN,
+                object_clearance: f64::NAN,
             })
             .collect();
         trajs.push(MappedTrajectory {
