@@ -469,3 +469,97 @@ async fn a_cancelled_mapping_stores_no_trajectory() {
         .unwrap();
     assert_eq!(list["total"], 0);
 }
+
+/// A hand-only system registered as README "Mappings" shows (the descriptor of
+/// `robots/examples/ihy_hand.toml` with the hand URDF as `urdf`) maps demonstrations: every
+/// frame within the hand's limits, no swivel (no arm), no scene; a placement is a 422 naming it.
+#[tokio::test]
+async fn a_hand_only_system_registered_over_http_maps_demonstrations() {
+    let app = app().await;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut descriptor: toml::Table = toml::from_str(
+        &std::fs::read_to_string(root.join("robots/examples/ihy_hand.toml")).unwrap(),
+    )
+    .unwrap();
+    descriptor.remove("urdf");
+    let urdf = std::fs::read_to_string(root.join("robots/hands/ihy.urdf")).unwrap();
+    let res = app
+        .post_json(
+            "/v1/robots",
+            &json!({"descriptor": serde_json::to_value(&descriptor).unwrap(), "urdf": urdf}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let robot: Value = res.json().await.unwrap();
+    let id = robot["id"].as_str().unwrap().to_owned();
+    assert_eq!(robot["arm_joints"].as_array().unwrap().len(), 0);
+
+    let job = study(&app, 1).await;
+    let res = app
+        .post_json(
+            "/v1/mappings",
+            &json!({"robot": id, "demonstrations": {"job_id": job},
+                    "registration": {"placement": [0.5, 0.0, 0.1]}}),
+        )
+        .await;
+    let p = assert_problem(res, 422, "validation").await;
+    let e = p["errors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["path"] == "$.registration.placement")
+        .unwrap_or_else(|| panic!("no error at $.registration.placement: {p}"));
+    assert!(e["message"].as_str().unwrap().contains("fixed base"), "{e}");
+    assert_eq!(mapping_count(&app).await, 0);
+
+    let res = app
+        .post_json(
+            "/v1/mappings",
+            &json!({"robot": id, "demonstrations": {"job_id": job}, "output_rate_hz": 30}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+    let mapping_url = res.headers()["content-location"]
+        .to_str()
+        .unwrap()
+        .to_owned();
+    let accepted: Value = res.json().await.unwrap();
+    let done = app
+        .wait_job(accepted["id"].as_str().unwrap(), |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    let m: Value = app.get(&mapping_url).await.json().await.unwrap();
+    let item = &m["demonstrations"]["items"][0];
+    let rows = item["trajectory"]["positions"].as_array().unwrap();
+    assert!(rows.len() > 5);
+    let joints = robot["joints"].as_array().unwrap();
+    let names = item["trajectory"]["joint_names"].as_array().unwrap();
+    for row in rows {
+        for (name, v) in names.iter().zip(row.as_array().unwrap()) {
+            let j = joints.iter().find(|j| j["name"] == *name).unwrap();
+            let v = v.as_f64().unwrap();
+            assert!(v >= j["lower"].as_f64().unwrap() - 1e-12, "{name} = {v}");
+            assert!(v <= j["upper"].as_f64().unwrap() + 1e-12, "{name} = {v}");
+        }
+    }
+    let metrics = &item["metrics"];
+    assert!(
+        metrics["swivel_difference"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(Value::is_null)
+    );
+    assert!(
+        metrics["converged"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|c| **c == true)
+            .count()
+            * 10
+            >= rows.len() * 9
+    );
+}
