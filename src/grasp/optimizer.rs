@@ -126,7 +126,6 @@ impl Default for Weights {
     }
 }
 
-/// One grasp request.
 /// A motion model's certified goal region for one group of joints: a ball in the group's PCA
 /// coordinates, `‖Wᵀ(q_g − μ) − c‖ ≤ radius`. A grasp for a plan must end inside it, or the
 /// model cannot take the arm there with its convergence guarantee.
@@ -149,8 +148,21 @@ pub struct GoalRegion {
 pub const GOAL_REGION_MARGIN: f64 = 0.95;
 
 impl GoalRegion {
-    /// The distance of `q`'s projection from the centre, and (with `grad`) its gradient in the
-    /// PCA coordinates `y − c` (length `center.len()`).
+    /// The joint values at the region's centre, `μ + W c`, in the order of `joints`.
+    pub fn centre(&self) -> Vec<f64> {
+        let d = self.center.len();
+        (0..self.joints.len())
+            .map(|g| {
+                self.mean[g]
+                    + (0..d)
+                        .map(|i| self.components[g * d + i] * self.center[i])
+                        .sum::<f64>()
+            })
+            .collect()
+    }
+
+    /// The distance of `q`'s projection from the centre; `diff` receives `y − c` (its first
+    /// `center.len()` entries), from which the row's gradient follows.
     fn distance(&self, q: &[f64], diff: &mut [f64]) -> f64 {
         let d = self.center.len();
         for (i, di) in diff.iter_mut().enumerate().take(d) {
@@ -181,6 +193,7 @@ impl GoalRegion {
     }
 }
 
+/// One grasp request.
 #[derive(Debug, Clone)]
 pub struct GraspRequest {
     /// The object (pose included).
@@ -251,16 +264,15 @@ impl GraspRequest {
                 fingers: sys.fingers.len(),
             });
         }
-        if let Some(q) = &self.arm_seed {
-            let nq = sys.model.nq();
-            if q.len() != nq || !q.iter().all(|x| x.is_finite()) {
-                return Err(GraspError::InvalidParameter {
-                    field: "arm_seed",
-                    reason: format!("must be {nq} finite joint values, got {}", q.len()),
-                });
-            }
-        }
         let nq = sys.model.nq();
+        if let Some(q) = &self.arm_seed
+            && (q.len() != nq || !q.iter().all(|x| x.is_finite()))
+        {
+            return Err(GraspError::InvalidParameter {
+                field: "arm_seed",
+                reason: format!("must be {nq} finite joint values, got {}", q.len()),
+            });
+        }
         if let Some(g) = self.goal_regions.iter().find(|g| !g.check(nq)) {
             return Err(GraspError::InvalidParameter {
                 field: "goal_regions",
@@ -1499,14 +1511,7 @@ fn explain(sys: &HandArm, req: &GraspRequest, r: &GraspResult, u: &[f64]) -> Str
         .fold(0.0, f64::max);
     if let Some((g, d)) = out_of_region {
         let names = sys.model.joint_names();
-        let mut centre = vec![0.0; g.joints.len()];
-        for (gi, c) in centre.iter_mut().enumerate() {
-            let dim = g.center.len();
-            *c = g.mean[gi]
-                + (0..dim)
-                    .map(|i| g.components[gi * dim + i] * g.center[i])
-                    .sum::<f64>();
-        }
+        let centre = g.centre();
         let mut worst: Vec<(f64, usize)> = g
             .joints
             .iter()

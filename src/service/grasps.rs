@@ -413,16 +413,12 @@ pub async fn compute(
                 })
         })
         .collect::<Result<_, _>>()?;
-    // The regions' centre: mean + W c per group.
+    // The regions' centre.
     let arm_seed = (!goal_regions.is_empty()).then(|| {
         let mut q = sys.model.neutral();
         for g in &goal_regions {
-            let d = g.center.len();
-            for (gi, &j) in g.joints.iter().enumerate() {
-                q[j] = g.mean[gi]
-                    + (0..d)
-                        .map(|i| g.components[gi * d + i] * g.center[i])
-                        .sum::<f64>();
+            for (&j, v) in g.joints.iter().zip(g.centre()) {
+                q[j] = v;
             }
         }
         q
