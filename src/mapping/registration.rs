@@ -310,12 +310,7 @@ impl Registration {
                 })
             }
             RegistrationSpec::Scene(s) => {
-                if !(s.hand_scale.is_finite() && s.hand_scale > 0.0) {
-                    return Err(MappingError::InvalidFactor {
-                        field: "hand_scale",
-                        value: s.hand_scale,
-                    });
-                }
+                check_hand_scale(s.hand_scale)?;
                 if !s.human_support.is_finite() {
                     return Err(MappingError::InvalidFactor {
                         field: "human_support",
@@ -440,12 +435,7 @@ impl Registration {
                     .into(),
             });
         };
-        if !(s.hand_scale.is_finite() && s.hand_scale > 0.0) {
-            return Err(MappingError::InvalidFactor {
-                field: "hand_scale",
-                value: s.hand_scale,
-            });
-        }
+        check_hand_scale(s.hand_scale)?;
         if s.placement.is_some() {
             return Err(MappingError::InvalidPlacement {
                 reason: "a hand on a fixed base has no placement: its fingertips are registered \
@@ -511,6 +501,18 @@ fn horizontal(u: &Vector3<f64>, up: &Vector3<f64>) -> Vector3<f64> {
 
 fn robot_up(robot: &RobotAnchor) -> Result<Vector3<f64>, MappingError> {
     Ok(axes_matrix(&robot.axes, "robot")?.column(2).into_owned())
+}
+
+/// The hand-size factor of either registration: positive and finite.
+fn check_hand_scale(value: f64) -> Result<(), MappingError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(MappingError::InvalidFactor {
+            field: "hand_scale",
+            value,
+        })
+    }
 }
 
 fn check_scale(s: f64) -> Result<(), MappingError> {

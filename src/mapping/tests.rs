@@ -833,37 +833,31 @@ fn lowest_elbow_height(sys: &System) -> f64 {
         })
         .collect();
     assert!(moving.len() <= 3, "{:?}", moving);
-    let grid = |i: usize| {
-        let (l, u) = (mm.lower[i].max(-PI), mm.upper[i].min(PI));
-        let n = ((u - l) / 2f64.to_radians()).ceil() as usize;
-        (0..=n).map(move |k| l + (u - l) * k as f64 / n as f64)
-    };
+    let grids: Vec<Vec<f64>> = moving
+        .iter()
+        .map(|&i| {
+            let (l, u) = (mm.lower[i].max(-PI), mm.upper[i].min(PI));
+            let n = ((u - l) / 2f64.to_radians()).ceil() as usize;
+            (0..=n).map(|k| l + (u - l) * k as f64 / n as f64).collect()
+        })
+        .collect();
+    // Every grid point: an odometer over the moving joints.
     let mut lowest = z0;
     let mut q = q0.clone();
-    let mut visit = |q: &[f64]| lowest = lowest.min(height(q, &mut data));
-    match moving.as_slice() {
-        [a] => grid(*a).for_each(|x| {
-            q[*a] = x;
-            visit(&q)
-        }),
-        [a, b] => grid(*a).for_each(|x| {
-            grid(*b).for_each(|y| {
-                q[*a] = x;
-                q[*b] = y;
-                visit(&q)
-            })
-        }),
-        [a, b, c] => grid(*a).for_each(|x| {
-            grid(*b).for_each(|y| {
-                grid(*c).for_each(|z| {
-                    q[*a] = x;
-                    q[*b] = y;
-                    q[*c] = z;
-                    visit(&q)
-                })
-            })
-        }),
-        _ => {}
+    let mut at = vec![0; grids.len()];
+    'grid: loop {
+        for ((&i, g), &k) in moving.iter().zip(&grids).zip(&at) {
+            q[i] = g[k];
+        }
+        lowest = lowest.min(height(&q, &mut data));
+        for (k, g) in at.iter_mut().zip(&grids) {
+            *k += 1;
+            if *k < g.len() {
+                continue 'grid;
+            }
+            *k = 0;
+        }
+        break;
     }
     lowest.max(0.0)
 }
