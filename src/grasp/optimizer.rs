@@ -16,16 +16,19 @@
 //! blows up and the hand's "velocity ratio" reaches 20-135 m/s per rad/s — an artefact of the
 //! numerics, not a grasp.
 //!
-//! Every result also carries an exact check ([`ExactCheck`]): parry signed distances
-//! ([`crate::geometry::CollisionChecker`]) between every link's URDF collision shape and the
-//! object, the support half-space and every non-adjacent link of the whole system, and each
-//! contact's angle to its finger's pad (the tip frame's `z`, the flexion side, as the hand
-//! descriptors state). `feasible` is still the optimiser's sphere model above (eq. 29 as a point
-//! set, spheres inside the links): the exact check shows that this model is not conservative,
-//! and `exact.passed` says whether the grasp is clean against the real geometry. Measured on the
-//! seeded objects at the documented placements on the six bundled systems: 0 of 90 grasps pass
-//! it (the distal phalanges press into the object; the contact sphere sits inside the pad, and
-//! nothing keeps the rest of the phalanx or the pad's orientation in check).
+//! `feasible` is decided on the real geometry ([`ExactCheck`], issue 23): the optimiser works
+//! on the sphere model above plus a soft pad-cone penalty (each pad normal within 45° of the
+//! inward surface normal at its contact sphere) and contact-sphere rows against the support;
+//! each start's answer then goes through a deterministic contact repair (`repair`: palm and
+//! fingers backed out of the object and the table along the exact penetration normal, each
+//! finger moved along its flexion coordinate onto the object), and is judged by parry signed
+//! distances ([`crate::geometry::CollisionChecker`]) between every link's URDF collision shape
+//! and the object, the support half-space and every non-adjacent link of the system: penetration
+//! ≤ 1 mm, no two links intersecting, each pad (the links carrying its tip) within 1 mm of the
+//! surface and within [`PAD_CONE_DEG`] of the contact normal, spread order (eq. 28). The best
+//! start is the exact-feasible one of lowest eq. 22 cost at its repaired posture, where every
+//! term, contact and residual is reported. The sphere model alone was not conservative: 0 of 90
+//! seeded grasps passed the exact check when it decided `feasible`.
 //!
 //! Determinism: every start is budgeted in solver iterations (never wall time) and seeded from
 //! its index; starts run on any number of threads and are sorted by index before the best is
@@ -46,7 +49,9 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::{Category, CheckData, Clearance, CollisionChecker, Plane, Scene, SceneShape};
+use crate::geometry::{
+    Category, CheckData, Clearance, CollisionChecker, Plane, Scene, SceneShape, SignedDistance,
+};
 use crate::kinematics::{Data, add_point_jacobian_transpose, forward_kinematics, frame_jacobian};
 use crate::optim::{Constraints, Problem, Settings, SolveReport, SolveStatus, Solver};
 
@@ -64,9 +69,18 @@ pub const PENETRATION_TOLERANCE: f64 = 5e-4;
 /// this much.
 pub const EXACT_PENETRATION_TOLERANCE: f64 = 1e-3;
 /// Largest angle between a finger's pad normal and the object's inward surface normal at its
-/// contact for the exact check to pass (deg): within it, closing the finger presses into the
-/// object.
-pub const PAD_CONE_DEG: f64 = 30.0;
+/// contact for a feasible grasp (deg). At 60° at least half of the pad's closing motion
+/// (cos 60°) presses into the object, and the contact lies on the palmar face or the palmar
+/// half of the finger's edge; beyond it the finger touches with its side or back, and closing
+/// the hand pushes the object away instead of holding it.
+pub const PAD_CONE_DEG: f64 = 60.0;
+/// The pad cone the optimiser steers towards (deg): inside [`PAD_CONE_DEG`], so that the contact
+/// repair's flexion moves (which turn the pad) leave the contact within the verdict's cone. A
+/// soft penalty `PAD_WEIGHT · Σ max(0, cos 45° + n_pad · n_out)²` in the cost, not a constraint
+/// row: as rows (hard), no start converged (the seeds put the fingertips inside the object,
+/// where the surface normal flips), 0 of 120 requests feasible.
+const PAD_CONE_OPT_DEG: f64 = 45.0;
+const PAD_WEIGHT: f64 = 5.0;
 /// Safety net only: wall time after which a start stops (reported as `timed_out`). The
 /// iteration budget ends every start long before it on a working machine.
 const START_WALL_LIMIT: Duration = Duration::from_secs(5);
@@ -143,9 +157,10 @@ pub struct GoalRegion {
     pub radius: f64,
 }
 
-/// A grasp's goal region rows keep it this fraction of the radius inside, so that a grasp the
-/// optimiser accepts is inside the model's region by more than its tolerance.
-pub const GOAL_REGION_MARGIN: f64 = 0.95;
+/// A grasp's goal region rows keep it this fraction of the radius inside: the contact repair
+/// after the optimiser moves the arm (measured up to 0.05 rad on the test arm), and the
+/// repaired grasp must still be inside the model's region.
+pub const GOAL_REGION_MARGIN: f64 = 0.8;
 
 impl GoalRegion {
     /// The joint values at the region's centre, `μ + W c`, in the order of `joints`.
@@ -318,11 +333,12 @@ pub struct Contact {
     pub point: [f64; 3],
     /// Outward surface normal there.
     pub normal: [f64; 3],
-    /// Signed distance of the contact sphere from the surface (0 = touching; eq. 27 residual).
+    /// Exact signed distance between the finger's pad (the links carrying its tip) and the
+    /// object, m (0 = touching, < 0 pressing in; eq. 27 on the real geometry).
     pub surface_distance: f64,
     /// Angle between the finger's pad normal and the inward surface normal (deg): 0 is a
-    /// contact square on the pad, above [`PAD_CONE_DEG`] the contact is not on the pad (90+:
-    /// the side or the back of the finger).
+    /// contact square on the pad; above 60° ([`PAD_CONE_DEG`]) the contact is not on the pad
+    /// (90+: the side or the back of the finger) and the grasp is infeasible.
     pub pad_angle_deg: f64,
 }
 
@@ -379,7 +395,8 @@ pub struct Residuals {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ExactCheck {
     /// Every condition below holds: penetrations ≤ 1 mm, no two links intersecting, every
-    /// contact within 30° of its pad, fingertips within 1 mm of the surface.
+    /// pad within 1 mm of the surface, every contact within 60° of its pad normal. Together with
+    /// the spread order (eq. 28) this is the `feasible` verdict.
     pub passed: bool,
     /// Largest exact penetration of any link's collision shape into the object, m (≤ 0: clear
     /// by that much).
@@ -396,6 +413,9 @@ pub struct ExactCheck {
     pub min_link_separation: f64,
     /// The two links of `min_link_separation`, "a / b".
     pub closest_links: Option<String>,
+    /// Largest |exact signed distance| between a finger's pad (the links carrying its tip) and
+    /// the object, m.
+    pub max_pad_distance: f64,
     /// Largest angle between a pad normal and the inward surface normal at its contact, deg.
     pub max_pad_angle_deg: f64,
 }
@@ -436,7 +456,9 @@ impl From<&SolveReport> for SolverSummary {
 /// Outcome of a grasp request. An infeasible request is a result with `feasible: false`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct GraspResult {
-    /// All constraints hold within tolerance.
+    /// The grasp holds on the real geometry ([`ExactCheck::passed`]: exact penetration ≤ 1 mm,
+    /// no two links intersecting, pads within 1 mm of the surface and 60° of the contact normal)
+    /// with limits, couplings and spread order.
     pub feasible: bool,
     /// Plain-language reason when infeasible.
     pub reason: Option<String>,
@@ -448,9 +470,10 @@ pub struct GraspResult {
     pub contacts: Vec<Contact>,
     /// Cost terms and indexes.
     pub terms: Terms,
-    /// Constraint residuals (the optimiser's sphere model).
+    /// Constraint residuals of the optimiser's sphere model at the returned (repaired) posture;
+    /// informative only, `feasible` is `exact.passed`.
     pub residuals: Residuals,
-    /// The exact check against the real geometry.
+    /// The exact check against the real geometry: the `feasible` verdict.
     pub exact: ExactCheck,
     /// Velocity/force ellipsoids of the arm at the grasp frame (eq. 10-11).
     pub arm_ellipsoids: Ellipsoids,
@@ -462,7 +485,7 @@ pub struct GraspResult {
     pub time_s: f64,
     /// Starts run.
     pub starts_used: usize,
-    /// Starts that ended feasible.
+    /// Starts that ended feasible (exact verdict, after the contact repair).
     pub starts_feasible: usize,
     /// A start was cut short by the wall-clock safety net instead of its iteration budget: this
     /// answer may differ on a less loaded machine.
@@ -494,11 +517,25 @@ struct Eval<'a> {
     s_q: Vec<SurfaceQuery>,
     /// Pad normals (world).
     tip_z: Vec<Vector3<f64>>,
+    /// Per finger: the derivative of the outward surface normal at the contact-sphere centre
+    /// along the pad normal (`H n_pad`, H the Hessian of the object's signed distance, taken by
+    /// a central difference), for the pad-cone rows' gradient.
+    tip_hn: Vec<Vector3<f64>>,
     elbow_p: Point3<f64>,
     /// Exact geometry for the verdict: every link against the object, the support and every
     /// non-adjacent link.
     checker: CollisionChecker,
     cd: CheckData,
+    /// Per finger: its links' and pads' object pairs and its flexion coordinate.
+    fingers_geo: Vec<repair::FingerGeometry>,
+    /// Object and support pairs of the links no finger moves.
+    body_pairs: Vec<usize>,
+    /// Support pairs of the finger links.
+    finger_support: Vec<usize>,
+    /// Scratch copy of `q` for the repair.
+    q_saved: Vec<f64>,
+    /// Per finger: the exact distance of its pad to the object at the last verdict.
+    pads: Vec<Option<SignedDistance>>,
     tmp_j: Matrix6xX<f64>,
     hand_gj: Matrix6xX<f64>,
     point_grad: Vec<Vector3<f64>>,
@@ -547,6 +584,7 @@ impl<'a> Eval<'a> {
         let s = sys.link_spheres.len();
         let checker = grasp_checker(sys, req);
         let cd = checker.data();
+        let (fingers_geo, body_pairs, finger_support) = repair::finger_geometry(sys, &checker);
         Eval {
             sys,
             req,
@@ -581,9 +619,15 @@ impl<'a> Eval<'a> {
                 s
             ],
             tip_z: vec![Vector3::z(); m],
+            tip_hn: vec![Vector3::zeros(); m],
             elbow_p: Point3::origin(),
             checker,
             cd,
+            fingers_geo,
+            body_pairs,
+            finger_support,
+            q_saved: model.neutral(),
+            pads: vec![None; m],
             tmp_j: Matrix6xX::zeros(nq),
             hand_gj: Matrix6xX::zeros(sys.hand_joints.len()),
             point_grad: vec![Vector3::zeros(); m],
@@ -616,9 +660,11 @@ impl<'a> Eval<'a> {
 
     fn n_ineq(&self) -> usize {
         let s = self.sys.link_spheres.len();
+        let m = self.sys.fingers.len();
         self.n_spread
             + s
             + if self.plane { s } else { 0 }
+            + if self.plane { m } else { 0 }
             + self.pairs.len()
             + self.sys.link_pairs.len()
             + self.req.goal_regions.len()
@@ -627,6 +673,14 @@ impl<'a> Eval<'a> {
     /// Index of the first goal-region row (the last rows).
     fn region_row(&self) -> usize {
         self.n_eq() + self.n_ineq() - self.req.goal_regions.len()
+    }
+
+    /// Index of the first contact-sphere support row (with a support): per finger the contact
+    /// sphere above the support plane, `r_i − h(c_i) ≤ 0` (the pads were unchecked against the
+    /// table: pad centres up to 10 mm under it).
+    fn pad_row(&self) -> usize {
+        let s = self.sys.link_spheres.len();
+        self.n_eq() + self.n_spread + s + if self.plane { s } else { 0 }
     }
 
     /// Index of the first fingertip-pair row in the residual vector.
@@ -675,6 +729,10 @@ impl<'a> Eval<'a> {
             self.tip_p[i] = self.data.frame(f.tip) * Point3::from(f.tip_offset);
             self.tip_z[i] = self.data.frame(f.tip).rotation * f.pad_normal;
             self.tip_q[i] = self.req.object.query(&self.tip_p[i]);
+            let h = 1e-5;
+            let np = self.req.object.query(&(self.tip_p[i] + self.tip_z[i] * h));
+            let nm = self.req.object.query(&(self.tip_p[i] - self.tip_z[i] * h));
+            self.tip_hn[i] = (np.normal - nm.normal) / (2.0 * h);
             frame_jacobian(model, &self.data, f.tip, &f.tip_offset, &mut self.tip_j[i]);
         }
         // Link-sphere Jacobians are not formed here: their constraints enter the solver only
@@ -757,7 +815,20 @@ impl<'a> Eval<'a> {
         if w.d > 0.0 {
             c += w.d * self.elbow_term();
         }
-        c
+        c + PAD_WEIGHT * self.pad_penalty()
+    }
+
+    /// Pad-cone excess of finger `i`: `cos(PAD_CONE_OPT_DEG) + n_pad · n_out` (> 0: the pad
+    /// normal is outside the cone around the inward surface normal).
+    fn pad_excess(&self, i: usize) -> f64 {
+        PAD_CONE_OPT_DEG.to_radians().cos() + self.tip_z[i].dot(&self.tip_q[i].normal)
+    }
+
+    /// `Σ max(0, excess)²`: zero inside the cone, C¹.
+    fn pad_penalty(&self) -> f64 {
+        (0..self.sys.fingers.len())
+            .map(|i| self.pad_excess(i).max(0.0).powi(2))
+            .sum()
     }
 
     fn gradient(&mut self, u: &[f64], g: &mut [f64]) {
@@ -802,6 +873,23 @@ impl<'a> Eval<'a> {
             );
             for (a, &qa) in self.sys.arm_joints.iter().enumerate() {
                 self.grad_q[qa] += w.tc * self.grad_arm[a];
+            }
+        }
+        // Pad penalty: ∂(n_pad · n_out)/∂q_k = ω_k · (n_pad × n_out) + (H n_pad) · v_k (ω, v
+        // the tip's angular and linear Jacobian columns, H the symmetric Hessian of the signed
+        // distance).
+        for i in 0..self.sys.fingers.len() {
+            let e = self.pad_excess(i);
+            if e <= 0.0 {
+                continue;
+            }
+            let s = 2.0 * PAD_WEIGHT * e;
+            let wv = self.tip_z[i].cross(&self.tip_q[i].normal) * s;
+            let v = self.tip_hn[i] * s;
+            let j = &self.tip_j[i];
+            for (c, g) in self.grad_q.iter_mut().enumerate() {
+                *g += j[(3, c)] * wv.x + j[(4, c)] * wv.y + j[(5, c)] * wv.z;
+                *g += j[(0, c)] * v.x + j[(1, c)] * v.y + j[(2, c)] * v.z;
             }
         }
         for (k, &i) in self.sel.iter().enumerate() {
@@ -866,6 +954,12 @@ impl<'a> Eval<'a> {
                 k += 1;
             }
         }
+        if let Some(pl) = self.req.object.support() {
+            for (i, f) in self.sys.fingers.iter().enumerate() {
+                r[k] = f.radius - pl.signed_distance(&self.tip_p[i]);
+                k += 1;
+            }
+        }
         for &(i, j) in &self.pairs {
             let (fi, fj) = (&self.sys.fingers[i], &self.sys.fingers[j]);
             r[k] =
@@ -923,6 +1017,15 @@ impl<'a> Eval<'a> {
                     &v,
                     &mut self.grad_q,
                 );
+            }
+        }
+        let k0 = self.pad_row();
+        if let Some(n) = &plane {
+            for i in 0..self.sys.fingers.len() {
+                let di = d[k0 + i];
+                if di != 0.0 {
+                    add_point_gradient(&mut self.grad_q, &self.tip_j[i], &(n * -di));
+                }
             }
         }
         // ∂(−‖c_i − c_j‖)/∂q = −eᵀ (J_i − J_j), e the unit vector from c_j to c_i; at
@@ -998,15 +1101,41 @@ impl<'a> Eval<'a> {
 }
 
 impl Eval<'_> {
-    /// Exact check at the current `u`: every pair, smallest distance per category.
+    /// Exact check at the current `u`: every pair, smallest distance per category, and each
+    /// finger's pad against the object.
     fn clearance(&mut self, u: &[f64]) -> Clearance {
         self.update(u);
-        self.checker.clearance_at_update(&mut self.cd)
+        let c = self.checker.clearance_at_update(&mut self.cd);
+        for f in 0..self.pads.len() {
+            let mut best: Option<SignedDistance> = None;
+            for k in 0..self.fingers_geo[f].pads.len() {
+                let p = self.fingers_geo[f].pads[k];
+                let d = self.checker.pair_distance(&mut self.cd, p);
+                if best.is_none_or(|b| d.distance < b.distance) {
+                    best = Some(d);
+                }
+            }
+            self.pads[f] = best;
+        }
+        c
     }
 
-    /// Angle between each pad normal and the inward surface normal at its contact, deg.
+    /// Signed distance of finger `i`'s pad from the object surface (m): exact between its pad
+    /// links and the object, or the contact sphere's (eq. 27) for a finger without pad shapes.
+    fn pad_distance(&self, i: usize) -> f64 {
+        self.pads[i].map_or(
+            self.tip_q[i].signed_distance - self.sys.fingers[i].radius,
+            |d| d.distance,
+        )
+    }
+
+    /// Angle between finger `i`'s pad normal and the inward surface normal at its contact, deg
+    /// (the exact contact's normal, pointing from the pad into the object; the contact sphere's
+    /// without pad shapes).
     fn pad_angle_deg(&self, i: usize) -> f64 {
-        (-self.tip_q[i].normal.dot(&self.tip_z[i]))
+        let inward = self.pads[i].map_or(-self.tip_q[i].normal, |d| d.normal);
+        inward
+            .dot(&self.tip_z[i])
             .clamp(-1.0, 1.0)
             .acos()
             .to_degrees()
@@ -1015,70 +1144,128 @@ impl Eval<'_> {
 
 /// The exact check of a configuration ([`ExactCheck`]).
 struct Verdict {
-    /// Largest |eq. 27 residual|, m.
-    surface: f64,
     clearance: Clearance,
     /// Smallest exact distance of a link to the object, to the support and between two
     /// non-adjacent links, m (`+∞` without pairs).
     object: f64,
     support: f64,
     links: f64,
-    /// Largest pad angle, deg.
-    pad_angle: f64,
+    /// Largest |exact pad distance| and its finger.
+    pad: (f64, usize),
+    /// Largest pad angle (deg) and its finger.
+    pad_angle: (f64, usize),
     /// Largest spread-order violation (eq. 28).
     spread: f64,
-    /// Largest contact-sphere pair row `r_i + r_j + δ − ‖c_i − c_j‖`, m.
-    tips: f64,
 }
 
 impl Verdict {
     fn passed(&self) -> bool {
-        self.surface <= SURFACE_TOLERANCE
+        self.pad.0 <= SURFACE_TOLERANCE
             && self.object >= -EXACT_PENETRATION_TOLERANCE
             && self.support >= -EXACT_PENETRATION_TOLERANCE
             && self.links >= 0.0
-            && self.pad_angle <= PAD_CONE_DEG
+            && self.pad_angle.0 <= PAD_CONE_DEG
             && self.spread <= 1e-9
-            && self.tips <= 0.5 * FINGER_CLEARANCE
+    }
+
+    /// How far from passing (m, degrees weighted by 1 mm each), to rank infeasible starts.
+    fn violation(&self) -> f64 {
+        (self.pad.0 - SURFACE_TOLERANCE).max(0.0)
+            + (-self.object - EXACT_PENETRATION_TOLERANCE).max(0.0)
+            + (-self.support - EXACT_PENETRATION_TOLERANCE).max(0.0)
+            + (-self.links).max(0.0)
+            + 1e-3 * (self.pad_angle.0 - PAD_CONE_DEG).max(0.0)
+            + self.spread.max(0.0)
     }
 }
 
 impl Eval<'_> {
     fn verdict(&mut self, u: &[f64]) -> Verdict {
         let clearance = self.clearance(u);
-        let surface = self
-            .tip_q
-            .iter()
-            .zip(&self.sys.fingers)
-            .map(|(q, f)| (q.signed_distance - f.radius).abs())
-            .fold(0.0, f64::max);
-        let pad_angle = (0..self.n_eq())
-            .map(|i| self.pad_angle_deg(i))
-            .fold(0.0, f64::max);
+        let worst = |v: Vec<f64>| {
+            v.into_iter()
+                .enumerate()
+                .fold((0.0, 0), |m, (i, x)| if x > m.0 { (x, i) } else { m })
+        };
+        let pad = worst(
+            (0..self.n_eq())
+                .map(|i| self.pad_distance(i).abs())
+                .collect(),
+        );
+        let pad_angle = worst((0..self.n_eq()).map(|i| self.pad_angle_deg(i)).collect());
         let spread = self
             .sys
             .spread_pairs
             .iter()
             .map(|sp| sp.lower.at(&self.q) - sp.upper.at(&self.q))
             .fold(f64::NEG_INFINITY, f64::max);
-        let tips = self
-            .pairs
-            .iter()
-            .map(|&(i, j)| {
-                let (fi, fj) = (&self.sys.fingers[i], &self.sys.fingers[j]);
-                fi.radius + fj.radius + FINGER_CLEARANCE - (self.tip_p[i] - self.tip_p[j]).norm()
-            })
-            .fold(f64::NEG_INFINITY, f64::max);
         Verdict {
-            surface,
             object: clearance.category_distance(Category::Object),
             support: clearance.category_distance(Category::Support),
             links: clearance.category_distance(Category::SelfCollision),
             clearance,
+            pad,
             pad_angle,
             spread,
-            tips,
         }
+    }
+
+    /// Why a verdict fails, naming the finger, link or link pair and the numbers.
+    fn verdict_reason(&self, v: &Verdict) -> Option<String> {
+        let pair = |c: Category| {
+            v.clearance.category(c).map(|cl| {
+                let l = self.checker.label(cl.pair);
+                (l.link, l.other, -cl.distance.distance * 1e3)
+            })
+        };
+        let tol = EXACT_PENETRATION_TOLERANCE * 1e3;
+        if v.pad.0 > SURFACE_TOLERANCE {
+            let f = v.pad.1;
+            let d = self.pad_distance(f);
+            return Some(format!(
+                "the pad of finger '{}' is {:.1} mm {} the object surface (at most {:.1} mm \
+                 allowed)",
+                self.sys.fingers[f].name,
+                d.abs() * 1e3,
+                if d > 0.0 { "away from" } else { "inside" },
+                SURFACE_TOLERANCE * 1e3
+            ));
+        }
+        if v.object < -EXACT_PENETRATION_TOLERANCE
+            && let Some((link, other, depth)) = pair(Category::Object)
+        {
+            return Some(format!(
+                "link '{link}' penetrates the object '{other}' by {depth:.1} mm (at most {tol:.1} \
+                 mm allowed)"
+            ));
+        }
+        if v.support < -EXACT_PENETRATION_TOLERANCE
+            && let Some((link, _, depth)) = pair(Category::Support)
+        {
+            return Some(format!(
+                "link '{link}' penetrates the support surface by {depth:.1} mm (at most {tol:.1} \
+                 mm allowed): the object sits too low to be grasped without touching the table"
+            ));
+        }
+        if v.links < 0.0
+            && let Some((a, b, depth)) = pair(Category::SelfCollision)
+        {
+            return Some(format!("links '{a}' and '{b}' intersect by {depth:.1} mm"));
+        }
+        if v.pad_angle.0 > PAD_CONE_DEG {
+            return Some(format!(
+                "finger '{}' touches the object {:.0} deg off its pad normal (at most {:.0} deg \
+                 allowed): the contact is on the side or back of the finger",
+                self.sys.fingers[v.pad_angle.1].name, v.pad_angle.0, PAD_CONE_DEG
+            ));
+        }
+        if v.spread > 1e-9 {
+            return Some(format!(
+                "the spread ordering of the fingers is violated by {:.3} rad",
+                v.spread
+            ));
+        }
+        None
     }
 }
 
@@ -1289,7 +1476,7 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
         Rotation3::from_basis_unchecked(&[approach, close_world, approach.cross(&close_world)]);
     let rot = UnitQuaternion::from_rotation_matrix(&(r_world * r_local.transpose()));
     let target = Isometry3::from_parts((cg.coords - rot * centroid_local).into(), rot);
-    dls_ik(sys, data, &mut q, &target);
+    dls_ik(sys, data, &mut q, &target, None);
     for (k, &i) in sys.arm_joints.iter().chain(&sys.hand_joints).enumerate() {
         u[k] = q[i];
     }
@@ -1307,7 +1494,17 @@ fn first_frame_of_q(sys: &HandArm, qi: usize, data: &Data) -> Point3<f64> {
 
 /// Damped least-squares IK of the palm pose over the arm joints, clamped to limits. Hand-rolled
 /// because it is only a seeding heuristic (a few dozen iterations, accuracy irrelevant).
-fn dls_ik(sys: &HandArm, data: &mut Data, q: &mut [f64], target: &Isometry3<f64>) {
+///
+/// With `rest` (a configuration), the arm's self-motion is pulled towards it in the Jacobian's
+/// null space (`(I − J⁺J) k (rest − q)`), which moves no palm pose to first order: the contact
+/// repair backs a plan's grasp out of the object without leaving its goal region.
+fn dls_ik(
+    sys: &HandArm,
+    data: &mut Data,
+    q: &mut [f64],
+    target: &Isometry3<f64>,
+    rest: Option<&[f64]>,
+) {
     let model = &*sys.model;
     let na = sys.arm_joints.len();
     let mut j = Matrix6xX::zeros(model.nq());
@@ -1320,7 +1517,8 @@ fn dls_ik(sys: &HandArm, data: &mut Data, q: &mut [f64], target: &Isometry3<f64>
         let er = (target.rotation * x.rotation.inverse()).scaled_axis();
         // Position errors matter more than orientation for a seed: weight rotation by 0.3 m.
         let e = nalgebra::Vector6::new(ep.x, ep.y, ep.z, 0.3 * er.x, 0.3 * er.y, 0.3 * er.z);
-        if e.norm() < 1e-4 {
+        // With a rest posture every iteration also moves the self-motion towards it.
+        if e.norm() < 1e-4 && rest.is_none() {
             break;
         }
         frame_jacobian(model, data, sys.palm, &Vector3::zeros(), &mut j);
@@ -1331,7 +1529,15 @@ fn dls_ik(sys: &HandArm, data: &mut Data, q: &mut [f64], target: &Isometry3<f64>
         }
         let jjt = &ja * ja.transpose() + nalgebra::DMatrix::identity(6, 6) * 1e-3;
         let Some(inv) = jjt.try_inverse() else { break };
-        let dq = ja.transpose() * (inv * nalgebra::DVector::from_column_slice(e.as_slice()));
+        let mut dq = ja.transpose() * (&inv * nalgebra::DVector::from_column_slice(e.as_slice()));
+        if let Some(rest) = rest {
+            let pull = nalgebra::DVector::from_iterator(
+                na,
+                sys.arm_joints.iter().map(|&qa| 0.3 * (rest[qa] - q[qa])),
+            );
+            let projected = &ja * &pull;
+            dq += &pull - ja.transpose() * (&inv * projected);
+        }
         for (a, &qa) in sys.arm_joints.iter().enumerate() {
             let step = dq[a].clamp(-0.3, 0.3);
             q[qa] = (q[qa] + step).clamp(finite_or(lo[qa], -1e9), finite_or(hi[qa], 1e9));
@@ -1346,6 +1552,8 @@ struct StartOutcome {
     report: SolveReport,
     feasible: bool,
     score: f64,
+    /// What the contact repair could not do, if anything.
+    note: Option<String>,
 }
 
 fn solver_settings() -> Settings {
@@ -1403,39 +1611,20 @@ fn run_start_with(
     let report = solver
         .solve(&problem, &mut u)
         .expect("problem is well-formed");
-    let mut r = vec![0.0; n_eq + n_ineq];
-    eval.borrow_mut().residuals(&u, &mut r);
-    let (pair_row, region_row) = {
-        let e = eval.borrow();
-        (e.pair_row(), e.region_row())
-    };
-    let max_of = |rows: &[f64]| rows.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v));
-    let surface = r[..n_eq].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
-    let pen = max_of(&r[n_eq + sys.spread_pairs.len()..pair_row]);
-    let spread = max_of(&r[n_eq..n_eq + sys.spread_pairs.len()]);
-    // Rows are `r_i + r_j + δ − ‖c_i − c_j‖`: up to the penetration tolerance of δ may go.
-    let overlap = max_of(&r[pair_row..region_row]);
-    // Inside the regions themselves (the rows keep a 5 % margin the solver may use up).
-    let outside = req
-        .goal_regions
-        .iter()
-        .zip(&r[region_row..])
-        .map(|(g, &v)| {
-            let rm = GOAL_REGION_MARGIN * g.radius;
-            ((2.0 * g.radius * v + rm * rm).max(0.0).sqrt() - g.radius).max(0.0)
-        })
-        .fold(0.0, f64::max);
-    let feasible = report.status != SolveStatus::NumericalFailure
-        && surface <= SURFACE_TOLERANCE
-        && pen <= PENETRATION_TOLERANCE
-        && overlap <= PENETRATION_TOLERANCE
-        && spread <= 1e-9
-        && outside == 0.0;
+    // The optimiser's answer is a posture on the sphere model; place it on the exact geometry
+    // and judge it there (see `repair`), inside the goal regions a plan asks for.
+    let mut e = eval.borrow_mut();
+    let note = e.repair(&mut u);
+    let v = e.verdict(&u);
+    let outside = region_excess(sys, req, &u);
+    let feasible =
+        report.status != SolveStatus::NumericalFailure && v.passed() && outside.is_none();
     let score = if feasible {
-        report.cost
+        e.cost(&u) - PAD_WEIGHT * e.pad_penalty()
     } else {
-        surface + pen.max(0.0) + spread.max(0.0) + overlap.max(0.0) + outside
+        v.violation() + outside.map_or(0.0, |(_, d, g)| d - g.radius)
     };
+    drop(e);
     StartOutcome {
         start,
         u,
@@ -1443,6 +1632,7 @@ fn run_start_with(
         report,
         feasible,
         score,
+        note,
     }
 }
 
@@ -1479,11 +1669,29 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
         })
         .expect("at least one start");
     let mut result = describe(sys, req, &best.u, Some(best.report.clone()));
+    // `describe` leaves the exact verdict's reason in `reason`.
+    let exact_reason = result.reason.take();
     result.feasible = best.feasible;
     result.reason = if best.feasible {
         None
     } else {
-        Some(explain(sys, req, &result, &best.u))
+        // Far from the surface on the optimiser's own model too: the object is out of reach
+        // or too large, which says more than the exact pad distance.
+        let mut why = if let Some(why) = region_reason(sys, req, &best.u) {
+            why
+        } else if result.residuals.max_surface_distance > SURFACE_TOLERANCE
+            && result.exact.max_pad_distance > SURFACE_TOLERANCE
+        {
+            out_of_reach(sys, req, &result)
+        } else {
+            exact_reason.unwrap_or_else(|| "the solver failed numerically".to_owned())
+        };
+        why.push_str(" in every start found");
+        if let Some(note) = &best.note {
+            why.push_str("; contact repair: ");
+            why.push_str(note);
+        }
+        Some(why)
     };
     result.starts_used = outcomes.len();
     result.starts_feasible = starts_feasible;
@@ -1492,97 +1700,83 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
     Ok(result)
 }
 
-fn explain(sys: &HandArm, req: &GraspRequest, r: &GraspResult, u: &[f64]) -> String {
+fn out_of_reach(sys: &HandArm, req: &GraspRequest, r: &GraspResult) -> String {
     let res = &r.residuals;
-    let mut q = sys.model.neutral();
-    for (&i, &v) in sys.arm_joints.iter().chain(&sys.hand_joints).zip(u) {
-        q[i] = v;
-    }
-    let out_of_region = req.goal_regions.iter().find_map(|g| {
-        let mut diff = vec![0.0; g.center.len()];
-        let d = g.distance(&q, &mut diff);
-        (d > g.radius).then_some((g, d))
-    });
     let cg = req.object.centroid();
     let palm_reach = r
         .contacts
         .iter()
         .map(|c| (Point3::from(c.point) - cg).norm())
         .fold(0.0, f64::max);
-    if let Some((g, d)) = out_of_region {
-        let names = sys.model.joint_names();
-        let centre = g.centre();
-        let mut worst: Vec<(f64, usize)> = g
-            .joints
-            .iter()
-            .zip(&centre)
-            .map(|(&j, c)| ((q[j] - c).abs(), j))
-            .collect();
-        worst.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let list: Vec<String> = worst
-            .iter()
-            .take(3)
-            .map(|(dq, j)| format!("{} {:.2} rad from the region's centre", names[*j], dq))
-            .collect();
-        format!(
-            "every grasp found lies outside the motion model's certified goal region of the {} \
-             joints ({d:.3} from its centre, radius {:.3}; furthest: {})",
-            g.name,
-            g.radius,
-            list.join(", ")
-        )
-    } else if res.max_surface_distance > SURFACE_TOLERANCE {
-        let worst = r
-            .contacts
-            .iter()
-            .max_by(|a, b| {
-                a.surface_distance
-                    .abs()
-                    .total_cmp(&b.surface_distance.abs())
-            })
-            .map(|c| c.finger.clone())
-            .unwrap_or_default();
-        let hand_span = sys.fingers.len();
-        format!(
-            "fingertip '{worst}' stays {:.1} mm from the object surface: the object is out of reach \
-             of the arm or too large for the {hand_span}-finger hand (object radius {:.1} mm, \
-             contacts up to {:.1} mm from its centroid)",
-            res.max_surface_distance * 1e3,
-            req.object.bounding_radius() * 1e3,
-            palm_reach * 1e3
-        )
-    } else if res.max_object_penetration > PENETRATION_TOLERANCE {
-        format!(
-            "a hand link penetrates the object by {:.1} mm in every start found",
-            res.max_object_penetration * 1e3
-        )
-    } else if res.min_finger_separation < FINGER_CLEARANCE - PENETRATION_TOLERANCE {
-        format!(
-            "the contact spheres of two fingertips are {:.2} mm apart (at least {:.1} mm needed) \
-             in every start found: the hand cannot close on the object without its fingers \
-             colliding",
-            res.min_finger_separation * 1e3,
-            (FINGER_CLEARANCE - PENETRATION_TOLERANCE) * 1e3
-        )
-    } else if res.min_link_separation < FINGER_CLEARANCE - PENETRATION_TOLERANCE {
-        format!(
-            "the links of two fingers are {:.2} mm apart (at least {:.1} mm needed) in every start \
-             found: the hand cannot close on the object without its fingers colliding",
-            res.min_link_separation * 1e3,
-            (FINGER_CLEARANCE - PENETRATION_TOLERANCE) * 1e3
-        )
-    } else if res.max_support_penetration > PENETRATION_TOLERANCE {
-        format!(
-            "the hand or wrist penetrates the support surface by {:.1} mm: the object sits too low \
-             to be grasped without touching the table",
-            res.max_support_penetration * 1e3
-        )
-    } else {
-        format!(
-            "the spread ordering of the fingers is violated by {:.3} rad",
-            res.max_spread_violation
-        )
+    let worst = r
+        .contacts
+        .iter()
+        .max_by(|a, b| {
+            a.surface_distance
+                .abs()
+                .total_cmp(&b.surface_distance.abs())
+        })
+        .map(|c| c.finger.clone())
+        .unwrap_or_default();
+    let hand_span = sys.fingers.len();
+    format!(
+        "fingertip '{worst}' stays {:.1} mm from the object surface: the object is out of reach \
+         of the arm or too large for the {hand_span}-finger hand (object radius {:.1} mm, \
+         contacts up to {:.1} mm from its centroid)",
+        res.max_surface_distance * 1e3,
+        req.object.bounding_radius() * 1e3,
+        palm_reach * 1e3
+    )
+}
+
+/// The goal region `u` is furthest outside, with its distance from the centre (`None`: inside
+/// every region).
+fn region_excess<'r>(
+    sys: &HandArm,
+    req: &'r GraspRequest,
+    u: &[f64],
+) -> Option<(Vec<f64>, f64, &'r GoalRegion)> {
+    if req.goal_regions.is_empty() {
+        return None;
     }
+    let mut q = sys.model.neutral();
+    for (&i, &v) in sys.arm_joints.iter().chain(&sys.hand_joints).zip(u) {
+        q[i] = v;
+    }
+    req.goal_regions
+        .iter()
+        .filter_map(|g| {
+            let mut diff = vec![0.0; g.center.len()];
+            let d = g.distance(&q, &mut diff);
+            (d > g.radius).then_some((d - g.radius, d, g))
+        })
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, d, g)| (q, d, g))
+}
+
+/// Why `u` is no goal of the plan's model: the region, and the joints furthest from its centre.
+fn region_reason(sys: &HandArm, req: &GraspRequest, u: &[f64]) -> Option<String> {
+    let (q, d, g) = region_excess(sys, req, u)?;
+    let names = sys.model.joint_names();
+    let mut worst: Vec<(f64, usize)> = g
+        .joints
+        .iter()
+        .zip(g.centre())
+        .map(|(&j, c)| ((q[j] - c).abs(), j))
+        .collect();
+    worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let list: Vec<String> = worst
+        .iter()
+        .take(3)
+        .map(|(dq, j)| format!("{} {:.2} rad from the region's centre", names[*j], dq))
+        .collect();
+    Some(format!(
+        "the grasp lies outside the motion model's certified goal region of the {} joints \
+         ({d:.3} from its centre, radius {:.3}; furthest: {})",
+        g.name,
+        g.radius,
+        list.join(", ")
+    ))
 }
 
 /// Evaluate every term, index, residual and ellipsoid at a decision vector.
@@ -1593,7 +1787,8 @@ pub(crate) fn describe(
     report: Option<SolveReport>,
 ) -> GraspResult {
     let mut e = Eval::new(sys, req);
-    let cost = e.cost(u);
+    // Eq. 22 without the optimiser's pad penalty.
+    let cost = e.cost(u) - PAD_WEIGHT * e.pad_penalty();
     let n_eq = e.n_eq();
     let mut r = vec![0.0; n_eq + e.n_ineq()];
     e.residuals(u, &mut r);
@@ -1616,21 +1811,26 @@ pub(crate) fn describe(
             value: e.q[i],
         })
         .collect();
+    // Contacts where the pads touch: the exact witness point on the object, its outward normal
+    // and the pad's signed distance (the contact sphere's for a finger without pad shapes).
     let cps = contact_points(sys, &req.object, &e.data);
-    let points: Vec<Point3<f64>> = cps.iter().map(|c| c.0).collect();
-    let contacts = sys
+    let contacts: Vec<Contact> = sys
         .fingers
         .iter()
         .zip(&cps)
         .enumerate()
-        .map(|(i, (f, (p, q)))| Contact {
-            finger: f.name.clone(),
-            point: [p.x, p.y, p.z],
-            normal: [q.normal.x, q.normal.y, q.normal.z],
-            surface_distance: q.signed_distance - f.radius,
-            pad_angle_deg: e.pad_angle_deg(i),
+        .map(|(i, (f, (p, q)))| {
+            let (p, n) = e.pads[i].map_or((*p, q.normal), |d| (d.point_b, -d.normal));
+            Contact {
+                finger: f.name.clone(),
+                point: [p.x, p.y, p.z],
+                normal: [n.x, n.y, n.z],
+                surface_distance: e.pad_distance(i),
+                pad_angle_deg: e.pad_angle_deg(i),
+            }
         })
         .collect();
+    let points: Vec<Point3<f64>> = contacts.iter().map(|c| Point3::from(c.point)).collect();
     let label = |c: Category| {
         v.clearance.category(c).map(|cl| {
             let l = e.checker.label(cl.pair);
@@ -1650,8 +1850,10 @@ pub(crate) fn describe(
         support_link: label(Category::Support),
         min_link_separation: finite_or_clear(v.links),
         closest_links: label(Category::SelfCollision),
-        max_pad_angle_deg: v.pad_angle,
+        max_pad_distance: v.pad.0,
+        max_pad_angle_deg: v.pad_angle.0,
     };
+    let exact_reason = e.verdict_reason(&v);
     let m_arm = indexes::transmission_matrix(&e.jv_arm);
     let mut tmp = Matrix6xX::zeros(model.nq());
     let mut gj = Matrix6xX::zeros(sys.hand_joints.len());
@@ -1676,7 +1878,7 @@ pub(crate) fn describe(
     };
     let min_link_sep = min_gap(&r[link_row..]);
     let min_sep = min_gap(&r[pair_row..link_row]);
-    let plane_pen = r[n_eq + ns + s..pair_row]
+    let plane_pen = r[n_eq + ns + s..e.pad_row()]
         .iter()
         .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     let (lo, hi) = bounds(sys);
@@ -1703,7 +1905,7 @@ pub(crate) fn describe(
         .fold(0.0, f64::max);
     GraspResult {
         feasible: false,
-        reason: None,
+        reason: exact_reason,
         q_arm,
         q_hand,
         contacts,
@@ -1757,6 +1959,9 @@ pub(crate) fn describe(
 
 /// Shared model handle re-exported for callers building [`HandArm`]s.
 pub type SharedModel = Arc<crate::kinematics::Model>;
+
+#[path = "repair.rs"]
+mod repair;
 
 #[cfg(test)]
 #[path = "optimizer_tests.rs"]
