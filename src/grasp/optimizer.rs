@@ -515,6 +515,8 @@ struct Eval<'a> {
     tip_j: Vec<Matrix6xX<f64>>,
     s_p: Vec<Point3<f64>>,
     s_q: Vec<SurfaceQuery>,
+    /// World positions of the support cover's points.
+    cover_p: Vec<Point3<f64>>,
     /// Pad normals (world).
     tip_z: Vec<Vector3<f64>>,
     /// Per finger: the derivative of the outward surface normal at the contact-sphere centre
@@ -618,6 +620,7 @@ impl<'a> Eval<'a> {
                 };
                 s
             ],
+            cover_p: vec![Point3::origin(); sys.support_cover.len()],
             tip_z: vec![Vector3::z(); m],
             tip_hn: vec![Vector3::zeros(); m],
             elbow_p: Point3::origin(),
@@ -660,10 +663,11 @@ impl<'a> Eval<'a> {
 
     fn n_ineq(&self) -> usize {
         let s = self.sys.link_spheres.len();
+        let c = self.sys.support_cover.len();
         let m = self.sys.fingers.len();
         self.n_spread
             + s
-            + if self.plane { s } else { 0 }
+            + if self.plane { c } else { 0 }
             + if self.plane { m } else { 0 }
             + self.pairs.len()
             + self.sys.link_pairs.len()
@@ -680,7 +684,8 @@ impl<'a> Eval<'a> {
     /// table: pad centres up to 10 mm under it).
     fn pad_row(&self) -> usize {
         let s = self.sys.link_spheres.len();
-        self.n_eq() + self.n_spread + s + if self.plane { s } else { 0 }
+        let c = self.sys.support_cover.len();
+        self.n_eq() + self.n_spread + s + if self.plane { c } else { 0 }
     }
 
     /// Index of the first fingertip-pair row in the residual vector.
@@ -741,6 +746,11 @@ impl<'a> Eval<'a> {
         for (i, s) in self.sys.link_spheres.iter().enumerate() {
             self.s_p[i] = self.data.frame(s.frame) * Point3::from(s.center);
             self.s_q[i] = self.req.object.query(&self.s_p[i]);
+        }
+        if self.plane {
+            for (p, c) in self.cover_p.iter_mut().zip(&self.sys.support_cover) {
+                *p = self.data.frame(c.frame) * Point3::from(c.center);
+            }
         }
         if let Some(e) = self.sys.elbow {
             self.elbow_p = Point3::from(self.data.frame(e).translation.vector);
@@ -949,8 +959,8 @@ impl<'a> Eval<'a> {
             k += 1;
         }
         if let Some(pl) = self.req.object.support() {
-            for (i, s) in self.sys.link_spheres.iter().enumerate() {
-                r[k] = s.radius - pl.signed_distance(&self.s_p[i]);
+            for (c, p) in self.sys.support_cover.iter().zip(&self.cover_p) {
+                r[k] = c.radius - pl.signed_distance(p);
                 k += 1;
             }
         }
@@ -1003,11 +1013,7 @@ impl<'a> Eval<'a> {
         let n_spheres = self.sys.link_spheres.len();
         let plane = self.req.object.support().map(|pl| Vector3::from(pl.normal));
         for (i, s) in self.sys.link_spheres.iter().enumerate() {
-            // One pass per sphere with its object and plane rows combined.
-            let mut v = self.s_q[i].normal * -d[k + i];
-            if let Some(n) = &plane {
-                v -= n * d[k + n_spheres + i];
-            }
+            let v = self.s_q[i].normal * -d[k + i];
             if v != Vector3::zeros() {
                 add_point_jacobian_transpose(
                     model,
@@ -1017,6 +1023,22 @@ impl<'a> Eval<'a> {
                     &v,
                     &mut self.grad_q,
                 );
+            }
+        }
+        if let Some(n) = &plane {
+            let k0 = k + n_spheres;
+            for (i, c) in self.sys.support_cover.iter().enumerate() {
+                let di = d[k0 + i];
+                if di != 0.0 {
+                    add_point_jacobian_transpose(
+                        model,
+                        &self.data,
+                        c.frame,
+                        &c.center,
+                        &(n * -di),
+                        &mut self.grad_q,
+                    );
+                }
             }
         }
         let k0 = self.pad_row();

@@ -146,6 +146,7 @@ pub(crate) fn test_system() -> HandArm {
         link_spheres: vec![],
         link_pairs: vec![],
         crossing_pairs: vec![],
+        support_cover: vec![],
         geometry: Arc::new(crate::geometry::RobotGeometry::new(model.clone())),
     };
     sys.collect_link_spheres(4);
@@ -911,8 +912,9 @@ fn fig6_hand_force_and_velocity_optima_along_y_and_z() {
     assert!(fails.is_empty(), "{fails:#?}");
 }
 
-/// Fig. 5: the Q_DC-optimal grasp of a cylinder has a smaller centroid distance than random
-/// feasible grasps.
+/// Fig. 5: the Q_DC-optimal grasp of a cylinder has a smaller centroid distance than feasible
+/// grasps found without the quality term, start by start (each pair from the same seed, so the
+/// comparison is not a matter of which start landed where).
 #[test]
 fn claim_c_centroid_optimal_grasp_beats_random_feasible_grasps() {
     let sys = test_system();
@@ -928,31 +930,31 @@ fn claim_c_centroid_optimal_grasp_beats_random_feasible_grasps() {
     })
     .unwrap();
     let mut req = GraspRequest::new(cyl, vec![], QualityMeasure::CentroidDistance);
-    let best = plan_grasp(&sys, &req).unwrap();
-    assert!(best.feasible, "{:?}", best.reason);
-    req.weights = Weights {
-        tc: 0.0,
-        gc: 0.0,
-        q: 0.0,
-        d: 0.0,
-    };
-    let mut random = Vec::new();
-    for seed in 1..5 {
+    req.starts = 1;
+    let mut pairs = 0;
+    for seed in 0..6 {
         req.seed = seed;
-        req.starts = 1;
-        let r = plan_grasp(&sys, &req).unwrap();
-        if r.feasible {
-            random.push(r.terms.q_dc);
+        req.weights = Weights {
+            tc: 0.0,
+            gc: 0.0,
+            q: 1.0,
+            d: 0.0,
+        };
+        let best = plan_grasp(&sys, &req).unwrap();
+        req.weights.q = 0.0;
+        let random = plan_grasp(&sys, &req).unwrap();
+        if !(best.feasible && random.feasible) {
+            continue;
         }
-    }
-    assert!(!random.is_empty());
-    for q in random {
+        pairs += 1;
         assert!(
-            best.terms.q_dc <= q + 1e-6,
-            "{} vs random {q}",
-            best.terms.q_dc
+            best.terms.q_dc <= random.terms.q_dc + 1e-6,
+            "seed {seed}: {} vs random {}",
+            best.terms.q_dc,
+            random.terms.q_dc
         );
     }
+    assert!(pairs >= 3, "{pairs} seeds feasible both ways");
 }
 
 #[test]

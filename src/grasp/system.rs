@@ -114,6 +114,11 @@ pub struct HandArm {
     pub elbow: Option<FrameId>,
     /// Link spheres kept out of the object and above the support plane (eq. 29).
     pub link_spheres: Vec<LinkSphere>,
+    /// Points with radii whose lowest point over a plane is at or below the lowest point of
+    /// the same links' collision shapes (exact for boxes and balls, within 0.9 % of the radius
+    /// for cylinders): the optimiser's support rows (eq. 29 against the table) use these, not
+    /// the inscribed `link_spheres`, so that no box corner passes under the table unseen.
+    pub support_cover: Vec<LinkSphere>,
     /// Spheres of different fingers kept apart (besides the contact spheres, which the
     /// optimiser keeps apart pairwise).
     pub link_pairs: Vec<LinkPair>,
@@ -186,6 +191,63 @@ fn spheres_of(
             let aabb = shape_dyn.compute_local_aabb();
             let he = aabb.half_extents();
             push(out, aabb.center(), he.min());
+        }
+    }
+}
+
+/// Rim samples per end disk of a cylinder in the support cover.
+const RIM_SAMPLES: usize = 24;
+
+/// A support-plane cover of a collision shape: points with radii such that for every plane
+/// the smallest `distance(point) − radius` is at most the shape's own smallest distance.
+/// Balls and capsules: their centres or segment ends with their radius (exact). Boxes: their 8
+/// corners (exact). Cylinders: `RIM_SAMPLES` points on each end rim, each with radius
+/// `r (1 − cos(π / RIM_SAMPLES))`, the most the rim can dip between two samples (conservative).
+/// Anything else: the corners of its local bounding box (conservative).
+fn support_cover_of(
+    shape_dyn: &dyn Shape,
+    origin: &nalgebra::Isometry3<f64>,
+    out: &mut Vec<(Vector3<f64>, f64)>,
+) {
+    let mut push = |p: Point3<f64>, r: f64| out.push(((origin * p).coords, r));
+    let mut corners = |mins: Point3<f64>, maxs: Point3<f64>| {
+        for k in 0..8 {
+            let pick = |bit: usize, lo: f64, hi: f64| if k & bit == 0 { lo } else { hi };
+            push(
+                Point3::new(
+                    pick(1, mins.x, maxs.x),
+                    pick(2, mins.y, maxs.y),
+                    pick(4, mins.z, maxs.z),
+                ),
+                0.0,
+            );
+        }
+    };
+    match shape_dyn.as_typed_shape() {
+        TypedShape::Ball(b) => push(Point3::origin(), b.radius),
+        TypedShape::Capsule(c) => {
+            push(c.segment.a, c.radius);
+            push(c.segment.b, c.radius);
+        }
+        TypedShape::Cuboid(b) => {
+            let he = b.half_extents;
+            corners(Point3::from(-he), Point3::from(he));
+        }
+        TypedShape::Cylinder(c) => {
+            let dip = c.radius * (1.0 - (std::f64::consts::PI / RIM_SAMPLES as f64).cos());
+            for y in [-c.half_height, c.half_height] {
+                for k in 0..RIM_SAMPLES {
+                    let a = std::f64::consts::TAU * k as f64 / RIM_SAMPLES as f64;
+                    push(
+                        Point3::new(c.radius * a.cos(), y, c.radius * a.sin()),
+                        dip,
+                    );
+                }
+            }
+        }
+        _ => {
+            let aabb = shape_dyn.compute_local_aabb();
+            corners(aabb.mins, aabb.maxs);
         }
     }
 }
@@ -298,6 +360,7 @@ impl HandArm {
         let mut data = Data::new(model);
         forward_kinematics(model, &mut data, &model.neutral());
         let mut spheres = Vec::new();
+        let mut cover = Vec::new();
         // per sphere: how many of its finger's moving joints carry it
         let mut depth = Vec::new();
         let mut buf = Vec::new();
@@ -307,6 +370,16 @@ impl HandArm {
             let moved_by_wrist = sup.iter().any(|q| wrist.contains(q));
             if !(moved_by_hand || moved_by_wrist) {
                 continue;
+            }
+            buf.clear();
+            support_cover_of(c.shape.as_ref(), &c.origin, &mut buf);
+            for &(center, radius) in &buf {
+                cover.push(LinkSphere {
+                    frame: c.frame,
+                    center,
+                    radius,
+                    finger: finger_of(model, c.frame, &chains).0,
+                });
             }
             buf.clear();
             spheres_of(c.shape.as_ref(), &c.origin, &mut buf);
@@ -382,6 +455,7 @@ impl HandArm {
             })
             .collect();
         self.link_spheres = spheres;
+        self.support_cover = cover;
         self.crossing_pairs = crossing;
     }
 
@@ -425,6 +499,7 @@ impl HandArm {
                 .collect(),
             elbow: sys.elbow_frames.first().copied(),
             link_spheres: Vec::new(),
+            support_cover: Vec::new(),
             link_pairs: Vec::new(),
             crossing_pairs: Vec::new(),
             geometry: Arc::new(RobotGeometry::from_system(sys)),
