@@ -5,8 +5,12 @@
 //! Cost (eq. 22) `w_TC·TC + w_GC·GC + w_Q·Q̂ + w_D·D` with `Q̂` the chosen quality measure made
 //! dimensionless by the object's bounding radius ρ (`Q_DC/ρ`, or `−Q_AGP/ρ²` since the area is
 //! maximised). Constraints: joint limits (25) as bounds; fingertip contact spheres tangent to
-//! the surface (27) as equalities `sd(p_i) − r_i = 0`; spread ordering (28) and link spheres
-//! outside the object and above the support plane (29) as inequalities; and fingertip contact
+//! the surface (27) as equalities `sd(p_i) − r_i = 0`; spread ordering (28), link spheres
+//! outside the object and a conservative cover of the links above the support plane (29) as
+//! inequalities (the cover's lowest point is at or below the shapes' own: box corners, ball
+//! centres, cylinder rim samples with the rim's largest dip between samples; it replaced the
+//! inscribed spheres against the table, which let phalanx corners 5 mm under it: with the
+//! cover 89 of 180 seeded requests are exactly feasible at 4 starts, 78 without); and fingertip contact
 //! spheres of different fingers disjoint, `r_i + r_j + δ − ‖c_i − c_j‖ ≤ 0`, and likewise every
 //! link sphere of a finger (beyond its first link) and every link or contact sphere of another
 //! ([`super::system::LinkPair`]). The paper has no such rows, but without them nothing keeps

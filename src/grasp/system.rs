@@ -238,10 +238,7 @@ fn support_cover_of(
             for y in [-c.half_height, c.half_height] {
                 for k in 0..RIM_SAMPLES {
                     let a = std::f64::consts::TAU * k as f64 / RIM_SAMPLES as f64;
-                    push(
-                        Point3::new(c.radius * a.cos(), y, c.radius * a.sin()),
-                        dip,
-                    );
+                    push(Point3::new(c.radius * a.cos(), y, c.radius * a.sin()), dip);
                 }
             }
         }
