@@ -19,6 +19,9 @@ pub const DEFAULT_LOG: &str = "info";
 pub const DEFAULT_BODY_LIMIT: usize = 32 * 1024 * 1024;
 /// Default request timeout in seconds (long work belongs in jobs, not requests).
 pub const DEFAULT_REQUEST_TIMEOUT_SECS: u64 = 60;
+/// Default time a request body may stall between two received chunks, in milliseconds, before
+/// the request is answered with 408 (independent of the request timeout).
+pub const DEFAULT_BODY_IDLE_TIMEOUT_MS: u64 = 10_000;
 /// Default graceful-shutdown grace period in seconds.
 pub const DEFAULT_SHUTDOWN_GRACE_SECS: u64 = 10;
 
@@ -54,6 +57,12 @@ pub struct Config {
     /// Largest accepted request body in bytes (larger bodies get 413).
     #[arg(long, env = "REACHGRASP_BODY_LIMIT", default_value_t = DEFAULT_BODY_LIMIT, global = true)]
     pub body_limit: usize,
+
+    /// Milliseconds a request body may stall (no bytes arriving) before the request is
+    /// answered with 408; a declared `Content-Length` over the body limit is 413 at once.
+    #[arg(long, env = "REACHGRASP_BODY_IDLE_TIMEOUT_MS", default_value_t = DEFAULT_BODY_IDLE_TIMEOUT_MS,
+          value_parser = clap::value_parser!(u64).range(1..), global = true)]
+    pub body_idle_timeout_ms: u64,
 
     /// Seconds a request may take before it is answered with 503 (jobs are not affected).
     #[arg(long, env = "REACHGRASP_REQUEST_TIMEOUT", default_value_t = DEFAULT_REQUEST_TIMEOUT_SECS,
@@ -114,6 +123,7 @@ impl Default for Config {
             log: DEFAULT_LOG.to_owned(),
             log_json: false,
             body_limit: DEFAULT_BODY_LIMIT,
+            body_idle_timeout_ms: DEFAULT_BODY_IDLE_TIMEOUT_MS,
             request_timeout_secs: DEFAULT_REQUEST_TIMEOUT_SECS,
             job_concurrency: None,
             shutdown_grace_secs: DEFAULT_SHUTDOWN_GRACE_SECS,
@@ -129,6 +139,11 @@ impl Default for Config {
 impl Config {
     pub fn request_timeout(&self) -> Duration {
         Duration::from_secs(self.request_timeout_secs)
+    }
+
+    /// How long a request body may stall between chunks (see `body_idle_timeout_ms`).
+    pub fn body_idle_timeout(&self) -> Duration {
+        Duration::from_millis(self.body_idle_timeout_ms)
     }
 
     /// The bridge hub's settings; `token` is the resolved token (configured or generated).
@@ -183,12 +198,16 @@ mod tests {
             "3",
             "--body-limit",
             "1024",
+            "--body-idle-timeout-ms",
+            "250",
         ])
         .unwrap();
         assert_eq!(c.bind.port(), 9000);
         assert_eq!(c.db, PathBuf::from("/tmp/x.db"));
         assert_eq!(c.job_concurrency(), 3);
         assert_eq!(c.body_limit, 1024);
+        assert_eq!(c.body_idle_timeout(), Duration::from_millis(250));
+        assert!(parse(&["--body-idle-timeout-ms", "0"]).is_err());
         assert!(parse(&["--bind", "not-an-address"]).is_err());
         assert!(parse(&["--job-concurrency", "0"]).is_err());
         assert!(parse(&["--request-timeout-secs", "0"]).is_err());

@@ -67,7 +67,8 @@ pub struct Problem {
 /// | `method-not-allowed` | 405 | the route exists, the method does not |
 /// | `conflict` | 409 | the request conflicts with the resource's state |
 /// | `unauthorized` | 401 | missing or wrong credentials (bridge workers' token) |
-/// | `payload-too-large` | 413 | body above the configured limit |
+/// | `payload-too-large` | 413 | body above the configured limit (a declared `Content-Length` is checked before reading) |
+/// | `body-timeout` | 408 | the request body stalled longer than the configured idle time |
 /// | `unsupported-media-type` | 415 | body is not `application/json` |
 /// | `validation` | 422 | well-formed JSON with bad values (see `errors`) |
 /// | `unavailable` | 503 | dependency down, shutting down |
@@ -202,6 +203,20 @@ impl ApiError {
             "payload-too-large",
             "Payload too large",
             detail,
+        )
+    }
+
+    /// 408: the client stopped sending its request body for longer than `idle`.
+    pub fn body_timeout(idle: std::time::Duration) -> Self {
+        ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "body-timeout",
+            "Request body timed out",
+            format!(
+                "no part of the request body arrived for {} ms (REACHGRASP_BODY_IDLE_TIMEOUT_MS); \
+                 send the whole body promptly",
+                idle.as_millis()
+            ),
         )
     }
 

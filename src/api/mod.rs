@@ -184,7 +184,7 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
 /// The complete application: documented routes, `/openapi.json`, Swagger UI at `/docs`, the
 /// `pages` of another edge (the dashboard; the caller composes them so that this layer does not
 /// import its sibling), problem+json fallbacks, and the request layers (request id, tracing,
-/// panic catching, timeout, body limit, problem+json safety net).
+/// panic catching, timeout, body size and idle limits, problem+json safety net).
 pub fn router(state: AppState, pages: Router<AppState>) -> Router {
     let (mut router, api) = openapi_router().split_for_parts();
     router = router.merge(SwaggerUi::new("/docs").url("/openapi.json", api));
@@ -217,6 +217,13 @@ pub fn router(state: AppState, pages: Router<AppState>) -> Router {
         .layer(axum::middleware::from_fn_with_state(
             state.config.request_timeout(),
             middleware::timeout,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            middleware::BodyLimits {
+                max_bytes: state.config.body_limit,
+                idle: state.config.body_idle_timeout(),
+            },
+            middleware::body_limits,
         ))
         .layer(DefaultBodyLimit::max(state.config.body_limit))
         .layer(axum::middleware::map_response(

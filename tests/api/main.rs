@@ -9,6 +9,7 @@ mod grasps;
 mod health;
 mod helpers;
 mod jobs;
+mod limits;
 mod mappings;
 mod models;
 mod openapi;
