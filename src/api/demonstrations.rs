@@ -257,7 +257,10 @@ pub struct DeleteQuery {
 
 /// Synthetic study request; every field is optional (the defaults reproduce the paper's design:
 /// 5 subjects × 5 positions × 10 trials, objects counterbalanced over positions).
-#[derive(Debug, Deserialize, ToSchema)]
+///
+/// Read as the [`StudyConfig`] itself (see the `Deserialize` impl below): a flattened field
+/// would lose the path of a bad value (`{"subjects": "five"}` was reported at `$`).
+#[derive(Debug, ToSchema)]
 pub struct SyntheticRequest {
     /// `{seed: 1, subjects: 5, positions: 5, trials: 10, objects: ["ball", "bottle",
     /// "kitchen_timer", "pencil", "sunglasses"], full_factorial: false, noise: true,
@@ -265,6 +268,12 @@ pub struct SyntheticRequest {
     #[serde(flatten)]
     #[schema(value_type = Object)]
     pub config: StudyConfig,
+}
+
+impl<'de> Deserialize<'de> for SyntheticRequest {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        StudyConfig::deserialize(d).map(|config| SyntheticRequest { config })
+    }
 }
 
 fn row_not_found(id: &str) -> ApiError {

@@ -13,6 +13,7 @@ mod limits;
 mod mappings;
 mod models;
 mod openapi;
+mod paths;
 mod plans;
 mod process;
 mod quickstart;
