@@ -18,3 +18,4 @@ mod plans;
 mod process;
 mod quickstart;
 mod robots;
+mod storage;
