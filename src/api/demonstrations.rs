@@ -200,7 +200,9 @@ pub struct ListQuery {
 /// A pose: position (m) and orientation quaternion `[w, x, y, z]`.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct PoseDto {
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: [f64; 4],
 }
 
@@ -219,7 +221,9 @@ impl PoseDto {
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct FrameDto {
     pub t: f64,
+    #[schema(min_items = 3, max_items = 3)]
     pub shoulder: [f64; 3],
+    #[schema(min_items = 3, max_items = 3)]
     pub elbow: [f64; 3],
     pub wrist: PoseDto,
     /// Thumb, index, middle, ring, little: tip position and distal-phalanx frame

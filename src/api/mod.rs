@@ -63,6 +63,7 @@
 //!    `tests/api/main.rs`) using `helpers::spawn_app()`.
 
 pub mod bridges;
+pub mod contract;
 pub mod demonstrations;
 pub mod error;
 pub mod executions;
@@ -178,7 +179,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
 pub fn openapi() -> utoipa::openapi::OpenApi {
-    openapi_router().split_for_parts().1
+    contract::complete(openapi_router().split_for_parts().1)
 }
 
 /// The complete application: documented routes, `/openapi.json`, Swagger UI at `/docs`, the
@@ -187,6 +188,7 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
 /// panic catching, timeout, body size and idle limits, problem+json safety net).
 pub fn router(state: AppState, pages: Router<AppState>) -> Router {
     let (mut router, api) = openapi_router().split_for_parts();
+    let api = contract::complete(api);
     router = router.merge(SwaggerUi::new("/docs").url("/openapi.json", api));
     router = router.merge(pages);
     if state.config.test_jobs {

@@ -45,8 +45,10 @@ pub struct ObjectIn {
     pub shape: Option<ShapeSpec>,
     pub mesh: Option<MeshIn>,
     /// Centroid position (m, robot base frame).
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
     /// Orientation quaternion `[w, x, y, z]` (default identity).
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: Option<[f64; 4]>,
     /// Support plane the object rests on (optional).
     pub support: Option<SupportPlane>,
@@ -55,6 +57,7 @@ pub struct ObjectIn {
 /// A task direction (world frame; normalised by the service).
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct TaskDirectionIn {
+    #[schema(min_items = 3, max_items = 3)]
     pub direction: [f64; 3],
     pub kind: Transmission,
     pub goal: Goal,
@@ -82,6 +85,7 @@ pub struct GraspIn {
     /// Seed of the start perturbations (default 0).
     pub seed: Option<u64>,
     /// Human elbow reference for the anthropomorphism term D (m, world).
+    #[schema(min_items = 3, max_items = 3)]
     pub elbow_reference: Option<[f64; 3]>,
 }
 
@@ -116,6 +120,7 @@ pub struct GraspSettings {
     pub weights: Weights,
     pub starts: usize,
     pub seed: u64,
+    #[schema(min_items = 3, max_items = 3)]
     pub elbow_reference: Option<[f64; 3]>,
 }
 
