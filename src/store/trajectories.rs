@@ -450,7 +450,7 @@ mod tests {
             let f = f64::from(f32_towards_zero(v));
             assert!(f.abs() <= v.abs(), "{v} -> {f}");
             assert!((f - v).abs() <= 1.2e-7 * v.abs(), "{v} -> {f}");
-            assert_eq!(f.signum() == v.signum() || f == 0.0, true);
+            assert!(f.signum() == v.signum() || f == 0.0, "{v} -> {f}");
         }
     }
 
