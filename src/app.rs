@@ -40,7 +40,7 @@ impl App {
     /// Opens the database (creating it, applying migrations), recovers interrupted jobs, and
     /// binds the listener (port 0 picks a free port; see [`App::local_addr`]).
     pub async fn build(config: Config) -> anyhow::Result<App> {
-        let db = store::connect(&config.db)
+        let db = store::connect_capped(&config.db, config.db_max_bytes)
             .await
             .with_context(|| format!("cannot open the database {}", config.db.display()))?;
         let jobs = JobRunner::start(db.clone(), config.job_concurrency()).await?;
@@ -124,6 +124,8 @@ impl App {
         let grace = state.config.shutdown_grace();
         let shutdown = state.shutdown.clone();
         let router = api::router(state.clone(), crate::dashboard::router());
+        // Retention sweep and WAL checkpoint, every maintenance interval until shutdown.
+        tokio::spawn(service::storage::run_maintenance(state.clone()));
         // Small frames (bridge `execute`/`cancel`, SSE events) must not wait for delayed ACKs:
         // with Nagle's algorithm on they sit ~40 ms on loopback.
         let listener = listener.tap_io(|tcp| {

@@ -19,6 +19,14 @@ pub const DEFAULT_LOG: &str = "info";
 pub const DEFAULT_BODY_LIMIT: usize = 32 * 1024 * 1024;
 /// Default request timeout in seconds (long work belongs in jobs, not requests).
 pub const DEFAULT_REQUEST_TIMEOUT_SECS: u64 = 60;
+/// Default time a request body may stall between two received chunks, in milliseconds, before
+/// the request is answered with 408 (independent of the request timeout).
+pub const DEFAULT_BODY_IDLE_TIMEOUT_MS: u64 = 10_000;
+/// Default retention: the newest plans (with what they own), trajectories and finished
+/// executions kept of each kind; older ones are deleted by the periodic maintenance.
+pub const DEFAULT_RETENTION_MAX_COUNT: u64 = 1000;
+/// Default seconds between two maintenance runs (retention sweep, WAL checkpoint).
+pub const DEFAULT_MAINTENANCE_INTERVAL_SECS: u64 = 60;
 /// Default graceful-shutdown grace period in seconds.
 pub const DEFAULT_SHUTDOWN_GRACE_SECS: u64 = 10;
 
@@ -55,10 +63,44 @@ pub struct Config {
     #[arg(long, env = "REACHGRASP_BODY_LIMIT", default_value_t = DEFAULT_BODY_LIMIT, global = true)]
     pub body_limit: usize,
 
+    /// Milliseconds a request body may stall (no bytes arriving) before the request is
+    /// answered with 408; a declared `Content-Length` over the body limit is 413 at once.
+    #[arg(long, env = "REACHGRASP_BODY_IDLE_TIMEOUT_MS", default_value_t = DEFAULT_BODY_IDLE_TIMEOUT_MS,
+          value_parser = clap::value_parser!(u64).range(1..), global = true)]
+    pub body_idle_timeout_ms: u64,
+
     /// Seconds a request may take before it is answered with 503 (jobs are not affected).
     #[arg(long, env = "REACHGRASP_REQUEST_TIMEOUT", default_value_t = DEFAULT_REQUEST_TIMEOUT_SECS,
           value_parser = clap::value_parser!(u64).range(1..), global = true)]
     pub request_timeout_secs: u64,
+
+    /// Retention: keep at most this many plans (each with its grasp, trajectory and finished
+    /// execution), trajectories no plan owns, and finished executions no plan owns, the newest
+    /// of each; 0 keeps all. Nothing a queued or running execution needs is ever deleted.
+    #[arg(long, env = "REACHGRASP_RETENTION_MAX_COUNT", default_value_t = DEFAULT_RETENTION_MAX_COUNT,
+          global = true)]
+    pub retention_max_count: u64,
+
+    /// Retention: delete plans, trajectories and finished executions older than this many
+    /// hours (as for the count); 0 (default) keeps them whatever their age.
+    #[arg(
+        long,
+        env = "REACHGRASP_RETENTION_MAX_AGE_HOURS",
+        default_value_t = 0,
+        global = true
+    )]
+    pub retention_max_age_hours: u64,
+
+    /// Seconds between two maintenance runs: the retention sweep, then a WAL checkpoint
+    /// (`PRAGMA wal_checkpoint(TRUNCATE)`).
+    #[arg(long, env = "REACHGRASP_MAINTENANCE_INTERVAL", default_value_t = DEFAULT_MAINTENANCE_INTERVAL_SECS,
+          value_parser = clap::value_parser!(u64).range(1..), global = true)]
+    pub maintenance_interval_secs: u64,
+
+    /// Largest size of the database file in bytes (`PRAGMA max_page_count`); a write beyond it
+    /// is refused with 507 and changes nothing, as on a full disk. Default: no cap.
+    #[arg(long, env = "REACHGRASP_DB_MAX_BYTES", global = true)]
+    pub db_max_bytes: Option<u64>,
 
     /// Jobs running at once; further jobs wait queued. Default: the number of CPUs.
     #[arg(long, env = "REACHGRASP_JOB_CONCURRENCY", global = true,
@@ -114,7 +156,12 @@ impl Default for Config {
             log: DEFAULT_LOG.to_owned(),
             log_json: false,
             body_limit: DEFAULT_BODY_LIMIT,
+            body_idle_timeout_ms: DEFAULT_BODY_IDLE_TIMEOUT_MS,
             request_timeout_secs: DEFAULT_REQUEST_TIMEOUT_SECS,
+            retention_max_count: DEFAULT_RETENTION_MAX_COUNT,
+            retention_max_age_hours: 0,
+            maintenance_interval_secs: DEFAULT_MAINTENANCE_INTERVAL_SECS,
+            db_max_bytes: None,
             job_concurrency: None,
             shutdown_grace_secs: DEFAULT_SHUTDOWN_GRACE_SECS,
             bridge_token: None,
@@ -129,6 +176,24 @@ impl Default for Config {
 impl Config {
     pub fn request_timeout(&self) -> Duration {
         Duration::from_secs(self.request_timeout_secs)
+    }
+
+    /// The retention policy of the periodic maintenance.
+    pub fn retention(&self) -> crate::store::retention::Policy {
+        crate::store::retention::Policy {
+            max_age: (self.retention_max_age_hours > 0)
+                .then(|| Duration::from_secs(self.retention_max_age_hours.saturating_mul(3600))),
+            max_count: (self.retention_max_count > 0).then_some(self.retention_max_count),
+        }
+    }
+
+    pub fn maintenance_interval(&self) -> Duration {
+        Duration::from_secs(self.maintenance_interval_secs)
+    }
+
+    /// How long a request body may stall between chunks (see `body_idle_timeout_ms`).
+    pub fn body_idle_timeout(&self) -> Duration {
+        Duration::from_millis(self.body_idle_timeout_ms)
     }
 
     /// The bridge hub's settings; `token` is the resolved token (configured or generated).
@@ -183,12 +248,16 @@ mod tests {
             "3",
             "--body-limit",
             "1024",
+            "--body-idle-timeout-ms",
+            "250",
         ])
         .unwrap();
         assert_eq!(c.bind.port(), 9000);
         assert_eq!(c.db, PathBuf::from("/tmp/x.db"));
         assert_eq!(c.job_concurrency(), 3);
         assert_eq!(c.body_limit, 1024);
+        assert_eq!(c.body_idle_timeout(), Duration::from_millis(250));
+        assert!(parse(&["--body-idle-timeout-ms", "0"]).is_err());
         assert!(parse(&["--bind", "not-an-address"]).is_err());
         assert!(parse(&["--job-concurrency", "0"]).is_err());
         assert!(parse(&["--request-timeout-secs", "0"]).is_err());

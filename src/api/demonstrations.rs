@@ -200,7 +200,9 @@ pub struct ListQuery {
 /// A pose: position (m) and orientation quaternion `[w, x, y, z]`.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct PoseDto {
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: [f64; 4],
 }
 
@@ -219,7 +221,9 @@ impl PoseDto {
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct FrameDto {
     pub t: f64,
+    #[schema(min_items = 3, max_items = 3)]
     pub shoulder: [f64; 3],
+    #[schema(min_items = 3, max_items = 3)]
     pub elbow: [f64; 3],
     pub wrist: PoseDto,
     /// Thumb, index, middle, ring, little: tip position and distal-phalanx frame
@@ -257,7 +261,10 @@ pub struct DeleteQuery {
 
 /// Synthetic study request; every field is optional (the defaults reproduce the paper's design:
 /// 5 subjects × 5 positions × 10 trials, objects counterbalanced over positions).
-#[derive(Debug, Deserialize, ToSchema)]
+///
+/// Read as the [`StudyConfig`] itself (see the `Deserialize` impl below): a flattened field
+/// would lose the path of a bad value (`{"subjects": "five"}` was reported at `$`).
+#[derive(Debug, ToSchema)]
 pub struct SyntheticRequest {
     /// `{seed: 1, subjects: 5, positions: 5, trials: 10, objects: ["ball", "bottle",
     /// "kitchen_timer", "pencil", "sunglasses"], full_factorial: false, noise: true,
@@ -265,6 +272,12 @@ pub struct SyntheticRequest {
     #[serde(flatten)]
     #[schema(value_type = Object)]
     pub config: StudyConfig,
+}
+
+impl<'de> Deserialize<'de> for SyntheticRequest {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        StudyConfig::deserialize(d).map(|config| SyntheticRequest { config })
+    }
 }
 
 fn row_not_found(id: &str) -> ApiError {

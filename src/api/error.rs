@@ -67,12 +67,14 @@ pub struct Problem {
 /// | `method-not-allowed` | 405 | the route exists, the method does not |
 /// | `conflict` | 409 | the request conflicts with the resource's state |
 /// | `unauthorized` | 401 | missing or wrong credentials (bridge workers' token) |
-/// | `payload-too-large` | 413 | body above the configured limit |
+/// | `payload-too-large` | 413 | body above the configured limit (a declared `Content-Length` is checked before reading) |
+/// | `body-timeout` | 408 | the request body stalled longer than the configured idle time |
 /// | `unsupported-media-type` | 415 | body is not `application/json` |
 /// | `validation` | 422 | well-formed JSON with bad values (see `errors`) |
 /// | `unavailable` | 503 | dependency down, shutting down |
 /// | `not-ready` | 503 | a job (see `job_id`) is still preparing what the request needs |
 /// | `timeout` | 503 | the request took longer than the configured timeout |
+/// | `insufficient-storage` | 507 | the database is full (disk or `REACHGRASP_DB_MAX_BYTES`); nothing was stored |
 /// | `internal` | 500 | a bug; logged, never detailed to the client |
 #[derive(Debug)]
 pub struct ApiError {
@@ -205,6 +207,20 @@ impl ApiError {
         )
     }
 
+    /// 408: the client stopped sending its request body for longer than `idle`.
+    pub fn body_timeout(idle: std::time::Duration) -> Self {
+        ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "body-timeout",
+            "Request body timed out",
+            format!(
+                "no part of the request body arrived for {} ms (REACHGRASP_BODY_IDLE_TIMEOUT_MS); \
+                 send the whole body promptly",
+                idle.as_millis()
+            ),
+        )
+    }
+
     /// 415.
     pub fn unsupported_media_type(detail: impl Into<Cow<'static, str>>) -> Self {
         ApiError::new(
@@ -258,15 +274,37 @@ impl ApiError {
         )
     }
 
-    /// 500: logs `cause` in full; the client sees only that an internal error happened.
+    /// 507: the database (its disk, or its configured size cap) is full; nothing was stored.
+    pub fn insufficient_storage() -> Self {
+        ApiError::new(
+            StatusCode::INSUFFICIENT_STORAGE,
+            "insufficient-storage",
+            "Insufficient storage",
+            "the database is full (its disk, or REACHGRASP_DB_MAX_BYTES): nothing was stored \
+             and nothing stored was changed; free space, delete plans or trajectories \
+             (DELETE /v1/plans/{id}, DELETE /v1/trajectories/{id}) or lower the retention, \
+             then retry",
+        )
+    }
+
+    /// 500: logs `cause` in full; the client sees only that an internal error happened. A
+    /// cause that is a full database (SQLITE_FULL, anywhere in its chain) is a 507 instead.
     pub fn internal(cause: impl Into<anyhow::Error>) -> Self {
+        let cause = cause.into();
+        if cause.chain().any(|e| {
+            e.downcast_ref::<sqlx::Error>()
+                .is_some_and(crate::store::is_disk_full)
+        }) {
+            tracing::warn!(error = %cause, "the database is full");
+            return ApiError::insufficient_storage();
+        }
         let mut e = ApiError::new(
             StatusCode::INTERNAL_SERVER_ERROR,
             "internal",
             "Internal error",
             "internal error; see the server logs (x-request-id header names the request)",
         );
-        e.source = Some(cause.into());
+        e.source = Some(cause);
         e
     }
 

@@ -188,7 +188,7 @@ async fn get_mapping(
             format!("must be between 1 and {MAX_DEMO_PAGE}, got {limit}"),
         ));
     }
-    let offset = q.offset.unwrap_or(0);
+    let offset = super::page::check_offset(q.offset.unwrap_or(0))?;
     let id = id.to_string();
     let row = repo::get_mapping(&state.db, &id)
         .await?

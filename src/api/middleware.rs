@@ -1,6 +1,12 @@
-//! Cross-cutting HTTP layers: request timeout and the problem+json safety net.
+//! Cross-cutting HTTP layers: request timeout, request-body limits and the problem+json
+//! safety net.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
+
+use axum::body::Bytes;
+use futures::{Stream, StreamExt};
 
 use axum::body::Body;
 use axum::extract::{Request, State};
@@ -18,6 +24,96 @@ pub async fn timeout(State(limit): State<Duration>, req: Request, next: Next) ->
         Ok(res) => res,
         Err(_) => ApiError::timeout(limit.as_secs()).into_response(),
     }
+}
+
+/// The request-body limits, separate from the request timeout.
+#[derive(Debug, Clone, Copy)]
+pub struct BodyLimits {
+    /// Largest accepted body in bytes.
+    pub max_bytes: usize,
+    /// Longest pause between two chunks of a body (and before its first one).
+    pub idle: Duration,
+}
+
+/// The error a stalled body yields to whatever reads it.
+#[derive(Debug, thiserror::Error)]
+#[error("the request body stalled for {0:?}")]
+struct BodyStalled(Duration);
+
+/// Enforces [`BodyLimits`] before and while a handler reads the body:
+///
+/// - a declared `Content-Length` above the limit is answered `413` at once, without reading
+///   a byte of the body (the connection is closed after the answer);
+/// - a body that stops arriving for longer than the idle time makes the read fail, and the
+///   request is answered `408` (whatever the handler made of the failed read), with the
+///   connection closed. A stall is never a 5xx and never waits for the request timeout.
+///
+/// Chunked bodies without a declared length are still cut at the limit by axum's
+/// `DefaultBodyLimit` (413 from the extractor).
+pub async fn body_limits(State(limits): State<BodyLimits>, req: Request, next: Next) -> Response {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.trim().parse::<u64>().ok());
+    if let Some(n) = declared
+        && n > limits.max_bytes as u64
+    {
+        return close_after(
+            ApiError::payload_too_large(format!(
+                "the declared body of {n} bytes exceeds the limit of {} bytes \
+                 (REACHGRASP_BODY_LIMIT)",
+                limits.max_bytes
+            ))
+            .into_response(),
+        );
+    }
+    let has_body =
+        declared.is_some_and(|n| n > 0) || req.headers().contains_key(header::TRANSFER_ENCODING);
+    if !has_body {
+        return next.run(req).await;
+    }
+    let stalled = Arc::new(AtomicBool::new(false));
+    let (parts, body) = req.into_parts();
+    let body = Body::from_stream(idle_guarded(body, limits.idle, stalled.clone()));
+    let res = next.run(Request::from_parts(parts, body)).await;
+    if stalled.load(Ordering::SeqCst) {
+        return close_after(ApiError::body_timeout(limits.idle).into_response());
+    }
+    res
+}
+
+/// Marks `res` as the last answer on its connection (the rest of the body is never read).
+fn close_after(mut res: Response) -> Response {
+    res.headers_mut().insert(
+        header::CONNECTION,
+        axum::http::HeaderValue::from_static("close"),
+    );
+    res
+}
+
+/// The chunks of `body`, failing (and setting `stalled`) when the next one takes longer
+/// than `idle` to arrive.
+fn idle_guarded(
+    body: Body,
+    idle: Duration,
+    stalled: Arc<AtomicBool>,
+) -> impl Stream<Item = Result<Bytes, axum::BoxError>> + Send + 'static {
+    futures::stream::unfold(Some(body.into_data_stream()), move |state| {
+        let stalled = stalled.clone();
+        async move {
+            let mut chunks = state?;
+            match tokio::time::timeout(idle, chunks.next()).await {
+                Ok(Some(Ok(bytes))) => Some((Ok(bytes), Some(chunks))),
+                Ok(Some(Err(e))) => Some((Err(e.into()), None)),
+                Ok(None) => None,
+                Err(_) => {
+                    stalled.store(true, Ordering::SeqCst);
+                    Some((Err(BodyStalled(idle).into()), None))
+                }
+            }
+        }
+    })
 }
 
 /// Rewrites any error response that is not already problem+json (axum's own 404/405/413

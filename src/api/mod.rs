@@ -63,6 +63,7 @@
 //!    `tests/api/main.rs`) using `helpers::spawn_app()`.
 
 pub mod bridges;
+pub mod contract;
 pub mod demonstrations;
 pub mod error;
 pub mod executions;
@@ -178,15 +179,16 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
 pub fn openapi() -> utoipa::openapi::OpenApi {
-    openapi_router().split_for_parts().1
+    contract::complete(openapi_router().split_for_parts().1)
 }
 
 /// The complete application: documented routes, `/openapi.json`, Swagger UI at `/docs`, the
 /// `pages` of another edge (the dashboard; the caller composes them so that this layer does not
 /// import its sibling), problem+json fallbacks, and the request layers (request id, tracing,
-/// panic catching, timeout, body limit, problem+json safety net).
+/// panic catching, timeout, body size and idle limits, problem+json safety net).
 pub fn router(state: AppState, pages: Router<AppState>) -> Router {
     let (mut router, api) = openapi_router().split_for_parts();
+    let api = contract::complete(api);
     router = router.merge(SwaggerUi::new("/docs").url("/openapi.json", api));
     router = router.merge(pages);
     if state.config.test_jobs {
@@ -217,6 +219,13 @@ pub fn router(state: AppState, pages: Router<AppState>) -> Router {
         .layer(axum::middleware::from_fn_with_state(
             state.config.request_timeout(),
             middleware::timeout,
+        ))
+        .layer(axum::middleware::from_fn_with_state(
+            middleware::BodyLimits {
+                max_bytes: state.config.body_limit,
+                idle: state.config.body_idle_timeout(),
+            },
+            middleware::body_limits,
         ))
         .layer(DefaultBodyLimit::max(state.config.body_limit))
         .layer(axum::middleware::map_response(

@@ -37,7 +37,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(get_params))
         .routes(routes!(control))
         .routes(routes!(list_trajectories, create_trajectory))
-        .routes(routes!(get_trajectory))
+        .routes(routes!(get_trajectory, delete_trajectory))
 }
 
 /// A model: its training request, status (the job's) and, once trained, its report.
@@ -297,6 +297,21 @@ async fn get_trajectory(
 ) -> Result<Json<TrajectoryDto>, ApiError> {
     let t = service::trajectories::get(&state, &id).await?;
     Ok(Json(trajectory_dto(t)?))
+}
+
+/// Delete a trajectory. Refused (409) while a plan owns it (delete the plan) or an execution
+/// of it is queued or running; finished executions keep their own copy of the points.
+#[utoipa::path(delete, path = "/v1/trajectories/{id}", tag = "trajectories",
+    params(("id" = String, Path, description = "Trajectory id")),
+    responses((status = 204, description = "Deleted"),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json"),
+              (status = 409, description = "Owned by a plan or used by an unfinished execution", body = Problem, content_type = "application/problem+json")))]
+async fn delete_trajectory(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    service::storage::delete_trajectory(&state, &id).await?;
+    Ok(StatusCode::NO_CONTENT)
 }
 
 /// List stored trajectories, newest first (without points).

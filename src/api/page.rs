@@ -21,6 +21,19 @@ use super::{ApiError, Query};
 pub const MAX_PAGE: u32 = 500;
 /// Page size when the client names none.
 pub const DEFAULT_PAGE: u32 = 50;
+/// Largest `offset` accepted (the documented `int32` range; larger is a 400).
+pub const MAX_OFFSET: u32 = i32::MAX as u32;
+
+/// Refuses an `offset` above [`MAX_OFFSET`] (400 naming it).
+pub fn check_offset(offset: u32) -> Result<u32, ApiError> {
+    if offset > MAX_OFFSET {
+        return Err(ApiError::invalid_parameter(
+            "offset",
+            format!("must be between 0 and {MAX_OFFSET}, got {offset}"),
+        ));
+    }
+    Ok(offset)
+}
 
 /// Which page a client asked for, checked.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -68,7 +81,7 @@ where
                 format!("must be between 1 and {MAX_PAGE}, got {limit}"),
             ));
         }
-        let offset = raw.offset.unwrap_or(0);
+        let offset = check_offset(raw.offset.unwrap_or(0))?;
         Ok(Listing(q, PageRequest { limit, offset }))
     }
 }

@@ -29,7 +29,7 @@ use crate::store::plans as repo;
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(create_plan, list_plans))
-        .routes(routes!(get_plan))
+        .routes(routes!(get_plan, delete_plan))
 }
 
 /// A stored plan with its grasp and trajectory.
@@ -144,6 +144,21 @@ async fn get_plan(
         reason,
         timings,
     })?))
+}
+
+/// Delete a plan with what it owns: its grasp, its trajectory and its execution (with the
+/// execution's feedback). Refused (409) while the execution is queued or running.
+#[utoipa::path(delete, path = "/v1/plans/{id}", tag = "plans",
+    params(("id" = String, Path, description = "Plan id")),
+    responses((status = 204, description = "Deleted, with its grasp, trajectory and execution"),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json"),
+              (status = 409, description = "Its execution is queued or running", body = Problem, content_type = "application/problem+json")))]
+async fn delete_plan(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    service::storage::delete_plan(&state, &id).await?;
+    Ok(StatusCode::NO_CONTENT)
 }
 
 /// List plans, newest first.

@@ -80,6 +80,7 @@ pub struct JointDto {
     pub kind: String,
     pub parent: String,
     pub child: String,
+    #[schema(min_items = 3, max_items = 3)]
     pub axis: Option<[f64; 3]>,
     pub lower: Option<f64>,
     pub upper: Option<f64>,

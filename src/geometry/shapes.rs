@@ -34,6 +34,7 @@ pub enum ShapeSpec {
     /// A box centred on the origin.
     Box {
         /// Full edge lengths along x, y, z.
+        #[schema(min_items = 3, max_items = 3)]
         size: [f64; 3],
     },
     /// A capsule along local `z`: a cylinder of `length` with hemispherical caps.
@@ -56,6 +57,7 @@ pub enum ShapeSpec {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SupportPlane {
     /// Unit normal pointing to the free half-space.
+    #[schema(min_items = 3, max_items = 3)]
     pub normal: [f64; 3],
     /// Plane offset along the normal.
     pub offset: f64,

@@ -9,7 +9,9 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use super::{Context, Error, Invalid};
-use crate::grasp::objects::{ObjectSpec, ShapeSpec, SupportPlane, parse_obj, parse_stl};
+use crate::grasp::objects::{
+    MAX_OBJECT_EXTENT, ObjectSpec, ShapeSpec, SupportPlane, parse_obj, parse_stl,
+};
 use crate::grasp::{
     Goal, GoalRegion, GraspError, GraspRequest, GraspResult, HandArm, Object, QualityMeasure,
     TaskDirection, Transmission, Weights, plan_grasp,
@@ -43,8 +45,10 @@ pub struct ObjectIn {
     pub shape: Option<ShapeSpec>,
     pub mesh: Option<MeshIn>,
     /// Centroid position (m, robot base frame).
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
     /// Orientation quaternion `[w, x, y, z]` (default identity).
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: Option<[f64; 4]>,
     /// Support plane the object rests on (optional).
     pub support: Option<SupportPlane>,
@@ -53,6 +57,7 @@ pub struct ObjectIn {
 /// A task direction (world frame; normalised by the service).
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct TaskDirectionIn {
+    #[schema(min_items = 3, max_items = 3)]
     pub direction: [f64; 3],
     pub kind: Transmission,
     pub goal: Goal,
@@ -80,6 +85,7 @@ pub struct GraspIn {
     /// Seed of the start perturbations (default 0).
     pub seed: Option<u64>,
     /// Human elbow reference for the anthropomorphism term D (m, world).
+    #[schema(min_items = 3, max_items = 3)]
     pub elbow_reference: Option<[f64; 3]>,
 }
 
@@ -114,6 +120,7 @@ pub struct GraspSettings {
     pub weights: Weights,
     pub starts: usize,
     pub seed: u64,
+    #[schema(min_items = 3, max_items = 3)]
     pub elbow_reference: Option<[f64; 3]>,
 }
 
@@ -136,6 +143,108 @@ fn grasp_error(prefix: &str, e: GraspError) -> Error {
         GraspError::InvalidParameter { field, .. } => format!("$.{field}"),
     };
     Error::invalid(path, e.to_string())
+}
+
+/// The request field a mesh problem's `reason` is about, below the mesh: the triangle or vertex
+/// it names (`triangles[3]`, `vertices[7]`), else the triangle list as a whole.
+fn mesh_item(reason: &str) -> String {
+    let index_after = |word: &str| {
+        reason.match_indices(word).find_map(|(i, _)| {
+            let digits: String = reason[i + word.len()..]
+                .chars()
+                .take_while(char::is_ascii_digit)
+                .collect();
+            digits.parse::<usize>().ok()
+        })
+    };
+    if let Some(t) = index_after("triangle ") {
+        format!("triangles[{t}]")
+    } else if let Some(v) = index_after("vertex ") {
+        format!("vertices[{v}]")
+    } else {
+        "triangles".to_owned()
+    }
+}
+
+/// An object's validation error at the field of the request it is about. `explicit_shape`:
+/// the geometry came in `shape` (a primitive or an explicit mesh), not as an uploaded `mesh`
+/// file; mesh problems then name the triangle or vertex in `shape`, while an uploaded file's
+/// are about `mesh` (the file, whose text the message cites).
+fn object_error(prefix: &str, explicit_shape: bool, e: GraspError) -> Error {
+    match &e {
+        GraspError::MalformedMesh { .. }
+        | GraspError::NonManifoldMesh { .. }
+        | GraspError::MeshTooLarge { .. }
+            if !explicit_shape =>
+        {
+            Error::invalid(format!("{prefix}.mesh"), e.to_string())
+        }
+        GraspError::MalformedMesh { reason } | GraspError::NonManifoldMesh { reason } => {
+            Error::invalid(
+                format!("{prefix}.shape.{}", mesh_item(reason)),
+                e.to_string(),
+            )
+        }
+        GraspError::MeshTooLarge { .. } => {
+            Error::invalid(format!("{prefix}.shape.triangles"), e.to_string())
+        }
+        // The whole object's size (`Object::new`'s extent check), not one length.
+        GraspError::InvalidDimension { field, value } if field == "shape" => Error::invalid(
+            format!("{prefix}.shape"),
+            format!(
+                "out of range: the object is {value} m across (bounding-box diagonal); \
+                 the largest accepted is {MAX_OBJECT_EXTENT} m"
+            ),
+        ),
+        _ => grasp_error(prefix, e),
+    }
+}
+
+/// Refuses, at its own field, a single length or coordinate that alone makes the object larger
+/// than any accepted object (e.g. a radius of 1e308, which `Object::new` would only see as an
+/// infinite extent of the whole shape).
+fn check_shape_ranges(prefix: &str, shape: &ShapeSpec) -> Result<(), Error> {
+    // (field, value, extent the value alone gives the object)
+    let mut lengths: Vec<(String, f64, f64)> = Vec::new();
+    match shape {
+        ShapeSpec::Sphere { radius } => lengths.push(("radius".into(), *radius, 2.0 * radius)),
+        ShapeSpec::Cylinder { radius, height } => {
+            lengths.push(("radius".into(), *radius, 2.0 * radius));
+            lengths.push(("height".into(), *height, *height));
+        }
+        ShapeSpec::Box { size } => {
+            for (i, s) in size.iter().enumerate() {
+                lengths.push((format!("size[{i}]"), *s, *s));
+            }
+        }
+        ShapeSpec::Capsule { radius, length } => {
+            lengths.push(("radius".into(), *radius, 2.0 * radius));
+            lengths.push(("length".into(), *length, *length));
+        }
+        ShapeSpec::Mesh { vertices, .. } => {
+            // Coordinates this large overflow the mesh checks' products; no object has them.
+            for (i, v) in vertices.iter().enumerate() {
+                if let Some(x) = v.iter().find(|x| x.abs() > 1e6) {
+                    return Err(Error::invalid(
+                        format!("{prefix}.shape.vertices[{i}]"),
+                        format!("out of range: coordinate {x} m (at most 1e6 m in magnitude)"),
+                    ));
+                }
+            }
+        }
+    }
+    for (name, value, extent) in lengths {
+        if value > 0.0 && extent > MAX_OBJECT_EXTENT {
+            return Err(Error::invalid(
+                format!("{prefix}.shape.{name}"),
+                format!(
+                    "out of range: {value} m makes the object larger than the largest accepted \
+                     ({MAX_OBJECT_EXTENT} m across)"
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn parse_object(prefix: &str, o: &ObjectIn) -> Result<Object, Error> {
@@ -165,9 +274,9 @@ fn parse_object(prefix: &str, o: &ObjectIn) -> Result<Object, Error> {
                     let text = std::str::from_utf8(&bytes).map_err(|_| {
                         Error::invalid(format!("{prefix}.mesh.data"), "OBJ data is not UTF-8 text")
                     })?;
-                    parse_obj(text).map_err(|e| grasp_error(prefix, e))?
+                    parse_obj(text).map_err(|e| object_error(prefix, false, e))?
                 }
-                "stl" => parse_stl(&bytes).map_err(|e| grasp_error(prefix, e))?,
+                "stl" => parse_stl(&bytes).map_err(|e| object_error(prefix, false, e))?,
                 other => {
                     return Err(Error::invalid(
                         format!("{prefix}.mesh.format"),
@@ -183,6 +292,10 @@ fn parse_object(prefix: &str, o: &ObjectIn) -> Result<Object, Error> {
             ));
         }
     };
+    let explicit_shape = o.shape.is_some();
+    if explicit_shape {
+        check_shape_ranges(prefix, &shape)?;
+    }
     Object::new(ObjectSpec {
         name: o.name.clone(),
         shape,
@@ -190,7 +303,7 @@ fn parse_object(prefix: &str, o: &ObjectIn) -> Result<Object, Error> {
         orientation: o.orientation.unwrap_or([1.0, 0.0, 0.0, 0.0]),
         support: o.support,
     })
-    .map_err(|e| grasp_error(prefix, e))
+    .map_err(|e| object_error(prefix, explicit_shape, e))
 }
 
 /// Grasp views of the systems, by robot id, with the loaded system they were built from: a view
@@ -571,4 +684,71 @@ pub fn offline(robots: &std::path::Path, body: &GraspIn) -> Result<GraspResult, 
     };
     let sys = load_system(robots, &body.robot)?;
     plan_grasp(&sys, &make_request(object, &settings)).map_err(|e| grasp_error("$", e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn object(shape: serde_json::Value) -> ObjectIn {
+        serde_json::from_value(serde_json::json!({
+            "name": "thing", "shape": shape, "position": [0.5, 0.0, 0.1]
+        }))
+        .unwrap()
+    }
+
+    fn field_of(r: Result<Object, Error>) -> (String, String) {
+        match r {
+            Err(Error::Invalid(fields)) => (fields[0].field.clone(), fields[0].message.clone()),
+            other => panic!("expected a validation error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_huge_length_is_refused_at_its_own_field_as_out_of_range() {
+        let (path, message) = field_of(parse_object(
+            "$.object",
+            &object(serde_json::json!({"type": "sphere", "radius": 1e308})),
+        ));
+        assert_eq!(path, "$.object.shape.radius");
+        assert!(message.contains("out of range"), "{message}");
+        assert!(!message.contains("inf"), "{message}");
+        let (path, _) = field_of(parse_object(
+            "$",
+            &object(serde_json::json!({"type": "box", "size": [0.1, 3.0, 0.1]})),
+        ));
+        assert_eq!(path, "$.shape.size[1]");
+        // Each length fits, the whole does not: the shape is named.
+        let (path, message) = field_of(parse_object(
+            "$",
+            &object(serde_json::json!({"type": "box", "size": [1.5, 1.5, 1.5]})),
+        ));
+        assert_eq!(path, "$.shape");
+        assert!(message.contains("across"), "{message}");
+    }
+
+    #[test]
+    fn mesh_problems_name_the_triangle_in_the_request() {
+        let vertices = [
+            [0.0, 0.0, 0.0],
+            [0.1, 0.0, 0.0],
+            [0.0, 0.1, 0.0],
+            [0.0, 0.0, 0.1],
+        ];
+        // A closed tetrahedron whose triangle 2 points past the vertices.
+        let bad = serde_json::json!({"type": "mesh", "vertices": vertices,
+            "triangles": [[0, 2, 1], [0, 1, 3], [0, 3, 9], [1, 2, 3]]});
+        let (path, message) = field_of(parse_object("$", &object(bad)));
+        assert_eq!(path, "$.shape.triangles[2]", "{message}");
+        // The same edge twice in one direction (triangle 1 repeats triangle 0's edges).
+        let twice = serde_json::json!({"type": "mesh", "vertices": vertices,
+            "triangles": [[0, 2, 1], [0, 2, 1], [0, 3, 2], [1, 2, 3]]});
+        let (path, message) = field_of(parse_object("$.object", &object(twice)));
+        assert_eq!(path, "$.object.shape.triangles[1]", "{message}");
+        assert_eq!(
+            mesh_item("edge (1, 2) has no opposite edge: the mesh is not closed"),
+            "triangles"
+        );
+        assert_eq!(mesh_item("vertex 7 is not finite"), "vertices[7]");
+    }
 }

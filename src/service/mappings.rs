@@ -87,7 +87,9 @@ pub enum ScaleIn {
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TransformIn {
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: [f64; 4],
 }
 
@@ -102,12 +104,15 @@ pub struct TransformIn {
 pub struct RegistrationIn {
     pub scale: Option<ScaleIn>,
     /// Robot-frame position of the object's centre (every demonstration of the mapping), m.
+    #[schema(min_items = 3, max_items = 3)]
     pub placement: Option<[f64; 3]>,
     /// Scale of the fingertips relative to the wrist, > 0 (default 1: the subject's hand).
     pub hand_scale: Option<f64>,
     /// The subject's forward axis in the tracker frame (default `[1, 0, 0]`).
+    #[schema(min_items = 3, max_items = 3)]
     pub subject_forward: Option<[f64; 3]>,
     /// The subject's up axis in the tracker frame (default `[0, 0, 1]`).
+    #[schema(min_items = 3, max_items = 3)]
     pub subject_up: Option<[f64; 3]>,
     pub transform: Option<TransformIn>,
 }
@@ -316,10 +321,13 @@ pub struct FrameMetricsDto {
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct RegistrationDto {
     /// `R`, `[w, x, y, z]`.
+    #[schema(min_items = 4, max_items = 4)]
     pub rotation: [f64; 4],
     /// The human point the map is anchored at (the object's centre), tracker frame.
+    #[schema(min_items = 3, max_items = 3)]
     pub human_anchor: [f64; 3],
     /// Where it lands (the object's placement), robot base frame.
+    #[schema(min_items = 3, max_items = 3)]
     pub robot_anchor: [f64; 3],
     pub transport_scale: f64,
     pub vertical_scale: f64,

@@ -26,6 +26,7 @@ pub mod models;
 pub mod plans;
 pub mod robots;
 pub mod seed;
+pub mod storage;
 pub mod trajectories;
 
 use std::fmt;

@@ -30,11 +30,38 @@ pub const MAX_RATE: f64 = 1000.0;
 pub const MAX_DURATION: f64 = 60.0;
 
 /// `"auto"` or a number.
-#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, ToSchema)]
 #[serde(untagged)]
 pub enum AutoOr {
     Value(f64),
     Auto(String),
+}
+
+/// By hand rather than untagged, so that a wrong value says what is expected (`expected
+/// "auto" or a number`) instead of "did not match any variant of untagged enum AutoOr".
+impl<'de> Deserialize<'de> for AutoOr {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visit;
+        impl serde::de::Visitor<'_> for Visit {
+            type Value = AutoOr;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("\"auto\" or a number")
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<AutoOr, E> {
+                Ok(AutoOr::Value(v))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<AutoOr, E> {
+                Ok(AutoOr::Value(v as f64))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<AutoOr, E> {
+                Ok(AutoOr::Value(v as f64))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<AutoOr, E> {
+                Ok(AutoOr::Auto(v.to_owned()))
+            }
+        }
+        d.deserialize_any(Visit)
+    }
 }
 
 /// Closed-loop gains stored with the model (what `/params` hands to bridge workers).

@@ -23,7 +23,11 @@ use crate::store::plans::{self as plan_repo, NewPlan, PlanRow};
 use crate::store::trajectories::{self, StoredTrajectory, TrajectoryDraft};
 
 /// Where the trajectory starts.
-#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+///
+/// Deserialized by hand rather than as an untagged enum, so that a bad field inside the
+/// configuration is reported at its own path (`$.start.positions`: "invalid type: string
+/// \"zero\", expected a sequence") instead of "did not match any variant".
+#[derive(Debug, Clone, Serialize, ToSchema)]
 #[serde(untagged)]
 pub enum StartIn {
     /// A configuration: every independent joint of the robot once, any order.
@@ -33,8 +37,36 @@ pub enum StartIn {
     Current(String),
 }
 
+impl<'de> Deserialize<'de> for StartIn {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Start;
+        impl<'de> serde::de::Visitor<'de> for Start {
+            type Value = StartIn;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(
+                    "a configuration {\"joint_names\": [...], \"positions\": [...]} or \"current\"",
+                )
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<StartIn, E> {
+                Ok(StartIn::Current(v.to_owned()))
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<StartIn, A::Error> {
+                // The same map access: its keys stay on the error path.
+                JointValues::deserialize(serde::de::value::MapAccessDeserializer::new(map))
+                    .map(StartIn::Configuration)
+            }
+        }
+        d.deserialize_any(Start)
+    }
+}
+
 /// Object and task in, humanlike motion to a task-specific grasp out.
+///
+/// The wire form is flat (the grasp request's fields beside the plan's own); it is read
+/// through [`PlanWire`], a plain struct, because serde's `flatten` buffers the fields and
+/// loses their paths (`"robot": 123` was reported at `$`).
 #[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(from = "PlanWire")]
 pub struct PlanIn {
     /// Robot, object (`object_id` or inline `object`), task directions, quality measure and the
     /// grasp optimiser's settings: the body of `POST /v1/grasps`.
@@ -57,6 +89,56 @@ pub struct PlanIn {
     /// Worker to execute on (default: any idle worker of the robot); also the worker whose
     /// state `"current"` reads.
     pub worker: Option<String>,
+}
+
+/// The flat wire form of [`PlanIn`]: every field of [`GraspIn`] and the plan's own, so that
+/// each is deserialized (and reported) at its own path. `a_plan_reads_every_grasp_field` keeps
+/// it in step with [`GraspIn`].
+#[derive(Deserialize)]
+struct PlanWire {
+    robot: String,
+    object_id: Option<String>,
+    object: Option<super::grasps::ObjectIn>,
+    #[serde(default)]
+    task_directions: Vec<super::grasps::TaskDirectionIn>,
+    quality: Option<crate::grasp::QualityMeasure>,
+    weights: Option<crate::grasp::Weights>,
+    starts: Option<usize>,
+    seed: Option<u64>,
+    elbow_reference: Option<[f64; 3]>,
+    start: StartIn,
+    model: Option<String>,
+    duration: Option<AutoOr>,
+    rate: Option<f64>,
+    #[serde(default)]
+    execute: bool,
+    mode: Option<Mode>,
+    worker: Option<String>,
+}
+
+impl From<PlanWire> for PlanIn {
+    fn from(w: PlanWire) -> Self {
+        PlanIn {
+            grasp: GraspIn {
+                robot: w.robot,
+                object_id: w.object_id,
+                object: w.object,
+                task_directions: w.task_directions,
+                quality: w.quality,
+                weights: w.weights,
+                starts: w.starts,
+                seed: w.seed,
+                elbow_reference: w.elbow_reference,
+            },
+            start: w.start,
+            model: w.model,
+            duration: w.duration,
+            rate: w.rate,
+            execute: w.execute,
+            mode: w.mode,
+            worker: w.worker,
+        }
+    }
 }
 
 /// How long each step took (s).
@@ -552,5 +634,53 @@ mod tests {
             .await
             .unwrap();
         assert_eq!(Some(source), stored.plan.trajectory_id);
+    }
+
+    /// The path serde_path_to_error reports for a bad plan body.
+    fn bad_path(body: &str) -> String {
+        let mut de = serde_json::Deserializer::from_str(body);
+        let err = serde_path_to_error::deserialize::<_, PlanIn>(&mut de).unwrap_err();
+        err.path().to_string()
+    }
+
+    #[test]
+    fn a_plan_reads_every_grasp_field() {
+        // Every property of the grasp request is a field of the plan's flat wire form: a
+        // value of the wrong type is refused at its own path, never ignored.
+        let schema = serde_json::to_value(<GraspIn as utoipa::PartialSchema>::schema()).unwrap();
+        let props = schema["properties"]
+            .as_object()
+            .expect("GraspIn has properties");
+        assert!(props.len() >= 9, "{schema}");
+        for name in props.keys() {
+            let robot = if name == "robot" {
+                ""
+            } else {
+                r#""robot": "r", "#
+            };
+            let body = format!(r#"{{{robot}"start": "current", "{name}": true}}"#);
+            assert_eq!(bad_path(&body), *name, "{body}");
+        }
+    }
+
+    #[test]
+    fn bad_plan_fields_are_reported_at_their_own_path() {
+        assert_eq!(bad_path(r#"{"robot": 123, "start": "current"}"#), "robot");
+        assert_eq!(
+            bad_path(r#"{"robot": "r", "start": {"joint_names": ["a"], "positions": "zero"}}"#),
+            "start.positions"
+        );
+        assert_eq!(bad_path(r#"{"robot": "r", "start": 5}"#), "start");
+        let ok: PlanIn = serde_json::from_str(
+            r#"{"robot": "r", "object_id": "ball", "start": {"joint_names": ["a"], "positions": [0.5]}, "execute": true}"#,
+        )
+        .unwrap();
+        assert_eq!(ok.grasp.robot, "r");
+        assert_eq!(ok.grasp.object_id.as_deref(), Some("ball"));
+        assert!(ok.execute);
+        assert!(matches!(ok.start, StartIn::Configuration(ref v) if v.positions == [0.5]));
+        let current: PlanIn =
+            serde_json::from_str(r#"{"robot": "r", "start": "current"}"#).unwrap();
+        assert!(matches!(current.start, StartIn::Current(ref s) if s == "current"));
     }
 }

@@ -236,8 +236,10 @@ pub struct FkRequest {
 pub struct FramePose {
     pub name: String,
     /// Metres, world (robot base) frame.
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
     /// `[w, x, y, z]`.
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: [f64; 4],
 }
 
@@ -253,6 +255,7 @@ pub struct JacobianRequest {
     pub positions: Vec<f64>,
     pub frame: String,
     /// Point rigidly attached to the frame, in frame coordinates (default the origin).
+    #[schema(min_items = 3, max_items = 3)]
     pub point: Option<[f64; 3]>,
 }
 
@@ -283,6 +286,7 @@ pub struct ManipulabilityRequest {
     pub joint_names: Vec<String>,
     pub positions: Vec<f64>,
     pub frame: String,
+    #[schema(min_items = 3, max_items = 3)]
     pub point: Option<[f64; 3]>,
     /// Rows of the Jacobian to analyse (default `linear`).
     pub task: Option<TaskRows>,
@@ -539,10 +543,13 @@ pub struct IkRequest {
     /// Frame to place (default: the wrist frame, where the hand mounts).
     pub frame: Option<String>,
     /// Point rigidly attached to the frame, in frame coordinates (default the origin).
+    #[schema(min_items = 3, max_items = 3)]
     pub point: Option<[f64; 3]>,
     /// Target position of the point, metres, world frame.
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
     /// Target orientation `[w, x, y, z]`; omit for a position-only target.
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: Option<[f64; 4]>,
     /// Start configuration (default: mid-range); joints not named keep mid-range values.
     pub seed: Option<SeedDto>,

@@ -16,6 +16,7 @@ pub mod mappings;
 pub mod models;
 pub mod payload;
 pub mod plans;
+pub mod retention;
 pub mod robots;
 pub mod trajectories;
 
@@ -52,6 +53,16 @@ pub enum StoreError {
 /// Opens (creating the file and its folder if missing) the SQLite database at `path` with WAL
 /// journalling, enforced foreign keys and a busy timeout, and applies the migrations.
 pub async fn connect(path: &Path) -> Result<SqlitePool, StoreError> {
+    connect_capped(path, None).await
+}
+
+/// SQLite's page size for new databases (the default); the unit of [`connect_capped`]'s cap.
+pub const PAGE_SIZE: u64 = 4096;
+
+/// [`connect`], with the database file limited to about `max_bytes` (`PRAGMA max_page_count`
+/// on every connection): a write that would grow it further fails with SQLITE_FULL, as on a
+/// full disk ([`is_disk_full`]), and changes nothing. Deleting rows frees pages for reuse.
+pub async fn connect_capped(path: &Path, max_bytes: Option<u64>) -> Result<SqlitePool, StoreError> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|source| StoreError::CreateDir {
             path: dir.display().to_string(),
@@ -76,6 +87,10 @@ pub async fn connect(path: &Path) -> Result<SqlitePool, StoreError> {
         // A checkpoint truncates the WAL back to this size instead of leaving it at its
         // high-water mark after a large write (64 MiB).
         .pragma("journal_size_limit", "67108864");
+    let options = match max_bytes {
+        Some(bytes) => options.pragma("max_page_count", bytes.div_ceil(PAGE_SIZE).to_string()),
+        None => options,
+    };
     let pool = SqlitePoolOptions::new()
         .max_connections(8)
         .connect_with(options)
@@ -123,6 +138,18 @@ pub fn now() -> String {
 /// True when `err` is a SQLite unique or primary-key violation (map it to 409 Conflict).
 pub fn is_unique_violation(err: &sqlx::Error) -> bool {
     matches!(err, sqlx::Error::Database(db) if db.is_unique_violation())
+}
+
+/// True when `err` is SQLITE_FULL: the disk (or the database's configured size cap) is full.
+/// The statement changed nothing; the transaction it was part of is rolled back.
+pub fn is_disk_full(err: &sqlx::Error) -> bool {
+    match err {
+        sqlx::Error::Database(db) => {
+            db.code().as_deref() == Some("13") || db.message().contains("database or disk is full")
+        }
+        sqlx::Error::Io(io) => io.raw_os_error() == Some(libc::ENOSPC),
+        _ => false,
+    }
 }
 
 /// True when `err` is a SQLite foreign-key violation (a referenced row is missing; map to 422/409).

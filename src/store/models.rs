@@ -391,7 +391,9 @@ mod tests {
         assert_eq!((rows.len(), total), (5, 5));
         assert!(rows.windows(2).all(|w| w[0].created_at >= w[1].created_at));
 
-        // trajectories: exact f64 round trip of the points
+        // trajectories: times and positions round-trip exactly; velocities and accelerations
+        // are stored as f32 rounded towards zero (issue 20), and a create returns what a read
+        // gives back
         let names = m1.joint_names.clone();
         let new = NewTrajectory {
             model_id: Some(&m1.id),
@@ -410,7 +412,17 @@ mod tests {
             .unwrap()
             .unwrap();
         assert_eq!(got, stored);
-        assert_eq!(got.points, a.points);
+        assert_eq!(got.points.len(), a.points.len());
+        for (g, p) in got.points.iter().zip(&a.points) {
+            assert_eq!((g.t, &g.positions), (p.t, &p.positions));
+            let stored = g.velocities.iter().chain(&g.accelerations);
+            for (x, y) in stored.zip(p.velocities.iter().chain(&p.accelerations)) {
+                assert!(
+                    x.abs() <= y.abs() && (x - y).abs() <= 1.2e-7 * y.abs(),
+                    "{x} vs {y}"
+                );
+            }
+        }
         assert!(
             trajectories::get_trajectory(&pool, "nope")
                 .await

@@ -1,6 +1,14 @@
-//! Stored trajectories (migration 0006): the timed points as one exact f64 BLOB
-//! (`[points, 1 + 3n]`: t, positions, velocities, accelerations), start and goal as BLOBs, the
-//! request and a JSON summary (convergence, errors, certificates, timing, Cartesian paths).
+//! Stored trajectories (migrations 0006, 0011): the times and positions as an exact f64 BLOB
+//! (`points`, `[points, 1 + n]`), velocities and accelerations as an f32 BLOB (`derivatives`,
+//! `[points, 2n]`, rounded towards zero), start and goal as BLOBs, the request and a JSON
+//! summary (convergence, errors, certificates, timing, Cartesian paths, whose interior
+//! positions are kept to the micrometre).
+//!
+//! Compaction (issue 20) and its loss: joint positions and times are exact (max abs joint
+//! error 0), so are start, goal and every path's first and last position; a velocity or
+//! acceleration changes by at most one f32 step (relative 2^-23 ≈ 1.2e-7) and never grows in
+//! magnitude; an interior Cartesian path position moves by at most 0.5 µm. Rows written before
+//! 0011 (`derivatives` NULL, points `[points, 1 + 3n]` f64) read as they were stored.
 
 use sqlx::SqlitePool;
 use uuid::Uuid;
@@ -83,6 +91,7 @@ struct Row {
     start: Vec<u8>,
     goal: Vec<u8>,
     points: Vec<u8>,
+    derivatives: Option<Vec<u8>>,
     duration: f64,
     request: String,
     summary: String,
@@ -108,7 +117,19 @@ fn shape_error(what: &str) -> sqlx::Error {
     sqlx::Error::Decode(format!("stored trajectory: {what} has the wrong shape").into())
 }
 
-fn encode_points(points: &[TrajectoryPoint], n: usize) -> Result<Vec<u8>, sqlx::Error> {
+/// `v` as the nearest f32 no larger in magnitude (a derivative never grows past a limit).
+pub fn f32_towards_zero(v: f64) -> f32 {
+    let f = v as f32;
+    if f.is_finite() && f64::from(f).abs() > v.abs() && f != 0.0 {
+        // One step towards zero: the neighbour on the zero side.
+        f32::from_bits(f.to_bits() - 1)
+    } else {
+        f
+    }
+}
+
+/// The exact f64 layout of every trajectory before migration 0011: `[points, 1 + 3n]`.
+pub fn encode_points_exact(points: &[TrajectoryPoint], n: usize) -> Result<Vec<u8>, sqlx::Error> {
     let width = 1 + 3 * n;
     let mut data = Vec::with_capacity(points.len() * width);
     for p in points {
@@ -123,21 +144,123 @@ fn encode_points(points: &[TrajectoryPoint], n: usize) -> Result<Vec<u8>, sqlx::
     blob::encode(&[points.len(), width], &data).map_err(decode_error)
 }
 
-fn decode_points(bytes: &[u8], n: usize) -> Result<Vec<TrajectoryPoint>, sqlx::Error> {
+/// The compact layout: (`points` f64 `[points, 1 + n]`, `derivatives` f32 `[points, 2n]`).
+pub fn encode_points_compact(
+    points: &[TrajectoryPoint],
+    n: usize,
+) -> Result<(Vec<u8>, Vec<u8>), sqlx::Error> {
+    let mut exact = Vec::with_capacity(points.len() * (1 + n));
+    let mut derivatives = Vec::with_capacity(points.len() * 2 * n);
+    for p in points {
+        if p.positions.len() != n || p.velocities.len() != n || p.accelerations.len() != n {
+            return Err(shape_error("a point"));
+        }
+        exact.push(p.t);
+        exact.extend_from_slice(&p.positions);
+        derivatives.extend(p.velocities.iter().map(|v| f32_towards_zero(*v)));
+        derivatives.extend(p.accelerations.iter().map(|v| f32_towards_zero(*v)));
+    }
+    Ok((
+        blob::encode(&[points.len(), 1 + n], &exact).map_err(decode_error)?,
+        blob::encode(&[points.len(), 2 * n], &derivatives).map_err(decode_error)?,
+    ))
+}
+
+fn decode_points(
+    bytes: &[u8],
+    derivatives: Option<&[u8]>,
+    n: usize,
+) -> Result<Vec<TrajectoryPoint>, sqlx::Error> {
     let a = blob::decode::<f64>(bytes).map_err(decode_error)?;
-    let width = 1 + 3 * n;
-    if a.shape.len() != 2 || a.shape[1] != width {
+    let Some(derivatives) = derivatives else {
+        // Written before 0011: everything exact in one blob.
+        let width = 1 + 3 * n;
+        if a.shape.len() != 2 || a.shape[1] != width {
+            return Err(shape_error("points"));
+        }
+        return Ok(a
+            .data
+            .chunks_exact(width)
+            .map(|r| TrajectoryPoint {
+                t: r[0],
+                positions: r[1..1 + n].to_vec(),
+                velocities: r[1 + n..1 + 2 * n].to_vec(),
+                accelerations: r[1 + 2 * n..].to_vec(),
+            })
+            .collect());
+    };
+    let d = blob::decode::<f32>(derivatives).map_err(decode_error)?;
+    if a.shape.len() != 2 || a.shape[1] != 1 + n || d.shape != [a.shape[0], 2 * n] {
         return Err(shape_error("points"));
     }
-    Ok(a.data
-        .chunks_exact(width)
-        .map(|r| TrajectoryPoint {
-            t: r[0],
-            positions: r[1..1 + n].to_vec(),
-            velocities: r[1 + n..1 + 2 * n].to_vec(),
-            accelerations: r[1 + 2 * n..].to_vec(),
+    let widen = |r: &[f32]| r.iter().map(|x| f64::from(*x)).collect::<Vec<f64>>();
+    Ok((0..a.shape[0])
+        .map(|i| {
+            let r = &a.data[i * (1 + n)..(i + 1) * (1 + n)];
+            let dr = &d.data[i * 2 * n..(i + 1) * 2 * n];
+            TrajectoryPoint {
+                t: r[0],
+                positions: r[1..].to_vec(),
+                velocities: widen(&dr[..n]),
+                accelerations: widen(&dr[n..]),
+            }
         })
         .collect())
+}
+
+/// The points as [`decode_points`] will read them back from the compact layout.
+fn as_stored(points: &[TrajectoryPoint]) -> Vec<TrajectoryPoint> {
+    let narrow = |v: &[f64]| {
+        v.iter()
+            .map(|x| f64::from(f32_towards_zero(*x)))
+            .collect::<Vec<f64>>()
+    };
+    points
+        .iter()
+        .map(|p| TrajectoryPoint {
+            t: p.t,
+            positions: p.positions.clone(),
+            velocities: narrow(&p.velocities),
+            accelerations: narrow(&p.accelerations),
+        })
+        .collect()
+}
+
+/// The summary with every Cartesian path position but each path's first and last rounded to
+/// the micrometre (a shorter number in the JSON text); anything else unchanged. Text that is
+/// not a JSON object is kept as it is.
+pub fn compact_summary(summary: &str) -> String {
+    let Ok(mut v) = serde_json::from_str::<serde_json::Value>(summary) else {
+        return summary.to_owned();
+    };
+    let mut changed = false;
+    for key in ["fingertip_paths", "elbow_paths"] {
+        let Some(paths) = v.get_mut(key).and_then(|p| p.as_array_mut()) else {
+            continue;
+        };
+        for path in paths {
+            let Some(rows) = path.get_mut("positions").and_then(|p| p.as_array_mut()) else {
+                continue;
+            };
+            let last = rows.len().saturating_sub(1);
+            for row in rows.iter_mut().take(last).skip(1) {
+                for x in row.as_array_mut().into_iter().flatten() {
+                    if let Some(f) = x.as_f64() {
+                        let r = (f * 1e6).round() / 1e6;
+                        if let Some(num) = serde_json::Number::from_f64(r) {
+                            *x = serde_json::Value::Number(num);
+                            changed = true;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    if changed {
+        serde_json::to_string(&v).unwrap_or_else(|_| summary.to_owned())
+    } else {
+        summary.to_owned()
+    }
 }
 
 fn decode_vector(bytes: &[u8], n: usize, what: &str) -> Result<Vec<f64>, sqlx::Error> {
@@ -155,7 +278,7 @@ impl TryFrom<Row> for StoredTrajectory {
             serde_json::from_str(&r.joint_names).map_err(decode_error)?;
         let n = joint_names.len();
         Ok(StoredTrajectory {
-            points: decode_points(&r.points, n)?,
+            points: decode_points(&r.points, r.derivatives.as_deref(), n)?,
             start: decode_vector(&r.start, n, "start")?,
             goal: decode_vector(&r.goal, n, "goal")?,
             joint_names,
@@ -192,9 +315,11 @@ pub async fn insert_trajectory_in(
     }
     let id = Uuid::new_v4().to_string();
     let created_at = now();
+    let (points, derivatives) = encode_points_compact(t.points, n)?;
+    let summary = compact_summary(t.summary);
     sqlx::query(
-        "INSERT INTO trajectories (id, model_id, robot, joint_names, start, goal, points, duration, request, summary, created_at) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+        "INSERT INTO trajectories (id, model_id, robot, joint_names, start, goal, points, derivatives, duration, request, summary, created_at) \
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
     )
     .bind(&id)
     .bind(t.model_id)
@@ -202,25 +327,63 @@ pub async fn insert_trajectory_in(
     .bind(serde_json::to_string(t.joint_names).map_err(decode_error)?)
     .bind(blob::encode(&[n], t.start).map_err(decode_error)?)
     .bind(blob::encode(&[n], t.goal).map_err(decode_error)?)
-    .bind(encode_points(t.points, n)?)
+    .bind(points)
+    .bind(derivatives)
     .bind(t.duration)
     .bind(t.request)
-    .bind(t.summary)
+    .bind(&summary)
     .bind(&created_at)
     .execute(&mut *tx)
     .await?;
+    // What a read gives back, so that a create and a later read answer the same.
     Ok(StoredTrajectory {
         id,
         model_id: t.model_id.map(str::to_owned),
         robot: t.robot.to_owned(),
         joint_names: t.joint_names.to_vec(),
-        points: t.points.to_vec(),
+        points: as_stored(t.points),
         start: t.start.to_vec(),
         goal: t.goal.to_vec(),
         duration: t.duration,
         request: t.request.to_owned(),
-        summary: t.summary.to_owned(),
+        summary,
         created_at,
+    })
+}
+
+/// Deletes trajectory `id` inside the caller's transaction; false when there was none. The
+/// caller checks first that nothing still uses it ([`users`]).
+pub async fn delete_in(tx: &mut sqlx::SqliteConnection, id: &str) -> Result<bool, sqlx::Error> {
+    let done = sqlx::query("DELETE FROM trajectories WHERE id = ?")
+        .bind(id)
+        .execute(&mut *tx)
+        .await?;
+    Ok(done.rows_affected() > 0)
+}
+
+/// What still uses trajectory `id`: the plans that link it, and the executions of it that have
+/// not finished (queued or running). Finished executions keep their own copy of the points.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Users {
+    pub plans: Vec<String>,
+    pub unfinished_executions: Vec<String>,
+}
+
+pub async fn users(conn: &mut sqlx::SqliteConnection, id: &str) -> Result<Users, sqlx::Error> {
+    let plans = sqlx::query_scalar("SELECT id FROM plans WHERE trajectory_id = ? ORDER BY id")
+        .bind(id)
+        .fetch_all(&mut *conn)
+        .await?;
+    let unfinished_executions = sqlx::query_scalar(
+        "SELECT id FROM executions WHERE kind = 'trajectory' AND source_id = ? \
+         AND state IN ('queued', 'running') ORDER BY id",
+    )
+    .bind(id)
+    .fetch_all(&mut *conn)
+    .await?;
+    Ok(Users {
+        plans,
+        unfinished_executions,
     })
 }
 
@@ -229,7 +392,7 @@ pub async fn get_trajectory(
     id: &str,
 ) -> Result<Option<StoredTrajectory>, sqlx::Error> {
     let row: Option<Row> = sqlx::query_as(
-        "SELECT id, model_id, robot, joint_names, start, goal, points, duration, request, summary, created_at \
+        "SELECT id, model_id, robot, joint_names, start, goal, points, derivatives, duration, request, summary, created_at \
          FROM trajectories WHERE id = ?",
     )
     .bind(id)
@@ -260,4 +423,87 @@ pub async fn list_trajectories(
             .fetch_one(pool)
             .await?;
     Ok((rows, total))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn points(n: usize, count: usize) -> Vec<TrajectoryPoint> {
+        (0..count)
+            .map(|k| {
+                let s = k as f64 / (count - 1) as f64;
+                let f = |j: usize, scale: f64| scale * (0.1 + j as f64 * 0.37) * (3.0 * s).sin();
+                TrajectoryPoint {
+                    t: 0.01 * k as f64,
+                    positions: (0..n).map(|j| 0.3 + f(j, 1.1)).collect(),
+                    velocities: (0..n).map(|j| f(j, 2.7) + 1e-3).collect(),
+                    accelerations: (0..n).map(|j| -f(j, 9.1) - 1e-3).collect(),
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn f32_rounding_towards_zero_never_grows_a_magnitude() {
+        for v in [0.1, -0.1, 1.0 / 3.0, -2.0 / 3.0, 1e-30, 123.456, -7.0, 0.0] {
+            let f = f64::from(f32_towards_zero(v));
+            assert!(f.abs() <= v.abs(), "{v} -> {f}");
+            assert!((f - v).abs() <= 1.2e-7 * v.abs(), "{v} -> {f}");
+            assert!(f.signum() == v.signum() || f == 0.0, "{v} -> {f}");
+        }
+    }
+
+    #[test]
+    fn compact_points_keep_times_and_positions_exact() {
+        let n = 11;
+        let pts = points(n, 300);
+        let (exact, derivatives) = encode_points_compact(&pts, n).unwrap();
+        let back = decode_points(&exact, Some(&derivatives), n).unwrap();
+        assert_eq!(back, as_stored(&pts));
+        for (b, p) in back.iter().zip(&pts) {
+            assert_eq!((b.t, &b.positions), (p.t, &p.positions));
+        }
+        let legacy = encode_points_exact(&pts, n).unwrap();
+        // 8 (t) + 8n (positions) + 8n (velocities, accelerations as f32) per point instead of
+        // 8 + 24n (one more 24-byte blob header).
+        assert_eq!(
+            legacy.len() - exact.len() - derivatives.len(),
+            300 * 8 * n - 24
+        );
+    }
+
+    #[test]
+    fn rows_written_before_the_compact_layout_still_read_exactly() {
+        let n = 3;
+        let pts = points(n, 20);
+        let legacy = encode_points_exact(&pts, n).unwrap();
+        assert_eq!(decode_points(&legacy, None, n).unwrap(), pts);
+        // A compact row's points blob is not mistaken for an old one, nor the reverse.
+        let (exact, derivatives) = encode_points_compact(&pts, n).unwrap();
+        assert!(decode_points(&exact, None, n).is_err());
+        assert!(decode_points(&legacy, Some(&derivatives), n).is_err());
+    }
+
+    #[test]
+    fn a_compact_summary_keeps_each_paths_ends_and_everything_else() {
+        let summary = serde_json::json!({
+            "duration": 1.234567890123,
+            "fingertip_paths": [{"name": "f", "frame": "tip",
+                "positions": [[0.123456789012, 1.0, 2.0], [0.111111111111, 0.2222222222222, 3.0],
+                              [0.987654321098, 0.5, 0.25]]}],
+            "elbow_paths": [{"name": "e", "frame": "elbow", "positions": [[0.1, 0.2, 0.3]]}]
+        })
+        .to_string();
+        let c: serde_json::Value = serde_json::from_str(&compact_summary(&summary)).unwrap();
+        let p = &c["fingertip_paths"][0]["positions"];
+        assert_eq!(p[0][0], 0.123456789012);
+        assert_eq!(p[2][0], 0.987654321098);
+        assert_eq!(p[1][0], 0.111111);
+        assert_eq!(p[1][1], 0.222222);
+        assert_eq!(c["duration"], 1.234567890123);
+        assert_eq!(c["elbow_paths"][0]["positions"][0][2], 0.3);
+        assert_eq!(compact_summary("{}"), "{}");
+        assert_eq!(compact_summary("not json"), "not json");
+    }
 }

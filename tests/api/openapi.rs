@@ -65,3 +65,145 @@ fn every_response_has_a_description() {
         "responses without a description: {missing:?}"
     );
 }
+
+/// The Python interpreter with `openapi-spec-validator` (`.ci/run` makes `.ci/.venv`), if any.
+fn validator_python() -> Option<std::path::PathBuf> {
+    let venv = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".ci/.venv/bin/python");
+    let candidates = [
+        std::env::var_os("REACHGRASP_OPENAPI_PYTHON").map(std::path::PathBuf::from),
+        Some(venv),
+        Some("python3".into()),
+    ];
+    candidates.into_iter().flatten().find(|py| {
+        std::process::Command::new(py)
+            .args(["-c", "import openapi_spec_validator"])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    })
+}
+
+/// The served document passes an OpenAPI 3.1 validator (openapi-spec-validator, which checks
+/// the document against the 3.1 meta-schema and resolves every reference).
+#[tokio::test]
+async fn the_served_document_passes_an_openapi_3_1_validator() {
+    let Some(python) = validator_python() else {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "openapi-spec-validator is missing (.ci/run installs it in .ci/.venv)"
+        );
+        eprintln!("skipped: no Python with openapi-spec-validator (run .ci/run)");
+        return;
+    };
+    let app = spawn_app().await;
+    let served = app.get("/openapi.json").await.text().await.unwrap();
+    let file = app._dir.path().join("served-openapi.json");
+    std::fs::write(&file, served).unwrap();
+    let out = std::process::Command::new(python)
+        .args([
+            "-c",
+            "import sys, json\n\
+             from openapi_spec_validator import validate\n\
+             from openapi_spec_validator.validation import OpenAPIV31SpecValidator\n\
+             validate(json.load(open(sys.argv[1])), cls=OpenAPIV31SpecValidator)\n\
+             print('valid')",
+        ])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "the served document is not valid OpenAPI 3.1:\n{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// What every operation can answer is documented: the layers' statuses on every operation,
+/// the body statuses where a JSON body is read, and the event stream as text.
+#[test]
+fn every_operation_documents_what_the_layers_answer() {
+    let doc = serde_json::to_value(reachgrasp::api::openapi()).unwrap();
+    let mut missing = Vec::new();
+    for (path, ops) in doc["paths"].as_object().unwrap() {
+        for (method, op) in ops.as_object().unwrap() {
+            let responses = op["responses"].as_object().unwrap();
+            let mut expected = vec!["503"];
+            let json_body = op
+                .pointer("/requestBody/content/application~1json")
+                .is_some();
+            if json_body {
+                expected.extend(["400", "408", "413", "415", "422"]);
+            }
+            if path.contains('{') {
+                expected.push("404");
+            }
+            if method != "get" {
+                expected.push("507");
+            }
+            for status in expected {
+                if !responses.contains_key(status) {
+                    missing.push(format!("{method} {path} {status}"));
+                }
+            }
+            assert!(
+                !responses.contains_key("500"),
+                "{method} {path} documents a 500"
+            );
+        }
+    }
+    assert!(missing.is_empty(), "undocumented statuses: {missing:?}");
+    let events = &doc["paths"]["/v1/jobs/{id}/events"]["get"]["responses"]["200"]["content"];
+    let event = &events["text/event-stream"]["schema"];
+    assert_eq!(event["type"], "object");
+    assert_eq!(
+        event["properties"]["data"]["contentMediaType"],
+        "application/json"
+    );
+    assert_eq!(
+        event["properties"]["data"]["contentSchema"]["$ref"],
+        "#/components/schemas/JobRecord"
+    );
+    assert!(events.get("application/json").is_none());
+}
+
+/// Paging parameters document the range the server enforces, and the server refuses what is
+/// outside it (an offset above int32 was accepted).
+#[tokio::test]
+async fn paging_ranges_are_documented_and_enforced() {
+    let doc = serde_json::to_value(reachgrasp::api::openapi()).unwrap();
+    let params = doc["paths"]["/v1/plans"]["get"]["parameters"]
+        .as_array()
+        .unwrap();
+    let schema = |name: &str| params.iter().find(|p| p["name"] == name).unwrap()["schema"].clone();
+    assert_eq!(schema("limit")["minimum"], 1);
+    assert_eq!(schema("limit")["maximum"], 500);
+    assert_eq!(schema("offset")["minimum"], 0);
+    assert_eq!(schema("offset")["maximum"], i64::from(i32::MAX));
+    let mapping = &doc["paths"]["/v1/mappings/{id}"]["get"]["parameters"];
+    let limit = mapping
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|p| p["name"] == "limit")
+        .unwrap();
+    assert_eq!(limit["schema"]["maximum"], 100);
+
+    let app = spawn_app().await;
+    for (query, ok) in [
+        ("limit=500&offset=2147483647", true),
+        ("limit=501", false),
+        ("limit=0", false),
+        ("offset=2147483648", false),
+    ] {
+        let res = app.get(&format!("/v1/plans?{query}")).await;
+        assert_eq!(res.status().is_success(), ok, "{query}: {}", res.status());
+        if !ok {
+            assert_eq!(res.status(), 400, "{query}");
+        }
+    }
+    let id = uuid::Uuid::new_v4();
+    let res = app
+        .get(&format!("/v1/mappings/{id}?offset=2147483648"))
+        .await;
+    assert_eq!(res.status(), 400);
+}
