@@ -18,9 +18,12 @@
 //! 7. the process: `app` (wiring) and the CLI (`main.rs`), which takes from `api` only the
 //!    OpenAPI document and the rendering of a plan.
 
+pub mod bridges;
 pub mod demonstrations;
 pub mod executions;
+pub mod figures;
 pub mod grasps;
+pub mod jobs;
 pub mod mappings;
 pub mod models;
 pub mod plans;
@@ -39,6 +42,10 @@ use crate::config::Config;
 use crate::jobs::{JobRunner, RunnerError};
 use crate::shutdown::Shutdown;
 use crate::store::library::{LibraryError, RobotLibrary};
+
+/// The stored grasp and object records the grasp and plan use cases hand out, named here so
+/// that the edges render them without naming the store.
+pub use crate::store::grasps::{GraspRow, ObjectRow};
 
 /// Everything a use case may need; cheap to clone.
 #[derive(Clone, Debug)]
@@ -177,6 +184,21 @@ impl From<BridgeError> for Error {
             BridgeError::Store(e) => e.into(),
             other => Error::internal(other),
         }
+    }
+}
+
+/// Readiness: the database answers a query within `within`.
+pub async fn ready(ctx: &Context, within: std::time::Duration) -> Result<(), Error> {
+    match tokio::time::timeout(within, crate::store::ping(&ctx.db)).await {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(e)) => {
+            tracing::warn!(error = %e, "readiness check failed");
+            Err(Error::Unavailable("the database does not answer".into()))
+        }
+        Err(_) => Err(Error::Unavailable(format!(
+            "the database did not answer within {} s",
+            within.as_secs()
+        ))),
     }
 }
 

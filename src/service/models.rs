@@ -853,6 +853,67 @@ pub async fn train_model(ctx: &Context, body: &CreateModel) -> Result<(JobRecord
     Ok((job, model_id))
 }
 
+/// A stored model: its row (status is its job's), the request as given, the training report
+/// once trained, whether it is marked its robot's default, and its joint names.
+#[derive(Debug, Clone)]
+pub struct StoredModel {
+    pub id: String,
+    pub job_id: String,
+    pub robot: String,
+    pub status: String,
+    pub request: serde_json::Value,
+    pub report: Option<ModelReportDto>,
+    pub default: bool,
+    pub joint_names: Vec<String>,
+    pub created_at: String,
+}
+
+async fn stored_model(ctx: &Context, row: repo::ModelRow) -> Result<StoredModel, Error> {
+    let joint_names = repo::joint_names(&ctx.db, &row.id)
+        .await?
+        .unwrap_or_default();
+    let default = repo::is_marked_default(&ctx.db, &row.id).await?;
+    Ok(StoredModel {
+        request: serde_json::from_str(&row.request).map_err(Error::internal)?,
+        report: row
+            .report
+            .as_deref()
+            .map(serde_json::from_str)
+            .transpose()
+            .map_err(Error::internal)?,
+        id: row.id,
+        job_id: row.job_id,
+        robot: row.robot,
+        status: row.status,
+        default,
+        joint_names,
+        created_at: row.created_at,
+    })
+}
+
+/// Model `id`, pending and failed ones included.
+pub async fn get(ctx: &Context, id: &str) -> Result<StoredModel, Error> {
+    let row = repo::get_model(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("model", id))?;
+    stored_model(ctx, row).await
+}
+
+/// Models, newest first, optionally of one robot; with how many match without the page.
+pub async fn list(
+    ctx: &Context,
+    robot: Option<&str>,
+    limit: u32,
+    offset: u32,
+) -> Result<(Vec<StoredModel>, i64), Error> {
+    let (rows, total) = repo::list_models(&ctx.db, robot, limit, offset).await?;
+    let mut items = Vec::with_capacity(rows.len());
+    for row in rows {
+        items.push(stored_model(ctx, row).await?);
+    }
+    Ok((items, total))
+}
+
 /// The closed-loop law's parameters of trained model `id`.
 pub async fn params(ctx: &Context, id: &str) -> Result<ControlParams, Error> {
     Ok(loaded_model(ctx, id, None).await?.params.clone())

@@ -16,6 +16,8 @@ use crate::store::grasps as grasp_repo;
 use crate::store::library::LibraryError;
 use crate::store::trajectories::{self, TrajectoryDraft};
 
+pub use crate::store::trajectories::{StoredTrajectory, TrajectorySummaryRow};
+
 /// Why no trajectory was computed.
 #[derive(Debug)]
 pub enum Rejected {
@@ -297,6 +299,17 @@ pub async fn check_start(ctx: &Context, model: &str, start: &JointValues) -> Res
     let q = joint_values(&system, start, "$.start")?;
     check_limits(&l.model, &l.names, &q, Some(&start.joint_names), "$.start")?;
     Ok(l.robot.clone())
+}
+
+/// Stored trajectories without their points, newest first, optionally of one model; with how
+/// many match without the page.
+pub async fn list(
+    ctx: &Context,
+    model: Option<&str>,
+    limit: u32,
+    offset: u32,
+) -> Result<(Vec<TrajectorySummaryRow>, i64), Error> {
+    Ok(trajectories::list_trajectories(&ctx.db, model, limit, offset).await?)
 }
 
 /// Stored trajectory `id`.
