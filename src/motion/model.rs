@@ -136,6 +136,128 @@ pub struct TrainOptions {
     pub profile_inputs: ProfileInputs,
 }
 
+/// Most knot intervals per PCA axis a model may ask for.
+pub const MAX_SPLINE_INTERVALS: usize = 12;
+
+impl TrainOptions {
+    /// Every option out of its range, for a model of `n` joints, in field order: an
+    /// [`MotionError::InvalidOption`] naming the field and saying what is allowed (the reason
+    /// ends with the value given), or [`MotionError::SplineTooLarge`] for explicit intervals
+    /// (`cap_spline_intervals` false) on a fixed component count over the coefficient budget.
+    /// [`train`] refuses the first; the service reports them all, at the request's fields of the
+    /// same names. Joint groups are checked by [`train`] (they need the model's joints).
+    pub fn check(&self, n: usize) -> Vec<MotionError> {
+        fn bad(field: &'static str, value: f64, reason: String) -> MotionError {
+            MotionError::InvalidOption {
+                field,
+                value,
+                reason: reason.into(),
+            }
+        }
+        let mut errors = Vec::new();
+        let smallest = if self.groups.is_empty() {
+            n
+        } else {
+            self.groups.iter().map(Vec::len).min().unwrap_or(0)
+        };
+        match self.components {
+            Components::Count(c) => {
+                let max = MAX_DIM.min(smallest);
+                if c == 0 || c > max {
+                    errors.push(bad(
+                        "components",
+                        c as f64,
+                        format!(
+                            "must be between 1 and {max} (the smallest joint group of this robot has {smallest} joints; at most {MAX_DIM} supported), got {c}"
+                        ),
+                    ));
+                }
+            }
+            Components::VarianceThreshold(t) => {
+                if !(t > 0.0 && t <= 1.0) {
+                    errors.push(bad(
+                        "variance_threshold",
+                        t,
+                        format!("must be in (0, 1], got {t}"),
+                    ));
+                }
+            }
+        }
+        let intervals = self.spline_intervals;
+        if !(1..=MAX_SPLINE_INTERVALS).contains(&intervals) {
+            errors.push(bad(
+                "spline_intervals",
+                intervals as f64,
+                format!("must be between 1 and {MAX_SPLINE_INTERVALS}, got {intervals}"),
+            ));
+        } else if let Components::Count(c) = self.components
+            && !self.cap_spline_intervals
+            && (1..=MAX_DIM).contains(&c)
+        {
+            let coefficients = TensorBSpline::coefficient_count(c, intervals);
+            if coefficients > MAX_COEFFICIENTS {
+                errors.push(MotionError::SplineTooLarge {
+                    intervals,
+                    components: c,
+                    coefficients,
+                    max: MAX_COEFFICIENTS,
+                });
+            }
+        }
+        let r = self.regularisation;
+        if !(r > 0.0 && r.is_finite()) {
+            errors.push(bad(
+                "regularisation",
+                r,
+                format!("must be a positive number, got {r}"),
+            ));
+        }
+        if let KChoice::Value(k) = self.k
+            && !(k >= 1.0 && k.is_finite())
+        {
+            errors.push(bad(
+                "k",
+                k,
+                format!("must be \"auto\" or a number ≥ 1, got {k}"),
+            ));
+        }
+        if let Some(r) = self.profile_ridge
+            && !(r > 0.0 && r.is_finite())
+        {
+            errors.push(bad(
+                "profile_ridge",
+                r,
+                format!("must be a positive number, got {r}"),
+            ));
+        }
+        let g = self.goal_exclusion;
+        if !(0.0..1.0).contains(&g) {
+            errors.push(bad(
+                "goal_exclusion",
+                g,
+                format!("must be in [0, 1), got {g}"),
+            ));
+        }
+        let g = self.goal_margin;
+        if !(g > 0.0 && g.is_finite()) {
+            errors.push(bad(
+                "goal_margin",
+                g,
+                format!("must be a positive number, got {g}"),
+            ));
+        }
+        let w = self.workspace_margin;
+        if !(w > 1.0 && w.is_finite()) {
+            errors.push(bad(
+                "workspace_margin",
+                w,
+                format!("must be a number greater than 1, got {w}"),
+            ));
+        }
+        errors
+    }
+}
+
 /// Default ridge of the residual profile: chosen on a study with another seed (2) than the
 /// held-out evaluation's (1), from {1e-3, 1e-2, 0.1, 1}: 0.1 was best or within 10 % of best
 /// for the arm and hand of wam_ihy, wam_t42 and pa10_ob4f.
@@ -585,58 +707,8 @@ pub fn train(
     limits.validate()?;
     let n = limits.n();
     validate_demos(demos, n)?;
-    if !(opts.regularisation > 0.0 && opts.regularisation.is_finite()) {
-        return Err(MotionError::InvalidOption {
-            field: "regularisation",
-            value: opts.regularisation,
-            reason: "must be positive",
-        });
-    }
-    if !(0.0..1.0).contains(&opts.goal_exclusion) {
-        return Err(MotionError::InvalidOption {
-            field: "goal_exclusion",
-            value: opts.goal_exclusion,
-            reason: "must be in [0, 1)",
-        });
-    }
-    if opts.spline_intervals == 0 {
-        return Err(MotionError::InvalidOption {
-            field: "spline_intervals",
-            value: 0.0,
-            reason: "must be at least 1",
-        });
-    }
-    if !(opts.goal_margin > 0.0 && opts.goal_margin.is_finite()) {
-        return Err(MotionError::InvalidOption {
-            field: "goal_margin",
-            value: opts.goal_margin,
-            reason: "must be positive",
-        });
-    }
-    if !(opts.workspace_margin > 1.0 && opts.workspace_margin.is_finite()) {
-        return Err(MotionError::InvalidOption {
-            field: "workspace_margin",
-            value: opts.workspace_margin,
-            reason: "must be greater than 1",
-        });
-    }
-    if let Some(r) = opts.profile_ridge
-        && !(r > 0.0 && r.is_finite())
-    {
-        return Err(MotionError::InvalidOption {
-            field: "profile_ridge",
-            value: r,
-            reason: "must be positive",
-        });
-    }
-    if let KChoice::Value(k) = opts.k
-        && !(k >= 1.0 && k.is_finite())
-    {
-        return Err(MotionError::InvalidOption {
-            field: "k",
-            value: k,
-            reason: "must be at least 1",
-        });
+    if let Some(e) = opts.check(n).into_iter().next() {
+        return Err(e);
     }
     let mut is_held = vec![false; demos.len()];
     for &i in &opts.held_out {
@@ -749,6 +821,8 @@ pub fn train(
         let coeffs = TensorBSpline::coefficient_count(d, intervals);
         if coeffs > MAX_COEFFICIENTS {
             return Err(MotionError::SplineTooLarge {
+                intervals,
+                components: d,
                 coefficients: coeffs,
                 max: MAX_COEFFICIENTS,
             });
@@ -1362,14 +1436,14 @@ impl MotionModel {
             return Err(MotionError::InvalidOption {
                 field: "duration",
                 value: t,
-                reason: "must be positive",
+                reason: "must be positive".into(),
             });
         }
         if !(opts.rate > 0.0 && opts.rate.is_finite() && opts.rate <= 10_000.0) {
             return Err(MotionError::InvalidOption {
                 field: "rate",
                 value: opts.rate,
-                reason: "must be in (0, 10000] Hz",
+                reason: "must be in (0, 10000] Hz".into(),
             });
         }
         let paths = self.group_paths(start, goal, opts.planner)?;
