@@ -1067,7 +1067,8 @@ fn run_job(
     params: &MappingParams,
     mapping: NewMapping,
 ) -> Result<JobOutput, JobError> {
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    // The job runs inside the runner's pool: its threads, shared with the other jobs.
+    let threads = crate::parallel::available_threads();
     let progress = |done: usize, total: usize| {
         ctx.progress(
             done as f64 / total.max(1) as f64,
