@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use uuid::Uuid;
 
-use super::{Context, Error, Invalid};
+use super::{Context, Error, Invalid, Keyword};
 use crate::human::{HumanFrame, unpack_frames};
 use crate::jobs::{JobContext, JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::System;
@@ -407,7 +407,7 @@ pub fn parse_params(
     let scale = match &reg.scale {
         None => None,
         Some(ScaleIn::Factor(s)) if s.is_finite() && *s > 0.0 => Some(Scale::Factor(*s)),
-        Some(ScaleIn::Named(n)) if n == "auto" => Some(Scale::Auto),
+        Some(ScaleIn::Named(n)) if Keyword::parse(n) == Some(Keyword::Auto) => Some(Scale::Auto),
         Some(other) => {
             errors.push(Invalid::new(
                 "$.registration.scale",

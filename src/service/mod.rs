@@ -69,6 +69,32 @@ impl AsRef<Hub> for Context {
     }
 }
 
+/// A word a request may give in place of a value: `"auto"` (learn or choose it) where a number
+/// is expected, `"current"` (the connected worker's measured state) where a configuration is.
+/// Requests carry the word as text, so that an unknown one is quoted back in the 422 that
+/// refuses it (and the OpenAPI schemas stay `string`); the use cases parse it here, once, and
+/// match on the enum.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Keyword {
+    Auto,
+    Current,
+}
+
+impl Keyword {
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Keyword::Auto => "auto",
+            Keyword::Current => "current",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Keyword> {
+        [Keyword::Auto, Keyword::Current]
+            .into_iter()
+            .find(|k| k.as_str() == s)
+    }
+}
+
 /// One bad input: the field as the request names it (a JSONPath into the request body, e.g.
 /// `$.start.positions[2]`, or a parameter name), and what is wrong with it.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -252,7 +278,16 @@ pub(crate) async fn test_context(dir: &std::path::Path) -> Context {
 
 #[cfg(test)]
 mod tests {
-    use super::decode_base64;
+    use super::{Keyword, decode_base64};
+
+    #[test]
+    fn keywords_parse_from_their_wire_text_and_nothing_else() {
+        for k in [Keyword::Auto, Keyword::Current] {
+            assert_eq!(Keyword::parse(k.as_str()), Some(k));
+        }
+        assert_eq!(Keyword::parse("Auto"), None);
+        assert_eq!(Keyword::parse(""), None);
+    }
 
     #[test]
     fn base64_decodes_rfc4648_vectors_with_or_without_padding() {

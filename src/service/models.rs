@@ -12,7 +12,7 @@ use std::sync::{Arc, Mutex, OnceLock};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use super::{Context, Error, Invalid};
+use super::{Context, Error, Invalid, Keyword};
 use crate::jobs::{JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::{JointVector, KinematicsError, System};
 use crate::motion::mapped::{DEFAULT_ACCELERATION_LIMIT, system_groups, system_limits};
@@ -482,14 +482,16 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, E
     let k = match &body.k {
         None => KChoice::Auto,
         Some(AutoOr::Value(k)) => KChoice::Value(*k),
-        Some(AutoOr::Auto(s)) if s == "auto" => KChoice::Auto,
-        Some(AutoOr::Auto(s)) => {
-            errors.push(Invalid::new(
-                "$.k",
-                format!("must be \"auto\" or a number ≥ 1, got \"{s}\""),
-            ));
-            KChoice::Auto
-        }
+        Some(AutoOr::Auto(s)) => match Keyword::parse(s) {
+            Some(Keyword::Auto) => KChoice::Auto,
+            _ => {
+                errors.push(Invalid::new(
+                    "$.k",
+                    format!("must be \"auto\" or a number ≥ 1, got \"{s}\""),
+                ));
+                KChoice::Auto
+            }
+        },
     };
     let profile_ridge = body.profile_ridge.unwrap_or(DEFAULT_PROFILE_RIDGE);
     let options = TrainOptions {

@@ -14,7 +14,7 @@ use utoipa::ToSchema;
 use super::grasps::GraspIn;
 use super::models::{AutoOr, JointValues};
 use super::trajectories::{CreateTrajectory, GoalIn, Rejected};
-use super::{Context, Error};
+use super::{Context, Error, Keyword};
 use crate::bridge::{ExecutionPayload, Hub, Mode, WorkerName};
 use crate::motion::ControlParams;
 use crate::store::grasps::{self as grasp_repo, GraspRow, NewGrasp};
@@ -100,7 +100,7 @@ async fn resolve_model(ctx: &Context, body: &PlanIn) -> Result<String, Error> {
 fn resolve_start(ctx: &Context, body: &PlanIn) -> Result<JointValues, Error> {
     match &body.start {
         StartIn::Configuration(v) => Ok(v.clone()),
-        StartIn::Current(s) if s == "current" => {
+        StartIn::Current(s) if Keyword::parse(s) == Some(Keyword::Current) => {
             let robot = &body.grasp.robot;
             let worker = ctx
                 .bridges

@@ -8,7 +8,7 @@ use super::models::{
     AutoOr, CertificateDto, JointValues, MAX_DURATION, MAX_RATE, certificate_dto, check_limits,
     group_name, joint_values, loaded_model, region_error,
 };
-use super::{Context, Error, Invalid};
+use super::{Context, Error, Invalid, Keyword};
 use crate::grasp::GraspResult;
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::motion::{MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint};
@@ -333,7 +333,7 @@ pub async fn create(
 pub async fn compute(ctx: &Context, body: &CreateTrajectory) -> Result<TrajectoryDraft, Rejected> {
     let requested = match &body.duration {
         None => None,
-        Some(AutoOr::Auto(s)) if s == "auto" => None,
+        Some(AutoOr::Auto(s)) if Keyword::parse(s) == Some(Keyword::Auto) => None,
         Some(AutoOr::Value(t)) if *t > 0.0 && *t <= MAX_DURATION => Some(*t),
         Some(other) => {
             return Err(Error::invalid(
