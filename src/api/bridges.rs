@@ -17,7 +17,6 @@ use crate::bridge::protocol::{
     Feedback, Heartbeat, Hello, Outcome, ServiceMessage, TrajectoryPointSchema, Welcome,
     WorkerMessage,
 };
-use crate::store::executions as repo;
 
 /// The protocol's message schemas (referenced by no HTTP operation, listed for worker authors).
 #[derive(OpenApi)]
@@ -75,8 +74,7 @@ pub struct BridgeList {
 #[utoipa::path(get, path = "/v1/bridges", tag = "bridges",
     responses((status = 200, description = "Workers, connected first", body = BridgeList)))]
 async fn list_bridges(State(state): State<AppState>) -> Result<Json<BridgeList>, ApiError> {
-    let live = state.bridges.workers();
-    let known = repo::list_bridges(&state.db).await?;
+    let (live, known) = crate::service::bridges::list(&state).await?;
     let mut items: Vec<BridgeDto> = Vec::with_capacity(known.len().max(live.len()));
     for w in &live {
         let row = known.iter().find(|r| r.name == w.name);

@@ -13,13 +13,11 @@ use uuid::Uuid;
 use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem, Query};
 use crate::human::{
-    self, Demonstration, DemonstrationInput, GloveCalibration, GloveStream, HumanError,
-    IngestSummary, Labels, ObjectSpec, StudyConfig, Subject, SyncOptions, TrackerStream,
-    unpack_frames,
+    self, DemonstrationInput, GloveCalibration, GloveStream, HumanError, IngestSummary, Labels,
+    ObjectSpec, StudyConfig, Subject, SyncOptions, TrackerStream,
 };
 use crate::jobs::JobRecord;
-use crate::store::demonstrations::{self as repo, Deleted, DemonstrationFilter, DemonstrationRow};
-use crate::store::{blob, is_unique_violation, now};
+use crate::service::demonstrations::{self as service, DemonstrationFilter, DemonstrationRow};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -31,7 +29,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 
 impl From<HumanError> for ApiError {
     fn from(e: HumanError) -> Self {
-        crate::service::demonstrations::human_error(e).into()
+        service::human_error(e).into()
     }
 }
 
@@ -280,17 +278,6 @@ impl<'de> Deserialize<'de> for SyntheticRequest {
     }
 }
 
-fn row_not_found(id: &str) -> ApiError {
-    ApiError::not_found("demonstration", id)
-}
-
-async fn ingest_blocking(input: DemonstrationInput) -> Result<Demonstration, ApiError> {
-    tokio::task::spawn_blocking(move || human::ingest(&input))
-        .await
-        .map_err(|e| ApiError::internal(anyhow::anyhow!("ingest task failed: {e}")))?
-        .map_err(ApiError::from)
-}
-
 fn created(dto: DemonstrationDto, status: StatusCode) -> Response {
     super::created(status, format!("/v1/demonstrations/{}", dto.id), dto)
 }
@@ -369,36 +356,13 @@ async fn create_demonstration(
             .0
             .into()
     };
-    if let Some(ext) = &input.labels.external_id {
-        let mut conn = state.db.acquire().await?;
-        if let Some(row) = repo::get_by_external_id(&mut conn, ext).await? {
-            return Ok(created(DemonstrationDto::try_from(&row)?, StatusCode::OK));
-        }
-    }
-    let demo = ingest_blocking(input).await?;
-    let id = Uuid::new_v4().to_string();
-    let mut tx = crate::store::begin_write(&state.db).await?;
-    match repo::insert(&mut tx, &id, None, &demo, &now()).await {
-        Ok(()) => tx.commit().await?,
-        Err(e) if is_unique_violation(&e) => {
-            // A concurrent upload with the same external id won the race: return its record.
-            drop(tx);
-            let ext = demo.labels.external_id.as_deref().unwrap_or_default();
-            let mut conn = state.db.acquire().await?;
-            let row = repo::get_by_external_id(&mut conn, ext)
-                .await?
-                .ok_or_else(|| ApiError::conflict("a demonstration with this id already exists"))?;
-            return Ok(created(DemonstrationDto::try_from(&row)?, StatusCode::OK));
-        }
-        Err(e) => return Err(e.into()),
-    }
-    let row = repo::get(&state.db, &id)
-        .await?
-        .ok_or_else(|| row_not_found(&id))?;
-    Ok(created(
-        DemonstrationDto::try_from(&row)?,
-        StatusCode::CREATED,
-    ))
+    let (row, new) = service::upload(&state, input).await?;
+    let status = if new {
+        StatusCode::CREATED
+    } else {
+        StatusCode::OK
+    };
+    Ok(created(DemonstrationDto::try_from(&row)?, status))
 }
 
 /// List demonstrations, newest first, filtered by subject, object, synthetic flag or job.
@@ -419,7 +383,7 @@ async fn list_demonstrations(
         limit: page.limit,
         offset: page.offset,
     };
-    let (rows, total) = repo::list(&state.db, &filter).await?;
+    let (rows, total) = service::list(&state, &filter).await?;
     let items = rows
         .iter()
         .map(DemonstrationDto::try_from)
@@ -439,10 +403,7 @@ async fn get_demonstration(
     State(state): State<AppState>,
     Path(id): Path<Uuid>,
 ) -> Result<Json<DemonstrationDto>, ApiError> {
-    let id = id.to_string();
-    let row = repo::get(&state.db, &id)
-        .await?
-        .ok_or_else(|| row_not_found(&id))?;
+    let row = service::get(&state, &id.to_string()).await?;
     Ok(Json(DemonstrationDto::try_from(&row)?))
 }
 
@@ -467,15 +428,7 @@ async fn get_frames(
         ));
     }
     let id = id.to_string();
-    let row = repo::get(&state.db, &id)
-        .await?
-        .ok_or_else(|| row_not_found(&id))?;
-    let bytes = repo::frames(&state.db, &id)
-        .await?
-        .ok_or_else(|| row_not_found(&id))?;
-    let array =
-        blob::decode::<f64>(&bytes).map_err(|e| ApiError::internal(anyhow::Error::new(e)))?;
-    let (frames, glove) = unpack_frames(&array.data)?;
+    let (row, frames, glove) = service::frames(&state, &id).await?;
     let summary = row.summary()?;
     let frames = frames
         .iter()
@@ -516,15 +469,8 @@ async fn delete_demonstration(
     Path(id): Path<Uuid>,
     Query(q): Query<DeleteQuery>,
 ) -> Result<StatusCode, ApiError> {
-    let id = id.to_string();
-    match repo::delete(&state.db, &id, q.cascade.unwrap_or(false)).await? {
-        Deleted::Yes { .. } => Ok(StatusCode::NO_CONTENT),
-        Deleted::NotFound => Err(row_not_found(&id)),
-        Deleted::InUse { mappings } => Err(ApiError::conflict(format!(
-            "demonstration {id} is used by mapping(s) {}; delete them first or pass cascade=true",
-            mappings.join(", ")
-        ))),
-    }
+    service::delete(&state, &id.to_string(), q.cascade.unwrap_or(false)).await?;
+    Ok(StatusCode::NO_CONTENT)
 }
 
 /// Generate a synthetic study as a job (202). Each demonstration goes through the same ingest
@@ -541,6 +487,6 @@ async fn generate_synthetic(
     State(state): State<AppState>,
     Json(req): Json<SyntheticRequest>,
 ) -> Result<Response, ApiError> {
-    let job = crate::service::demonstrations::submit_study(&state, req.config).await?;
+    let job = service::submit_study(&state, req.config).await?;
     Ok(super::accepted_job(job, None))
 }

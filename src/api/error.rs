@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use crate::jobs::RunnerError;
+use crate::service::executions::PayloadPaths;
 
 /// Media type of every error response.
 pub const PROBLEM_JSON: &str = "application/problem+json";
@@ -387,11 +388,7 @@ impl IntoResponse for ApiError {
 
 impl From<sqlx::Error> for ApiError {
     fn from(e: sqlx::Error) -> Self {
-        if crate::store::is_unique_violation(&e) {
-            ApiError::conflict("a resource with the same identity already exists")
-        } else {
-            ApiError::internal(e)
-        }
+        crate::service::Error::from(e).into()
     }
 }
 
@@ -405,9 +402,13 @@ impl From<crate::service::Error> for ApiError {
                     .map(|f| FieldError::new(f.field, f.message))
                     .collect(),
             ),
-            E::Payload(issues) => {
-                ApiError::payload(&issues, &crate::api::executions::PayloadPaths::default())
-            }
+            E::Payload(issues) => ApiError::validation(
+                PayloadPaths::default()
+                    .invalid(&issues)
+                    .into_iter()
+                    .map(|f| FieldError::new(f.field, f.message))
+                    .collect(),
+            ),
             E::NotFound { kind, id } => ApiError::not_found(kind, id),
             E::Conflict(m) => ApiError::conflict(m),
             E::NotReady { message, job } => ApiError::not_ready(message, job),
@@ -417,40 +418,9 @@ impl From<crate::service::Error> for ApiError {
     }
 }
 
-impl From<crate::store::library::LibraryError> for ApiError {
-    fn from(e: crate::store::library::LibraryError) -> Self {
-        crate::service::Error::from(e).into()
-    }
-}
-
 impl From<crate::bridge::BridgeError> for ApiError {
     fn from(e: crate::bridge::BridgeError) -> Self {
         crate::service::Error::from(e).into()
-    }
-}
-
-impl ApiError {
-    /// 422 for an execution payload that does not fit its robot, each issue at the JSONPath
-    /// `paths` gives its part.
-    pub fn payload(
-        issues: &[crate::bridge::PayloadIssue],
-        paths: &crate::api::executions::PayloadPaths,
-    ) -> Self {
-        use crate::bridge::PayloadPart as P;
-        ApiError::validation(
-            issues
-                .iter()
-                .map(|i| {
-                    let base = match i.part {
-                        P::Mode => "$.mode",
-                        P::JointNames => &paths.joint_names,
-                        P::Points => &paths.points,
-                        P::Goal => &paths.goal,
-                    };
-                    FieldError::new(format!("{base}{}", i.at), i.message.clone())
-                })
-                .collect(),
-        )
     }
 }
 

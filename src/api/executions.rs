@@ -1,7 +1,7 @@
 //! `/v1/executions`: trajectories and closed-loop motions queued for bridge workers
 //! (DESIGN §7): create (202), list, inspect (state, last feedback, tracking error summary),
 //! follow (SSE), cancel, and the measured state history (`/feedback`, decimated and bounded by
-//! [`crate::store::feedback`]).
+//! the store's feedback recorder), through [`crate::service::executions`].
 
 use std::convert::Infallible;
 use std::time::Duration;
@@ -19,31 +19,11 @@ use utoipa_axum::routes;
 use uuid::Uuid;
 
 use super::page::{Listed, Listing, Page};
-use super::{ApiError, AppState, FieldError, Json, Path, Problem, Query};
+use super::{ApiError, AppState, Json, Path, Problem, Query};
 use crate::bridge::protocol::{Feedback, TrajectoryPointSchema};
-use crate::bridge::{ExecutionPayload, Mode, TrackingSummary, WorkerName};
+use crate::bridge::{Mode, TrackingSummary};
 use crate::motion::TrajectoryPoint;
-use crate::store::executions::{self as repo, ExecutionState};
-use crate::store::feedback::{self, History};
-
-/// Where the parts of a payload came from in a request, for error paths
-/// (`$.trajectory.points`, ...).
-#[derive(Debug, Clone)]
-pub struct PayloadPaths {
-    pub joint_names: String,
-    pub points: String,
-    pub goal: String,
-}
-
-impl Default for PayloadPaths {
-    fn default() -> Self {
-        PayloadPaths {
-            joint_names: "$.payload.joint_names".into(),
-            points: "$.payload.points".into(),
-            goal: "$.payload.goal".into(),
-        }
-    }
-}
+use crate::service::executions::{self as service, ExecutionState, ExecutionView, Source};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -193,16 +173,16 @@ pub type ExecutionList = Page<ExecutionDto>;
 
 // ------------------------------------------------------------------------------------ views
 
-/// The execution's view: the stored row with the live feedback overlaid while it runs.
-pub async fn view(state: &AppState, row: repo::ExecutionRow) -> ExecutionDto {
-    let crate::service::executions::ExecutionView {
+/// The execution as it stands (the stored row with the live feedback overlaid while it runs).
+fn execution_dto(v: ExecutionView) -> ExecutionDto {
+    let ExecutionView {
         row,
         last_feedback,
         tracking,
         feedback_samples,
-    } = crate::service::executions::view(state, row);
+    } = v;
     ExecutionDto {
-        mode: Mode::parse(&row.mode).unwrap_or(Mode::OpenLoop),
+        mode: row.mode,
         id: row.id,
         robot: row.robot,
         state: row.state.to_string(),
@@ -221,242 +201,24 @@ pub async fn view(state: &AppState, row: repo::ExecutionRow) -> ExecutionDto {
     }
 }
 
-/// The measured state history of an execution: the live one (with what is not flushed yet)
-/// while it runs, else the stored one.
-pub async fn history(
-    state: &AppState,
-    row: &repo::ExecutionRow,
-    n_joints: usize,
-) -> Result<History, ApiError> {
-    if row.state == ExecutionState::Running
-        && let Some(h) = state.bridges.history(&row.id)
-        && h.n_joints == n_joints
-    {
-        return Ok(h);
-    }
-    Ok(feedback::load(&state.db, &row.id, n_joints).await?)
-}
-
-async fn load(state: &AppState, id: &Uuid) -> Result<ExecutionDto, ApiError> {
-    let row = repo::get(&state.db, &id.to_string())
-        .await?
-        .ok_or_else(|| ApiError::not_found("execution", id))?;
-    Ok(view(state, row).await)
-}
-
-// ------------------------------------------------------------------------------------ payloads
-
-/// Resolves the request into the payload the execution keeps, with error paths of the body.
-async fn resolve(
-    state: &AppState,
-    body: CreateExecution,
-) -> Result<(ExecutionPayload, PayloadPaths), ApiError> {
-    let given = [
-        body.trajectory_id.is_some(),
-        body.trajectory.is_some(),
-        body.model_id.is_some(),
-    ];
-    if given.iter().filter(|g| **g).count() != 1 {
-        return Err(ApiError::invalid_field(
+/// What the request names to run: exactly one of a stored trajectory, an inline one and a
+/// model.
+fn source(body: &mut CreateExecution) -> Result<Source, ApiError> {
+    match (
+        body.trajectory_id.take(),
+        body.trajectory.take(),
+        body.model_id.take(),
+    ) {
+        (Some(id), None, None) => Ok(Source::Trajectory(id)),
+        (None, Some(t), None) => Ok(Source::Inline {
+            joint_names: t.joint_names,
+            points: t.points,
+        }),
+        (None, None, Some(id)) => Ok(Source::Model(id)),
+        _ => Err(ApiError::invalid_field(
             "$.trajectory_id",
             "give exactly one of trajectory_id, trajectory and model_id",
-        ));
-    }
-    if let Some(t) = body.trajectory {
-        if body.goal.is_some() {
-            return Err(ApiError::invalid_field(
-                "$.goal",
-                "a trajectory ends at its own last point; goal is only for model_id",
-            ));
-        }
-        return Ok((
-            ExecutionPayload::Trajectory {
-                trajectory_id: "inline".into(),
-                joint_names: t.joint_names,
-                points: t.points,
-            },
-            PayloadPaths {
-                joint_names: "$.trajectory.joint_names".into(),
-                points: "$.trajectory.points".into(),
-                goal: "$.goal".into(),
-            },
-        ));
-    }
-    stored::resolve(state, body).await
-}
-
-/// Orders named joint values like `names`; errors name `$.goal...`.
-fn ordered_goal(goal: &JointValues, names: &[String]) -> Result<Vec<f64>, ApiError> {
-    if goal.joint_names.len() != goal.positions.len() {
-        return Err(ApiError::invalid_field(
-            "$.goal.positions",
-            format!(
-                "{} positions for {} joint names",
-                goal.positions.len(),
-                goal.joint_names.len()
-            ),
-        ));
-    }
-    let mut errors = Vec::new();
-    let mut out = Vec::with_capacity(names.len());
-    for n in names {
-        match goal.joint_names.iter().position(|g| g == n) {
-            Some(i) => out.push(goal.positions[i]),
-            None => errors.push(FieldError::new(
-                "$.goal.joint_names",
-                format!("joint '{n}' is missing"),
-            )),
-        }
-    }
-    for (i, g) in goal.joint_names.iter().enumerate() {
-        if !names.contains(g) {
-            errors.push(FieldError::new(
-                format!("$.goal.joint_names[{i}]"),
-                format!("'{g}' is not a joint of this robot"),
-            ));
-        }
-    }
-    if errors.is_empty() {
-        Ok(out)
-    } else {
-        Err(ApiError::validation(errors))
-    }
-}
-
-/// Stored trajectories and models (the `models` resource's store).
-mod stored {
-    use super::*;
-    use crate::store::{models, trajectories};
-
-    async fn params(
-        state: &AppState,
-        model_id: &str,
-        robot: &str,
-        path: &str,
-    ) -> Result<crate::motion::ControlParams, ApiError> {
-        let row = models::get_model(&state.db, model_id)
-            .await?
-            .ok_or_else(|| ApiError::invalid_field(path, format!("unknown model '{model_id}'")))?;
-        if row.robot != robot {
-            return Err(ApiError::invalid_field(
-                path,
-                format!(
-                    "model '{model_id}' is for robot '{}', not '{robot}'",
-                    row.robot
-                ),
-            ));
-        }
-        models::load_params(&state.db, model_id)
-            .await?
-            .ok_or_else(|| {
-                ApiError::conflict(format!(
-                    "model '{model_id}' is not trained (its job is {})",
-                    row.status
-                ))
-            })
-    }
-
-    pub(super) async fn resolve(
-        state: &AppState,
-        body: CreateExecution,
-    ) -> Result<(ExecutionPayload, PayloadPaths), ApiError> {
-        if let Some(id) = &body.trajectory_id {
-            if body.goal.is_some() {
-                return Err(ApiError::invalid_field(
-                    "$.goal",
-                    "a stored trajectory brings its own goal; goal is only for model_id",
-                ));
-            }
-            let t = trajectories::get_trajectory(&state.db, id)
-                .await?
-                .ok_or_else(|| {
-                    ApiError::invalid_field("$.trajectory_id", format!("unknown trajectory '{id}'"))
-                })?;
-            if t.robot != body.robot {
-                return Err(ApiError::invalid_field(
-                    "$.trajectory_id",
-                    format!(
-                        "trajectory '{id}' is for robot '{}', not '{}'",
-                        t.robot, body.robot
-                    ),
-                ));
-            }
-            let paths = PayloadPaths {
-                joint_names: "$.trajectory_id".into(),
-                points: "$.trajectory_id".into(),
-                goal: "$.trajectory_id".into(),
-            };
-            return match body.mode {
-                Mode::OpenLoop => Ok((
-                    ExecutionPayload::Trajectory {
-                        trajectory_id: t.id,
-                        joint_names: t.joint_names,
-                        points: t.points,
-                    },
-                    paths,
-                )),
-                Mode::ClosedLoop => {
-                    let model_id = t.model_id.ok_or_else(|| {
-                        ApiError::invalid_field(
-                            "$.mode",
-                            format!(
-                                "trajectory '{id}' was not generated by a model, so it has no \
-                                 closed-loop law; run it in open_loop"
-                            ),
-                        )
-                    })?;
-                    let params = params(state, &model_id, &body.robot, "$.trajectory_id").await?;
-                    let goal = ordered_goal(
-                        &JointValues {
-                            joint_names: t.joint_names,
-                            positions: t.goal,
-                        },
-                        &params.joint_names,
-                    )
-                    .map_err(|_| {
-                        ApiError::invalid_field(
-                            "$.trajectory_id",
-                            "the trajectory's joints differ from its model's",
-                        )
-                    })?;
-                    Ok((
-                        ExecutionPayload::Model {
-                            model_id,
-                            params,
-                            goal,
-                        },
-                        paths,
-                    ))
-                }
-            };
-        }
-        let model_id = body
-            .model_id
-            .expect("resolve checked that one source is given");
-        if body.mode != Mode::ClosedLoop {
-            return Err(ApiError::invalid_field(
-                "$.mode",
-                "a model runs its law in closed_loop; for open_loop generate a trajectory \
-                 (POST /v1/trajectories) and pass its trajectory_id",
-            ));
-        }
-        let goal = body
-            .goal
-            .ok_or_else(|| ApiError::invalid_field("$.goal", "model_id needs a goal"))?;
-        let params = params(state, &model_id, &body.robot, "$.model_id").await?;
-        let goal = ordered_goal(&goal, &params.joint_names)?;
-        Ok((
-            ExecutionPayload::Model {
-                model_id,
-                params,
-                goal,
-            },
-            PayloadPaths {
-                joint_names: "$.model_id".into(),
-                points: "$.model_id".into(),
-                goal: "$.goal.positions".into(),
-            },
-        ))
+        )),
     }
 }
 
@@ -477,23 +239,27 @@ mod stored {
     ))]
 async fn create_execution(
     State(state): State<AppState>,
-    Json(body): Json<CreateExecution>,
+    Json(mut body): Json<CreateExecution>,
 ) -> Result<impl IntoResponse, ApiError> {
-    let robot = body.robot.clone();
-    let mode = body.mode;
-    let worker = body.worker.clone();
-    let (payload, paths) = resolve(&state, body).await?;
-    let worker = worker.as_deref().map(WorkerName::parse).transpose()?;
-    let id = crate::service::executions::enqueue(&state, &robot, mode, payload, worker)
-        .await
-        .map_err(|e| match e {
-            crate::service::Error::Payload(issues) => ApiError::payload(&issues, &paths),
-            other => other.into(),
-        })?;
-    let dto = load(&state, &id.parse().map_err(ApiError::internal)?).await?;
+    let source = source(&mut body)?;
+    let goal = body.goal.map(|g| crate::service::models::JointValues {
+        joint_names: g.joint_names,
+        positions: g.positions,
+    });
+    let dto = execution_dto(
+        service::create(
+            &state,
+            &body.robot,
+            body.mode,
+            source,
+            goal,
+            body.worker.as_deref(),
+        )
+        .await?,
+    );
     Ok((
         StatusCode::ACCEPTED,
-        [(header::LOCATION, format!("/v1/executions/{id}"))],
+        [(header::LOCATION, format!("/v1/executions/{}", dto.id))],
         Json(dto),
     ))
 }
@@ -515,18 +281,11 @@ async fn list_executions(
                 ApiError::invalid_parameter("state", format!("unknown state '{s}'"))
             })?),
         };
-    let rows = repo::list(
-        &state.db,
-        wanted,
-        q.robot.as_deref(),
-        page.limit,
-        page.offset,
-    )
-    .await?;
-    let mut items = Vec::with_capacity(rows.len());
-    for r in rows {
-        items.push(view(&state, r).await);
-    }
+    let items = service::list(&state, wanted, q.robot.as_deref(), page.limit, page.offset)
+        .await?
+        .into_iter()
+        .map(execution_dto)
+        .collect();
     Ok(Json(page.of(items, None)))
 }
 
@@ -541,7 +300,9 @@ async fn get_execution(
     State(state): State<AppState>,
     Path(id): Path<Uuid>,
 ) -> Result<Json<ExecutionDto>, ApiError> {
-    Ok(Json(load(&state, &id).await?))
+    Ok(Json(execution_dto(
+        service::get(&state, &id.to_string()).await?,
+    )))
 }
 
 /// Cancel a queued or running execution.
@@ -559,8 +320,8 @@ async fn cancel_execution(
     State(state): State<AppState>,
     Path(id): Path<Uuid>,
 ) -> Result<(StatusCode, Json<ExecutionDto>), ApiError> {
-    state.bridges.cancel(&id.to_string()).await?;
-    Ok((StatusCode::ACCEPTED, Json(load(&state, &id).await?)))
+    let v = service::cancel(&state, &id.to_string()).await?;
+    Ok((StatusCode::ACCEPTED, Json(execution_dto(v))))
 }
 
 /// Server-Sent Events of an execution until it finishes.
@@ -580,7 +341,7 @@ async fn execution_events(
     Path(id): Path<Uuid>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let key = id.to_string();
-    let first = load(&state, &id).await?;
+    let first = execution_dto(service::get(&state, &key).await?);
     // A finished execution gets its final event only; a live one is followed. The first event
     // is read after subscribing, so no change in between is missed.
     let rx = if ExecutionState::parse(&first.state).is_none_or(ExecutionState::is_final) {
@@ -605,8 +366,7 @@ async fn execution_events(
                 tokio::time::sleep(Duration::from_millis(20)).await;
                 rx.borrow_and_update();
             }
-            let row = repo::get(&state.db, &key).await.ok().flatten()?;
-            let dto = view(&state, row).await;
+            let dto = execution_dto(service::get(&state, &key).await.ok()?);
             let last = ExecutionState::parse(&dto.state).is_none_or(ExecutionState::is_final);
             let event = Event::default()
                 .event(if last { "final" } else { "progress" })
@@ -653,13 +413,7 @@ async fn execution_feedback(
         ));
     }
     let key = id.to_string();
-    let row = repo::get(&state.db, &key)
-        .await?
-        .ok_or_else(|| ApiError::not_found("execution", id))?;
-    let joint_names = repo::joint_names(&state.db, &key)
-        .await?
-        .ok_or_else(|| ApiError::not_found("execution", id))?;
-    let h = history(&state, &row, joint_names.len()).await?;
+    let (row, joint_names, h) = service::feedback(&state, &key).await?;
     let from = q.since.map_or(0, |s| h.first_after(s));
     let to = (from + limit as usize).min(h.len());
     let samples: Vec<FeedbackSampleDto> = (from..to)
@@ -682,8 +436,8 @@ async fn execution_feedback(
         state: row.state.to_string(),
         joint_names,
         total: h.len() as u64,
-        max_rate_hz: feedback::MAX_RATE_HZ,
-        max_samples: feedback::MAX_SAMPLES as u64,
+        max_rate_hz: service::MAX_RATE_HZ,
+        max_samples: service::MAX_SAMPLES as u64,
         samples,
         next_since,
     }))

@@ -11,20 +11,13 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use uuid::Uuid;
 
-use super::grasps::GraspSettingsDto;
 use super::{ApiError, AppState, Path, Problem, Query};
-use crate::bridge::ExecutionPayload;
 use crate::figures::{
     self, EllipsoidKind, ExecutionSample, Figure, FigureError, GraspInput, MappingInput, PcaPath,
     View,
 };
-use crate::grasp::{GraspResult, ObjectSpec};
-use crate::human::unpack_frames;
 use crate::motion::TrajectoryOptions;
-use crate::store::{
-    blob, demonstrations as demo_repo, executions as execution_repo, grasps as grasp_repo,
-    mappings as mapping_repo, models as model_repo, trajectories as trajectory_repo,
-};
+use crate::service::figures as service;
 
 pub const SVG: &str = "image/svg+xml";
 
@@ -181,31 +174,8 @@ async fn demonstration_plot(
     Path(id): Path<Uuid>,
 ) -> Result<Response, ApiError> {
     let id = id.to_string();
-    let (title, frames) = load_demonstration(&state, &id).await?;
+    let (title, frames) = service::demonstration(&state, &id).await?;
     render(move || Ok(figures::demonstration_figure(&title, &frames)?)).await
-}
-
-/// A stored demonstration's title and derived frames.
-pub async fn load_demonstration(
-    state: &AppState,
-    id: &str,
-) -> Result<(String, Vec<crate::human::HumanFrame>), ApiError> {
-    let row = demo_repo::get(&state.db, id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("demonstration", id))?;
-    let bytes = demo_repo::frames(&state.db, id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("demonstration", id))?;
-    let array =
-        blob::decode::<f64>(&bytes).map_err(|e| ApiError::internal(anyhow::Error::new(e)))?;
-    let (frames, _) = unpack_frames(&array.data)?;
-    let subject = row.subject()?.id;
-    let object = row.object()?.name;
-    let title = format!(
-        "{subject} reaching for the {object} (position {}, trial {})",
-        row.position_index, row.trial
-    );
-    Ok((title, frames))
 }
 
 /// Fig. 3-6: the arm and hand at the grasp, the object, the contact points, the task
@@ -234,16 +204,15 @@ async fn grasp_plot(
             ));
         }
     };
-    let row = grasp_repo::get_grasp(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("grasp", &id))?;
-    let object: ObjectSpec = serde_json::from_str(&row.object).map_err(ApiError::internal)?;
-    let settings: GraspSettingsDto =
-        serde_json::from_str(&row.request).map_err(ApiError::internal)?;
-    let result: GraspResult = serde_json::from_str(&row.result).map_err(ApiError::internal)?;
+    let service::StoredGrasp {
+        robot,
+        object,
+        settings,
+        result,
+    } = service::grasp(&state, &id).await?;
     let robots = state.config.robots.clone();
     render(move || {
-        let system = crate::service::grasps::load_system(&robots, &row.robot)?;
+        let system = crate::service::grasps::load_system(&robots, &robot)?;
         let dirs: Vec<([f64; 3], _)> = settings
             .task_directions
             .iter()
@@ -301,29 +270,23 @@ async fn mapping_plot(
             format!("must be between 0 and 10, got {postures}"),
         ));
     }
-    let row = mapping_repo::get_mapping(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("mapping", &id))?;
-    if row.status != "succeeded" {
-        return Err(ApiError::conflict(format!(
-            "mapping {id} is {}; its figure exists once it has succeeded",
-            row.status
-        )));
-    }
     let index = q.demo.unwrap_or(0);
-    let (page, total) = mapping_repo::load_page(&state.db, &id, None, 1, index as i64).await?;
-    let Some((_, demo)) = page.into_iter().next() else {
-        return Err(ApiError::invalid_parameter(
-            "demo",
-            format!("must be between 0 and {}, got {index}", (total - 1).max(0)),
-        ));
-    };
-    let (_, frames) = load_demonstration(&state, &demo.demonstration_id).await?;
-    let system = crate::service::robots::system(&state, &row.robot).await?;
+    let service::MappedDemoFigure {
+        system,
+        human,
+        demo,
+    } = service::mapping(&state, &id, index)
+        .await?
+        .map_err(|total| {
+            ApiError::invalid_parameter(
+                "demo",
+                format!("must be between 0 and {}, got {index}", (total - 1).max(0)),
+            )
+        })?;
     render(move || {
         let scene = figures::mapping_scene(&MappingInput {
             system: &system,
-            human: &frames,
+            human: &human,
             trajectory: &demo.trajectory,
             postures,
         })?;
@@ -348,30 +311,8 @@ async fn model_plot(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let row = model_repo::get_model(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("model", &id))?;
-    let model = model_repo::load_model(&state.db, &id)
-        .await?
-        .ok_or_else(|| {
-            ApiError::conflict(format!(
-                "model {id} is {}; its figure exists once it is trained",
-                row.status
-            ))
-        })?;
-    let request: serde_json::Value =
-        serde_json::from_str(&row.request).map_err(ApiError::internal)?;
-    let mut demos = Vec::new();
-    for m in request["mappings"].as_array().into_iter().flatten() {
-        if let Some(m) = m.as_str() {
-            demos.extend(mapping_repo::load_trajectories(&state.db, m).await?);
-        }
-        if demos.len() >= MODEL_PATHS {
-            break;
-        }
-    }
-    demos.truncate(MODEL_PATHS);
-    let title = format!("model {} ({})", &id[..8.min(id.len())], row.robot);
+    let (robot, model, demos) = service::model(&state, &id, MODEL_PATHS).await?;
+    let title = format!("model {} ({})", &id[..8.min(id.len())], robot);
     render(move || {
         let Some(arm) = model.manifolds.first() else {
             return Err(FigureError::Empty {
@@ -434,9 +375,7 @@ async fn trajectory_plot(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let t = trajectory_repo::get_trajectory(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("trajectory", &id))?;
+    let t = crate::service::trajectories::get(&state, &id).await?;
     let title = format!(
         "trajectory {} ({}, {:.2} s)",
         &id[..8.min(id.len())],
@@ -468,22 +407,9 @@ async fn execution_plot(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Response, ApiError> {
-    let row = execution_repo::get(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("execution", &id))?;
-    let payload = execution_repo::payload(&state.db, &id).await?;
-    let (joint_names, planned) = match payload {
-        Some(ExecutionPayload::Trajectory {
-            joint_names,
-            points,
-            ..
-        }) => (joint_names, points),
-        Some(ExecutionPayload::Model { params, .. }) => (params.joint_names.clone(), Vec::new()),
-        None => return Err(ApiError::not_found("execution", &id)),
-    };
-    let history = super::executions::history(&state, &row, joint_names.len()).await?;
+    let (row, joint_names, planned, history) = service::execution(&state, &id).await?;
     let short = &id[..8.min(id.len())];
-    let mode = row.mode.replace('_', " ");
+    let mode = row.mode.as_str().replace('_', " ");
     let title = if planned.is_empty() {
         // The title is the figure's legend for this: the series are all measured.
         format!(

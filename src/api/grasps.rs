@@ -18,7 +18,7 @@ pub use crate::service::grasps::{
     BatchItemIn, GraspBatchIn, GraspIn, GraspSettings as GraspSettingsDto, MAX_BATCH, MeshIn,
     ObjectIn, TaskDirectionIn,
 };
-use crate::store::grasps as repo;
+use crate::service::{GraspRow, ObjectRow};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -75,7 +75,7 @@ pub struct GraspBatchDto {
 // ---------------------------------------------------------------------------------------------
 // Rendering
 
-fn object_dto(row: repo::ObjectRow) -> Result<ObjectDto, ApiError> {
+fn object_dto(row: ObjectRow) -> Result<ObjectDto, ApiError> {
     let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(ApiError::internal)?;
     Ok(ObjectDto {
         id: row.id,
@@ -86,7 +86,7 @@ fn object_dto(row: repo::ObjectRow) -> Result<ObjectDto, ApiError> {
     })
 }
 
-pub(crate) fn grasp_dto(row: repo::GraspRow) -> Result<GraspDto, ApiError> {
+pub(crate) fn grasp_dto(row: GraspRow) -> Result<GraspDto, ApiError> {
     Ok(GraspDto {
         id: row.id,
         robot: row.robot,

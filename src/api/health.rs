@@ -42,17 +42,9 @@ async fn healthz() -> Json<Health> {
          content_type = "application/problem+json"),
     ))]
 async fn readyz(State(state): State<AppState>) -> Result<Json<Health>, ApiError> {
-    match tokio::time::timeout(Duration::from_secs(2), crate::store::ping(&state.db)).await {
-        Ok(Ok(())) => Ok(Json(Health {
-            status: "ready".to_owned(),
-            version: env!("CARGO_PKG_VERSION").to_owned(),
-        })),
-        Ok(Err(e)) => {
-            tracing::warn!(error = %e, "readiness check failed");
-            Err(ApiError::unavailable("the database does not answer"))
-        }
-        Err(_) => Err(ApiError::unavailable(
-            "the database did not answer within 2 s",
-        )),
-    }
+    crate::service::ready(&state, Duration::from_secs(2)).await?;
+    Ok(Json(Health {
+        status: "ready".to_owned(),
+        version: env!("CARGO_PKG_VERSION").to_owned(),
+    }))
 }

@@ -16,8 +16,8 @@ use uuid::Uuid;
 use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem};
 use crate::jobs::{JobRecord, JobRunner, JobStatus};
+use crate::service::jobs as service;
 use crate::shutdown::Shutdown;
-use crate::store::jobs::JobFilter;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -62,13 +62,7 @@ async fn list_jobs(
     State(state): State<AppState>,
     Listing(q, page): Listing<ListJobsQuery>,
 ) -> Result<Json<JobList>, ApiError> {
-    let filter = JobFilter {
-        status: q.status,
-        kind: q.kind,
-        limit: page.limit,
-        offset: page.offset,
-    };
-    let items = state.jobs.list(&filter).await?;
+    let items = service::list(&state, q.status, q.kind, page.limit, page.offset).await?;
     Ok(Json(page.of(items, None)))
 }
 
@@ -86,7 +80,7 @@ async fn get_job(
     State(state): State<AppState>,
     Path(id): Path<Uuid>,
 ) -> Result<Json<JobRecord>, ApiError> {
-    Ok(Json(state.jobs.get(id).await?))
+    Ok(Json(service::get(&state, id).await?))
 }
 
 /// Request cooperative cancellation of a queued or running job.
@@ -106,7 +100,7 @@ async fn cancel_job(
     State(state): State<AppState>,
     Path(id): Path<Uuid>,
 ) -> Result<(StatusCode, Json<JobRecord>), ApiError> {
-    let record = state.jobs.cancel(id).await?;
+    let record = service::cancel(&state, id).await?;
     Ok((StatusCode::ACCEPTED, Json(record)))
 }
 
@@ -131,7 +125,7 @@ async fn job_events(
     let live = state.jobs.subscribe(id);
     let start = match live {
         Some(rx) => Step::Live(rx),
-        None => Step::Last(Box::new(state.jobs.get(id).await?)),
+        None => Step::Last(Box::new(service::get(&state, id).await?)),
     };
     let stream = events(start, state.jobs.clone(), state.shutdown.clone());
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))

@@ -20,7 +20,6 @@ pub use crate::service::mappings::{
     MappingSummary, RegistrationDto, RegistrationIn, ScaleIn, SelectionIn, TransformIn, WeightsDto,
     WeightsIn, mapped_demo_dto,
 };
-use crate::store::mappings::{self as repo, DemoLabels, MappedDemoRow, StoredMappedDemo};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -112,57 +111,17 @@ pub struct GetQuery {
     pub trajectories: Option<bool>,
 }
 
-async fn mapping_dto(
-    state: &AppState,
-    row: repo::MappingRow,
-    demonstrations: Option<MappedDemoPage>,
-) -> Result<MappingDto, ApiError> {
-    let request: MappingRequestDto = serde_json::from_str(&row.request)
-        .map_err(|e| ApiError::internal(anyhow::anyhow!("mappings.request of {}: {e}", row.id)))?;
-    let summary = row
-        .summary
-        .as_deref()
-        .map(serde_json::from_str)
-        .transpose()
-        .map_err(|e| ApiError::internal(anyhow::anyhow!("mappings.summary of {}: {e}", row.id)))?;
-    let error = if row.status == "failed" {
-        match Uuid::parse_str(&row.job_id) {
-            Ok(job) => state.jobs.get(job).await.ok().and_then(|j| j.error),
-            Err(_) => None,
-        }
-    } else {
-        None
-    };
-    Ok(MappingDto {
-        id: row.id,
-        job_id: row.job_id,
-        robot: row.robot,
-        status: row.status,
-        request,
-        summary,
-        error,
-        created_at: row.created_at,
+fn mapping_dto(m: service::StoredMapping, demonstrations: Option<MappedDemoPage>) -> MappingDto {
+    MappingDto {
+        id: m.id,
+        job_id: m.job_id,
+        robot: m.robot,
+        status: m.status,
+        request: m.request,
+        summary: m.summary,
+        error: m.error,
+        created_at: m.created_at,
         demonstrations,
-    })
-}
-
-fn parse_summary(row: &MappedDemoRow) -> Result<MappingSummary, ApiError> {
-    serde_json::from_str(&row.summary).map_err(|e| {
-        ApiError::internal(anyhow::anyhow!(
-            "mapping_demonstrations.summary of {}: {e}",
-            row.demonstration_id
-        ))
-    })
-}
-
-fn labels_of(row: &MappedDemoRow, d: Option<&StoredMappedDemo>) -> DemoLabels {
-    DemoLabels {
-        demonstration_id: row.demonstration_id.clone(),
-        subject_id: row.subject_id.clone(),
-        object_name: row.object_name.clone(),
-        task: row.task.clone(),
-        position_index: d.map_or(row.position_index as u32, |d| d.position_index),
-        trial: d.map_or(row.trial as u32, |d| d.trial),
     }
 }
 
@@ -189,58 +148,20 @@ async fn get_mapping(
         ));
     }
     let offset = super::page::check_offset(q.offset.unwrap_or(0))?;
-    let id = id.to_string();
-    let row = repo::get_mapping(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("mapping", &id))?;
-    let demo = q.demonstration.as_deref();
-    let (items, total) = if q.trajectories.unwrap_or(true) {
-        let (rows, total) =
-            repo::load_page(&state.db, &id, demo, i64::from(limit), i64::from(offset)).await?;
-        let items = rows
-            .iter()
-            .map(|(meta, d)| {
-                let mut dto = mapped_demo_dto(
-                    meta.position as usize,
-                    &labels_of(meta, Some(d)),
-                    &d.trajectory,
-                );
-                dto.summary = parse_summary(meta)?;
-                Ok(dto)
-            })
-            .collect::<Result<Vec<_>, ApiError>>()?;
-        (items, total)
-    } else {
-        let (rows, total) =
-            repo::list_demos(&state.db, &id, demo, i64::from(limit), i64::from(offset)).await?;
-        let items = rows
-            .iter()
-            .map(|meta| {
-                let l = labels_of(meta, None);
-                Ok(MappedDemoDto {
-                    position: meta.position as usize,
-                    demonstration_id: l.demonstration_id,
-                    subject_id: l.subject_id,
-                    object_name: l.object_name,
-                    task: l.task,
-                    position_index: l.position_index,
-                    trial: l.trial,
-                    summary: parse_summary(meta)?,
-                    registration: None,
-                    trajectory: None,
-                    metrics: None,
-                })
-            })
-            .collect::<Result<Vec<_>, ApiError>>()?;
-        (items, total)
+    let page = service::DemoPage {
+        demonstration: q.demonstration.as_deref(),
+        trajectories: q.trajectories.unwrap_or(true),
+        limit,
+        offset,
     };
+    let (mapping, items, total) = service::get(&state, &id.to_string(), &page).await?;
     let page = MappedDemoPage {
         items,
         total,
         limit,
         offset,
     };
-    Ok(Json(mapping_dto(&state, row, Some(page)).await?))
+    Ok(Json(mapping_dto(mapping, Some(page))))
 }
 
 /// List mappings, newest first (status, request and summary; no trajectories).
@@ -253,25 +174,17 @@ async fn list_mappings(
     State(state): State<AppState>,
     Listing(q, page): Listing<ListQuery>,
 ) -> Result<Json<MappingList>, ApiError> {
-    if let Some(s) = &q.status
-        && crate::jobs::JobStatus::parse(s).is_none()
-    {
-        return Err(ApiError::invalid_parameter(
-            "status",
-            format!("unknown status '{s}' (queued, running, succeeded, failed or cancelled)"),
-        ));
-    }
-    let (rows, total) = repo::list_mappings(
-        &state.db,
-        i64::from(page.limit),
-        i64::from(page.offset),
-        q.robot.as_deref(),
-        q.status.as_deref(),
-    )
-    .await?;
-    let mut items = Vec::with_capacity(rows.len());
-    for row in rows {
-        items.push(mapping_dto(&state, row, None).await?);
-    }
+    let status = match &q.status {
+        None => None,
+        Some(s) => Some(crate::jobs::JobStatus::parse(s).ok_or_else(|| {
+            ApiError::invalid_parameter(
+                "status",
+                format!("unknown status '{s}' (queued, running, succeeded, failed or cancelled)"),
+            )
+        })?),
+    };
+    let (rows, total) =
+        service::list(&state, q.robot.as_deref(), status, page.limit, page.offset).await?;
+    let items = rows.into_iter().map(|m| mapping_dto(m, None)).collect();
     Ok(Json(page.of(items, Some(total))))
 }

@@ -25,10 +25,10 @@ pub use crate::service::models::{
     GoalRegionDto, HeldOutDto, HeldOutSummaryDto, JointValues, MAX_DURATION, MAX_RATE,
     MAX_SPLINE_INTERVALS, ManifoldDto, ModelReportDto, held_out_folds,
 };
+use crate::service::trajectories::StoredTrajectory;
 pub use crate::service::trajectories::{
     CreateTrajectory, FramePathDto, GoalIn, GroupErrorDto, TrajectoryReportDto,
 };
-use crate::store::{models as repo, trajectories};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -140,23 +140,18 @@ pub struct TrajectoryQuery {
     pub offset: Option<u32>,
 }
 
-fn model_dto(row: repo::ModelRow, names: Vec<String>, default: bool) -> Result<ModelDto, ApiError> {
-    Ok(ModelDto {
-        request: serde_json::from_str(&row.request).map_err(ApiError::internal)?,
-        report: row
-            .report
-            .as_deref()
-            .map(serde_json::from_str)
-            .transpose()
-            .map_err(ApiError::internal)?,
-        id: row.id,
-        job_id: row.job_id,
-        robot: row.robot,
-        status: row.status,
-        default,
-        joint_names: names,
-        created_at: row.created_at,
-    })
+fn model_dto(m: service::models::StoredModel) -> ModelDto {
+    ModelDto {
+        id: m.id,
+        job_id: m.job_id,
+        robot: m.robot,
+        status: m.status,
+        default: m.default,
+        joint_names: m.joint_names,
+        request: m.request,
+        report: m.report,
+        created_at: m.created_at,
+    }
 }
 
 /// Train a motion model (PCA + navigation function per joint group) from stored mappings, as a
@@ -184,15 +179,8 @@ async fn list_models(
     Listing(q, page): Listing<ModelQuery>,
 ) -> Result<Json<ModelList>, ApiError> {
     let (rows, total) =
-        repo::list_models(&state.db, q.robot.as_deref(), page.limit, page.offset).await?;
-    let mut items = Vec::with_capacity(rows.len());
-    for row in rows {
-        let names = repo::joint_names(&state.db, &row.id)
-            .await?
-            .unwrap_or_default();
-        let default = repo::is_marked_default(&state.db, &row.id).await?;
-        items.push(model_dto(row, names, default)?);
-    }
+        service::models::list(&state, q.robot.as_deref(), page.limit, page.offset).await?;
+    let items = rows.into_iter().map(model_dto).collect();
     Ok(Json(page.of(items, Some(total))))
 }
 
@@ -205,12 +193,7 @@ async fn get_model(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<ModelDto>, ApiError> {
-    let row = repo::get_model(&state.db, &id)
-        .await?
-        .ok_or_else(|| ApiError::not_found("model", &id))?;
-    let names = repo::joint_names(&state.db, &id).await?.unwrap_or_default();
-    let default = repo::is_marked_default(&state.db, &id).await?;
-    Ok(Json(model_dto(row, names, default)?))
+    Ok(Json(model_dto(service::models::get(&state, &id).await?)))
 }
 
 /// The closed-loop law's parameters in the compact form a bridge worker runs locally (joint
@@ -243,7 +226,7 @@ async fn control(
     Ok(Json(ControlResponse { joint_names, u }))
 }
 
-pub fn trajectory_dto(t: trajectories::StoredTrajectory) -> Result<TrajectoryDto, ApiError> {
+pub fn trajectory_dto(t: StoredTrajectory) -> Result<TrajectoryDto, ApiError> {
     Ok(TrajectoryDto {
         report: serde_json::from_str(&t.summary).map_err(ApiError::internal)?,
         id: t.id,
@@ -323,8 +306,7 @@ async fn list_trajectories(
     Listing(q, page): Listing<TrajectoryQuery>,
 ) -> Result<Json<TrajectoryList>, ApiError> {
     let (rows, total) =
-        trajectories::list_trajectories(&state.db, q.model.as_deref(), page.limit, page.offset)
-            .await?;
+        service::trajectories::list(&state, q.model.as_deref(), page.limit, page.offset).await?;
     let mut items = Vec::with_capacity(rows.len());
     for r in rows {
         let s: TrajectoryReportDto =

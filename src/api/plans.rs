@@ -24,7 +24,6 @@ use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem};
 use crate::service;
 pub use crate::service::plans::{PlanIn, PlanTimings, StartIn};
-use crate::store::plans as repo;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -169,13 +168,8 @@ async fn list_plans(
     State(state): State<AppState>,
     Listing(q, page): Listing<PlanQuery>,
 ) -> Result<Json<PlanList>, ApiError> {
-    let (rows, total) = repo::list(
-        &state.db,
-        q.robot.as_deref(),
-        page.limit.into(),
-        page.offset.into(),
-    )
-    .await?;
+    let (rows, total) =
+        service::plans::list(&state, q.robot.as_deref(), page.limit, page.offset).await?;
     let items = rows
         .into_iter()
         .map(|r| PlanSummaryDto {

@@ -18,7 +18,7 @@ use utoipa_axum::routes;
 
 use super::{ApiError, AppState, Json, Path, Problem};
 use crate::kinematics::{FrameId, JointKind, System, SystemDescriptor};
-use crate::store::robots as repo;
+use crate::service::robots::RobotRow;
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -199,7 +199,7 @@ fn decode_meshes(
     Ok(out)
 }
 
-fn summary(row: &repo::RobotRow, s: &System) -> RobotSummary {
+fn summary(row: &RobotRow, s: &System) -> RobotSummary {
     RobotSummary {
         id: row.id.clone(),
         name: row.name.clone(),
@@ -211,7 +211,7 @@ fn summary(row: &repo::RobotRow, s: &System) -> RobotSummary {
     }
 }
 
-fn detail(row: &repo::RobotRow, s: &System) -> RobotDetail {
+fn detail(row: &RobotRow, s: &System) -> RobotDetail {
     let m = &s.model;
     let qn = |k: usize| m.joint_names()[k].clone();
     let joints = m

@@ -282,7 +282,7 @@ impl Hub {
     ) -> Result<String, BridgeError> {
         self.check(robot, mode, &payload).await?;
         let worker = worker.as_ref().map(WorkerName::as_str);
-        let row = repo::insert(&self.0.db, robot, mode.as_str(), &payload, worker).await?;
+        let row = repo::insert(&self.0.db, robot, mode, &payload, worker).await?;
         self.wake();
         Ok(row.id)
     }
@@ -308,7 +308,7 @@ impl Hub {
         worker: Option<&WorkerName>,
     ) -> Result<String, BridgeError> {
         let worker = worker.map(WorkerName::as_str);
-        Ok(repo::insert_in(conn, robot, mode.as_str(), payload, worker)
+        Ok(repo::insert_in(conn, robot, mode, payload, worker)
             .await?
             .id)
     }
@@ -345,10 +345,7 @@ impl Hub {
             )
         });
         for row in queued {
-            let Some(mode) = Mode::parse(&row.mode) else {
-                continue;
-            };
-            let cap = match mode {
+            let cap = match row.mode {
                 Mode::OpenLoop => Capability::OpenLoop,
                 Mode::ClosedLoop => Capability::ClosedLoop,
             };
@@ -444,7 +441,7 @@ impl Hub {
             }
             let msg = ServiceMessage::Execute(Execute {
                 execution_id: row.id.clone(),
-                mode,
+                mode: row.mode,
                 payload,
             });
             if tx.try_send(msg).is_err() {

@@ -491,7 +491,7 @@ pub async fn executions(State(state): State<AppState>, Query(q): Query<PageQuery
             vec![
                 link(&format!("/ui/executions/{}", e.id), short(&e.id)),
                 esc(&e.robot),
-                esc(&e.mode),
+                esc(e.mode.as_str()),
                 execution_progress(
                     &e.id,
                     e.state,
@@ -530,7 +530,7 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
         ));
     };
     let view = crate::service::executions::view(&state, row);
-    let mode = Mode::parse(&view.row.mode).unwrap_or(Mode::OpenLoop);
+    let mode = view.row.mode;
     let dto = &view.row;
     let fraction = match (&view.last_feedback, dto.state) {
         (_, ExecutionState::Succeeded) => 1.0,

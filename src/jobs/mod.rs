@@ -31,6 +31,8 @@
 //!
 //! * The closure runs on tokio's blocking pool (`spawn_blocking`, inside the job's tracing span),
 //!   at most `job_concurrency` at a time (a semaphore); further jobs wait `queued`, none are dropped.
+//!   It runs inside the runner's [`crate::parallel::Pool`] of `job_concurrency` threads, so the
+//!   parallel maps of all running jobs share those threads.
 //! * [`JobContext::progress`] is cheap (an in-memory update seen at once by SSE subscribers); the
 //!   database copy is written at most every [`PROGRESS_PERSIST_INTERVAL`].
 //! * Return [`JobError::Cancelled`] (e.g. via `ctx.check_cancelled()?`) when cancellation is seen;
@@ -263,6 +265,8 @@ struct Live {
 
 struct Inner {
     pool: SqlitePool,
+    /// The threads every job's parallel maps run on (as many as jobs may run at once).
+    workers: crate::parallel::Pool,
     permits: Arc<Semaphore>,
     concurrency: usize,
     live: Mutex<HashMap<Uuid, Live>>,
@@ -299,6 +303,7 @@ impl JobRunner {
         Ok(JobRunner {
             inner: Arc::new(Inner {
                 pool,
+                workers: crate::parallel::Pool::new(concurrency),
                 permits: Arc::new(Semaphore::new(concurrency)),
                 concurrency,
                 live: Mutex::new(HashMap::new()),
@@ -311,6 +316,11 @@ impl JobRunner {
     /// The configured number of jobs that may run at once.
     pub fn concurrency(&self) -> usize {
         self.inner.concurrency
+    }
+
+    /// The threads the jobs' parallel maps run on.
+    pub fn workers(&self) -> &crate::parallel::Pool {
+        &self.inner.workers
     }
 
     /// Persists a new `queued` job of `kind` and schedules `work` on the blocking pool.
@@ -479,6 +489,7 @@ async fn drive<F>(
     F: FnOnce(JobContext) -> Result<JobOutput, JobError> + Send + 'static,
 {
     let pool = inner.pool.clone();
+    let workers = inner.workers.clone();
     let permit = tokio::select! {
         permit = permit => permit.ok(),
         () = cancel.requested() => None,
@@ -492,7 +503,7 @@ async fn drive<F>(
                 Finish::cancelled()
             }
         }
-        Some(_permit) => run(&pool, id, work, &cancel, &events).await,
+        Some(_permit) => run(&pool, &workers, id, work, &cancel, &events).await,
     };
     if let Err(e) = store::jobs::finish(&pool, id, &finish, &store::now()).await {
         tracing::error!(error = %e, "cannot record the end of a job");
@@ -515,6 +526,7 @@ async fn settle(inner: &Inner, id: Uuid, events: &watch::Sender<JobRecord>) {
 
 async fn run<F>(
     pool: &SqlitePool,
+    workers: &crate::parallel::Pool,
     id: Uuid,
     work: F,
     cancel: &Arc<CancelState>,
@@ -546,7 +558,9 @@ where
         events: events.clone(),
     };
     let span = tracing::Span::current();
-    let mut handle = tokio::task::spawn_blocking(move || span.in_scope(|| work(ctx)));
+    let workers = workers.clone();
+    let mut handle =
+        tokio::task::spawn_blocking(move || workers.install(|| span.in_scope(|| work(ctx))));
     let mut persisted = events.borrow().progress.clone();
     let mut tick = tokio::time::interval(PROGRESS_PERSIST_INTERVAL);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);

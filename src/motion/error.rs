@@ -58,18 +58,27 @@ pub enum MotionError {
     InvalidLimits { joint: usize, reason: &'static str },
     #[error("joint group {group}: {reason}")]
     InvalidGroup { group: usize, reason: &'static str },
+    /// An option out of its range: `field` is the option's name (as in [`super::TrainOptions`]
+    /// or [`super::TrajectoryOptions`]; the service's requests use the same names), `reason`
+    /// says what is allowed.
     #[error("option {field} = {value}: {reason}")]
     InvalidOption {
         field: &'static str,
         value: f64,
-        reason: &'static str,
+        reason: std::borrow::Cow<'static, str>,
     },
     #[error("{needed} components needed for the variance threshold, at most {max} supported")]
     TooManyComponents { needed: usize, max: usize },
     #[error(
         "spline with {coefficients} coefficients exceeds the maximum {max}; use fewer intervals"
     )]
-    SplineTooLarge { coefficients: usize, max: usize },
+    SplineTooLarge {
+        /// Knot intervals per axis and axes (PCA components) that need `coefficients`.
+        intervals: usize,
+        components: usize,
+        coefficients: usize,
+        max: usize,
+    },
     #[error("group {group}: goal is {distance} from the goal-region centre, radius {radius}")]
     GoalOutsideRegion {
         group: usize,

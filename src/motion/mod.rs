@@ -62,9 +62,9 @@ pub use fit::{MAX_COEFFICIENTS as MAX_SPLINE_COEFFICIENTS, SplineFit};
 pub use flow::{FlowOptions, FlowPath, integrate_flow};
 pub use model::{
     Baseline, DEFAULT_PROFILE_RIDGE, DurationModel, HeldOutReport, JointLimits, JointTrajectory,
-    KChoice, ManifoldFit, ManifoldModel, MotionModel, PhaseMap, ProfileInputs, ResidualProfile,
-    TrainOptions, TrainReport, Trajectory, TrajectoryOptions, TrajectoryPoint,
-    arc_length_deviation, train,
+    KChoice, MAX_SPLINE_INTERVALS, ManifoldFit, ManifoldModel, MotionModel, PhaseMap,
+    ProfileInputs, ResidualProfile, TrainOptions, TrainReport, Trajectory, TrajectoryOptions,
+    TrajectoryPoint, arc_length_deviation, train,
 };
 pub use nf::{Certificate, NavigationFunction};
 pub use pca::{Components, Pca};

@@ -136,6 +136,128 @@ pub struct TrainOptions {
     pub profile_inputs: ProfileInputs,
 }
 
+/// Most knot intervals per PCA axis a model may ask for.
+pub const MAX_SPLINE_INTERVALS: usize = 12;
+
+impl TrainOptions {
+    /// Every option out of its range, for a model of `n` joints, in field order: an
+    /// [`MotionError::InvalidOption`] naming the field and saying what is allowed (the reason
+    /// ends with the value given), or [`MotionError::SplineTooLarge`] for explicit intervals
+    /// (`cap_spline_intervals` false) on a fixed component count over the coefficient budget.
+    /// [`train`] refuses the first; the service reports them all, at the request's fields of the
+    /// same names. Joint groups are checked by [`train`] (they need the model's joints).
+    pub fn check(&self, n: usize) -> Vec<MotionError> {
+        fn bad(field: &'static str, value: f64, reason: String) -> MotionError {
+            MotionError::InvalidOption {
+                field,
+                value,
+                reason: reason.into(),
+            }
+        }
+        let mut errors = Vec::new();
+        let smallest = if self.groups.is_empty() {
+            n
+        } else {
+            self.groups.iter().map(Vec::len).min().unwrap_or(0)
+        };
+        match self.components {
+            Components::Count(c) => {
+                let max = MAX_DIM.min(smallest);
+                if c == 0 || c > max {
+                    errors.push(bad(
+                        "components",
+                        c as f64,
+                        format!(
+                            "must be between 1 and {max} (the smallest joint group of this robot has {smallest} joints; at most {MAX_DIM} supported), got {c}"
+                        ),
+                    ));
+                }
+            }
+            Components::VarianceThreshold(t) => {
+                if !(t > 0.0 && t <= 1.0) {
+                    errors.push(bad(
+                        "variance_threshold",
+                        t,
+                        format!("must be in (0, 1], got {t}"),
+                    ));
+                }
+            }
+        }
+        let intervals = self.spline_intervals;
+        if !(1..=MAX_SPLINE_INTERVALS).contains(&intervals) {
+            errors.push(bad(
+                "spline_intervals",
+                intervals as f64,
+                format!("must be between 1 and {MAX_SPLINE_INTERVALS}, got {intervals}"),
+            ));
+        } else if let Components::Count(c) = self.components
+            && !self.cap_spline_intervals
+            && (1..=MAX_DIM).contains(&c)
+        {
+            let coefficients = TensorBSpline::coefficient_count(c, intervals);
+            if coefficients > MAX_COEFFICIENTS {
+                errors.push(MotionError::SplineTooLarge {
+                    intervals,
+                    components: c,
+                    coefficients,
+                    max: MAX_COEFFICIENTS,
+                });
+            }
+        }
+        let r = self.regularisation;
+        if !(r > 0.0 && r.is_finite()) {
+            errors.push(bad(
+                "regularisation",
+                r,
+                format!("must be a positive number, got {r}"),
+            ));
+        }
+        if let KChoice::Value(k) = self.k
+            && !(k >= 1.0 && k.is_finite())
+        {
+            errors.push(bad(
+                "k",
+                k,
+                format!("must be \"auto\" or a number ≥ 1, got {k}"),
+            ));
+        }
+        if let Some(r) = self.profile_ridge
+            && !(r > 0.0 && r.is_finite())
+        {
+            errors.push(bad(
+                "profile_ridge",
+                r,
+                format!("must be a positive number, got {r}"),
+            ));
+        }
+        let g = self.goal_exclusion;
+        if !(0.0..1.0).contains(&g) {
+            errors.push(bad(
+                "goal_exclusion",
+                g,
+                format!("must be in [0, 1), got {g}"),
+            ));
+        }
+        let g = self.goal_margin;
+        if !(g > 0.0 && g.is_finite()) {
+            errors.push(bad(
+                "goal_margin",
+                g,
+                format!("must be a positive number, got {g}"),
+            ));
+        }
+        let w = self.workspace_margin;
+        if !(w > 1.0 && w.is_finite()) {
+            errors.push(bad(
+                "workspace_margin",
+                w,
+                format!("must be a number greater than 1, got {w}"),
+            ));
+        }
+        errors
+    }
+}
+
 /// Default ridge of the residual profile: chosen on a study with another seed (2) than the
 /// held-out evaluation's (1), from {1e-3, 1e-2, 0.1, 1}: 0.1 was best or within 10 % of best
 /// for the arm and hand of wam_ihy, wam_t42 and pa10_ob4f.
@@ -585,81 +707,79 @@ pub fn train(
     limits.validate()?;
     let n = limits.n();
     validate_demos(demos, n)?;
-    if !(opts.regularisation > 0.0 && opts.regularisation.is_finite()) {
-        return Err(MotionError::InvalidOption {
-            field: "regularisation",
-            value: opts.regularisation,
-            reason: "must be positive",
-        });
+    if let Some(e) = opts.check(n).into_iter().next() {
+        return Err(e);
     }
-    if !(0.0..1.0).contains(&opts.goal_exclusion) {
-        return Err(MotionError::InvalidOption {
-            field: "goal_exclusion",
-            value: opts.goal_exclusion,
-            reason: "must be in [0, 1)",
-        });
+    let (train_idx, held_idx) = split_held_out(demos.len(), &opts.held_out)?;
+    let groups = joint_groups(&opts.groups, n)?;
+
+    let mut manifolds = Vec::new();
+    let mut fits = Vec::new();
+    // per group, per demo: projected trajectory (frames × d)
+    let mut projected: Vec<Vec<Vec<f64>>> = Vec::new();
+    for (gi, joints) in groups.iter().enumerate() {
+        let (manifold, fit, ys) = train_group(gi, joints, demos, n, &train_idx, &held_idx, opts)?;
+        manifolds.push(manifold);
+        fits.push(fit);
+        projected.push(ys);
     }
-    if opts.spline_intervals == 0 {
-        return Err(MotionError::InvalidOption {
-            field: "spline_intervals",
-            value: 0.0,
-            reason: "must be at least 1",
-        });
+
+    if let Some(ridge) = opts.profile_ridge {
+        for (g, m) in manifolds.iter_mut().enumerate() {
+            m.profile = fit_profile(m, demos, &train_idx, n, &projected[g], opts, ridge);
+        }
     }
-    if !(opts.goal_margin > 0.0 && opts.goal_margin.is_finite()) {
-        return Err(MotionError::InvalidOption {
-            field: "goal_margin",
-            value: opts.goal_margin,
-            reason: "must be positive",
-        });
-    }
-    if !(opts.workspace_margin > 1.0 && opts.workspace_margin.is_finite()) {
-        return Err(MotionError::InvalidOption {
-            field: "workspace_margin",
-            value: opts.workspace_margin,
-            reason: "must be greater than 1",
-        });
-    }
-    if let Some(r) = opts.profile_ridge
-        && !(r > 0.0 && r.is_finite())
-    {
-        return Err(MotionError::InvalidOption {
-            field: "profile_ridge",
-            value: r,
-            reason: "must be positive",
-        });
-    }
-    if let KChoice::Value(k) = opts.k
-        && !(k >= 1.0 && k.is_finite())
-    {
-        return Err(MotionError::InvalidOption {
-            field: "k",
-            value: k,
-            reason: "must be at least 1",
-        });
-    }
-    let mut is_held = vec![false; demos.len()];
-    for &i in &opts.held_out {
-        if i >= demos.len() {
-            return Err(MotionError::HeldOutIndex {
-                index: i,
-                demos: demos.len(),
-            });
+    let phase = phase_maps(&manifolds, &projected, &train_idx);
+    let duration = duration_model(demos, &train_idx, n);
+    let model = MotionModel {
+        n_joints: n,
+        limits: limits.clone(),
+        manifolds,
+        phase,
+        duration,
+        flow: opts.flow,
+    };
+    let held_out = held_out_report(&model, demos, &held_idx);
+    let report = TrainReport {
+        manifolds: fits,
+        duration,
+        training_demonstrations: train_idx.len(),
+        held_out,
+    };
+    Ok((model, report))
+}
+
+/// The training and held-out demonstrations' indices (each in input order); at least two are
+/// left to train on.
+fn split_held_out(
+    demos: usize,
+    held_out: &[usize],
+) -> Result<(Vec<usize>, Vec<usize>), MotionError> {
+    let mut is_held = vec![false; demos];
+    for &i in held_out {
+        if i >= demos {
+            return Err(MotionError::HeldOutIndex { index: i, demos });
         }
         is_held[i] = true;
     }
-    let train_idx: Vec<usize> = (0..demos.len()).filter(|i| !is_held[*i]).collect();
-    let held_idx: Vec<usize> = (0..demos.len()).filter(|i| is_held[*i]).collect();
+    let train_idx: Vec<usize> = (0..demos).filter(|i| !is_held[*i]).collect();
+    let held_idx: Vec<usize> = (0..demos).filter(|i| is_held[*i]).collect();
     if train_idx.len() < 2 {
         return Err(MotionError::TooFewDemonstrations {
             got: train_idx.len(),
             needed: 2,
         });
     }
-    let groups: Vec<Vec<usize>> = if opts.groups.is_empty() {
+    Ok((train_idx, held_idx))
+}
+
+/// The joint groups of a model of `n` joints (one group of all joints when none are given);
+/// every joint in exactly one group.
+fn joint_groups(given: &[Vec<usize>], n: usize) -> Result<Vec<Vec<usize>>, MotionError> {
+    let groups: Vec<Vec<usize>> = if given.is_empty() {
         vec![(0..n).collect()]
     } else {
-        opts.groups.clone()
+        given.to_vec()
     };
     let mut seen = vec![false; n];
     for (gi, g) in groups.iter().enumerate() {
@@ -685,158 +805,197 @@ pub fn train(
             reason: "some joint belongs to no group",
         });
     }
+    Ok(groups)
+}
 
-    let mut manifolds = Vec::new();
-    let mut fits = Vec::new();
-    // per group, per demo: projected trajectory (frames × d)
-    let mut projected: Vec<Vec<Vec<f64>>> = Vec::new();
-    for (gi, joints) in groups.iter().enumerate() {
-        let ng = joints.len();
-        let mut samples = Vec::new();
-        let mut buf = vec![0.0; ng];
-        for &di in &train_idx {
-            let dm = &demos[di];
+/// One joint group's manifold (PCA of the training frames), its learned and certified
+/// navigation function and fit report, and every demonstration projected onto the manifold
+/// (frames × d, held-out ones included).
+fn train_group(
+    gi: usize,
+    joints: &[usize],
+    demos: &[JointTrajectory],
+    n: usize,
+    train_idx: &[usize],
+    held_idx: &[usize],
+    opts: &TrainOptions,
+) -> Result<(ManifoldModel, ManifoldFit, Vec<Vec<f64>>), MotionError> {
+    let ng = joints.len();
+    let mut samples = Vec::new();
+    let mut buf = vec![0.0; ng];
+    for &di in train_idx {
+        let dm = &demos[di];
+        for s in 0..dm.frames() {
+            gather(dm.frame(s, n), joints, &mut buf);
+            samples.extend_from_slice(&buf);
+        }
+    }
+    let pca = Pca::fit(&samples, ng, opts.components, MAX_DIM.min(ng))?;
+    let d = pca.d();
+    let ys: Vec<Vec<f64>> = demos
+        .iter()
+        .map(|dm| {
+            let mut out = vec![0.0; dm.frames() * d];
             for s in 0..dm.frames() {
                 gather(dm.frame(s, n), joints, &mut buf);
-                samples.extend_from_slice(&buf);
+                pca.project(&buf, &mut out[s * d..(s + 1) * d]);
             }
-        }
-        let pca = Pca::fit(&samples, ng, opts.components, MAX_DIM.min(ng))?;
-        let d = pca.d();
-        let ys: Vec<Vec<f64>> = demos
-            .iter()
-            .map(|dm| {
-                let mut out = vec![0.0; dm.frames() * d];
-                for s in 0..dm.frames() {
-                    gather(dm.frame(s, n), joints, &mut buf);
-                    pca.project(&buf, &mut out[s * d..(s + 1) * d]);
-                }
-                out
-            })
-            .collect();
-        // workspace: ball around the bounding-box centre of the training data
-        let mut lo = vec![f64::INFINITY; d];
-        let mut hi = vec![f64::NEG_INFINITY; d];
-        for &di in &train_idx {
-            for p in ys[di].chunks_exact(d) {
-                for i in 0..d {
-                    lo[i] = lo[i].min(p[i]);
-                    hi[i] = hi[i].max(p[i]);
-                }
-            }
-        }
-        let center: Vec<f64> = lo.iter().zip(&hi).map(|(a, b)| 0.5 * (a + b)).collect();
-        let mut rho: f64 = 0.0;
-        for &di in &train_idx {
-            for p in ys[di].chunks_exact(d) {
-                rho = rho.max(
-                    (0..d)
-                        .map(|i| (p[i] - center[i]).powi(2))
-                        .sum::<f64>()
-                        .sqrt(),
-                );
-            }
-        }
-        let rho = rho.max(1e-9);
-        let radius = opts.workspace_margin * rho;
-        let mut intervals = opts.spline_intervals;
-        while opts.cap_spline_intervals
-            && intervals > 1
-            && TensorBSpline::coefficient_count(d, intervals) > MAX_COEFFICIENTS
-        {
-            intervals -= 1;
-        }
-        let coeffs = TensorBSpline::coefficient_count(d, intervals);
-        if coeffs > MAX_COEFFICIENTS {
-            return Err(MotionError::SplineTooLarge {
-                coefficients: coeffs,
-                max: MAX_COEFFICIENTS,
-            });
-        }
-        let box_lo: Vec<f64> = center.iter().map(|c| c - radius).collect();
-        let box_hi: Vec<f64> = center.iter().map(|c| c + radius).collect();
-        let template = TensorBSpline::zeros(&box_lo, &box_hi, intervals);
-        let train_y: Vec<DemoY<'_>> = train_idx.iter().map(|&di| DemoY { y: &ys[di] }).collect();
-        let fit = fit_spline(
-            &template,
-            &center,
-            radius,
-            &train_y,
-            opts.regularisation,
-            opts.goal_exclusion,
-            gi,
-        )?;
-        let k = match opts.k {
-            KChoice::Auto => None,
-            KChoice::Value(k) => Some(k),
-        };
-        let mut goal_center = vec![0.0; d];
-        for &di in &train_idx {
-            let f = ys[di].len() / d - 1;
+            out
+        })
+        .collect();
+    let (center, rho) = workspace_ball(&ys, train_idx, d);
+    let radius = opts.workspace_margin * rho;
+    let intervals = spline_intervals(opts, d)?;
+    let box_lo: Vec<f64> = center.iter().map(|c| c - radius).collect();
+    let box_hi: Vec<f64> = center.iter().map(|c| c + radius).collect();
+    let template = TensorBSpline::zeros(&box_lo, &box_hi, intervals);
+    let train_y: Vec<DemoY<'_>> = train_idx.iter().map(|&di| DemoY { y: &ys[di] }).collect();
+    let fit = fit_spline(
+        &template,
+        &center,
+        radius,
+        &train_y,
+        opts.regularisation,
+        opts.goal_exclusion,
+        gi,
+    )?;
+    let k = match opts.k {
+        KChoice::Auto => None,
+        KChoice::Value(k) => Some(k),
+    };
+    let (goal_center, goal_radius) =
+        goal_region(&ys, train_idx, d, &center, rho, radius, opts.goal_margin);
+    let (nf, certificate) = certify(
+        template,
+        &fit,
+        center,
+        radius,
+        &goal_center,
+        goal_radius,
+        k,
+        gi,
+    )?;
+    let train_ys: Vec<Vec<f64>> = train_idx.iter().map(|&i| ys[i].clone()).collect();
+    let held_ys: Vec<Vec<f64>> = held_idx.iter().map(|&i| ys[i].clone()).collect();
+    let report = ManifoldFit {
+        group: gi,
+        components: d,
+        explained_variance: pca.explained_variance.clone(),
+        cumulative_explained_variance: pca.explained_variance.iter().sum(),
+        spline_points: fit.points,
+        certificate: certificate.clone(),
+        train_alignment: alignment(&nf, &train_ys).unwrap_or(0.0),
+        held_out_alignment: if held_ys.is_empty() {
+            None
+        } else {
+            alignment(&nf, &held_ys)
+        },
+    };
+    let manifold = ManifoldModel {
+        joints: joints.to_vec(),
+        pca,
+        nf,
+        certificate,
+        profile: None,
+    };
+    Ok((manifold, report, ys))
+}
+
+/// The workspace: centre of the training data's bounding box in PCA space, and the data's
+/// largest distance from it (`rho`, at least 1e-9).
+fn workspace_ball(ys: &[Vec<f64>], train_idx: &[usize], d: usize) -> (Vec<f64>, f64) {
+    let mut lo = vec![f64::INFINITY; d];
+    let mut hi = vec![f64::NEG_INFINITY; d];
+    for &di in train_idx {
+        for p in ys[di].chunks_exact(d) {
             for i in 0..d {
-                goal_center[i] += ys[di][f * d + i] / train_idx.len() as f64;
+                lo[i] = lo[i].min(p[i]);
+                hi[i] = hi[i].max(p[i]);
             }
         }
-        let mut goal_spread: f64 = 0.0;
-        for &di in &train_idx {
-            let f = ys[di].len() / d - 1;
-            let dist = (0..d)
-                .map(|i| (ys[di][f * d + i] - goal_center[i]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            goal_spread = goal_spread.max(dist);
+    }
+    let center: Vec<f64> = lo.iter().zip(&hi).map(|(a, b)| 0.5 * (a + b)).collect();
+    let mut rho: f64 = 0.0;
+    for &di in train_idx {
+        for p in ys[di].chunks_exact(d) {
+            rho = rho.max(
+                (0..d)
+                    .map(|i| (p[i] - center[i]).powi(2))
+                    .sum::<f64>()
+                    .sqrt(),
+            );
         }
-        let offset = (0..d)
-            .map(|i| (goal_center[i] - center[i]).powi(2))
+    }
+    (center, rho.max(1e-9))
+}
+
+/// The spline's knot intervals on `d` components: the requested ones, lowered to fit the
+/// coefficient budget when `cap_spline_intervals`, else refused over it.
+fn spline_intervals(opts: &TrainOptions, d: usize) -> Result<usize, MotionError> {
+    let mut intervals = opts.spline_intervals;
+    while opts.cap_spline_intervals
+        && intervals > 1
+        && TensorBSpline::coefficient_count(d, intervals) > MAX_COEFFICIENTS
+    {
+        intervals -= 1;
+    }
+    let coeffs = TensorBSpline::coefficient_count(d, intervals);
+    if coeffs > MAX_COEFFICIENTS {
+        return Err(MotionError::SplineTooLarge {
+            intervals,
+            components: d,
+            coefficients: coeffs,
+            max: MAX_COEFFICIENTS,
+        });
+    }
+    Ok(intervals)
+}
+
+/// The goal region: the mean demonstrated final point, radius `margin` × the largest distance
+/// of a final point from it, at least 5 % of the data radius `rho`, inside the workspace ball
+/// (`center`, `radius`).
+fn goal_region(
+    ys: &[Vec<f64>],
+    train_idx: &[usize],
+    d: usize,
+    center: &[f64],
+    rho: f64,
+    radius: f64,
+    margin: f64,
+) -> (Vec<f64>, f64) {
+    let mut goal_center = vec![0.0; d];
+    for &di in train_idx {
+        let f = ys[di].len() / d - 1;
+        for i in 0..d {
+            goal_center[i] += ys[di][f * d + i] / train_idx.len() as f64;
+        }
+    }
+    let mut goal_spread: f64 = 0.0;
+    for &di in train_idx {
+        let f = ys[di].len() / d - 1;
+        let dist = (0..d)
+            .map(|i| (ys[di][f * d + i] - goal_center[i]).powi(2))
             .sum::<f64>()
             .sqrt();
-        let goal_radius = (opts.goal_margin * goal_spread)
-            .max(0.05 * rho)
-            .min(0.95 * radius - offset)
-            .max(0.0);
-        let (nf, certificate) = certify(
-            template,
-            &fit,
-            center,
-            radius,
-            &goal_center,
-            goal_radius,
-            k,
-            gi,
-        )?;
-        let train_ys: Vec<Vec<f64>> = train_idx.iter().map(|&i| ys[i].clone()).collect();
-        let held_ys: Vec<Vec<f64>> = held_idx.iter().map(|&i| ys[i].clone()).collect();
-        fits.push(ManifoldFit {
-            group: gi,
-            components: d,
-            explained_variance: pca.explained_variance.clone(),
-            cumulative_explained_variance: pca.explained_variance.iter().sum(),
-            spline_points: fit.points,
-            certificate: certificate.clone(),
-            train_alignment: alignment(&nf, &train_ys).unwrap_or(0.0),
-            held_out_alignment: if held_ys.is_empty() {
-                None
-            } else {
-                alignment(&nf, &held_ys)
-            },
-        });
-        manifolds.push(ManifoldModel {
-            joints: joints.clone(),
-            pca,
-            nf,
-            certificate,
-            profile: None,
-        });
-        projected.push(ys);
+        goal_spread = goal_spread.max(dist);
     }
+    let offset = (0..d)
+        .map(|i| (goal_center[i] - center[i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let goal_radius = (margin * goal_spread)
+        .max(0.05 * rho)
+        .min(0.95 * radius - offset)
+        .max(0.0);
+    (goal_center, goal_radius)
+}
 
-    if let Some(ridge) = opts.profile_ridge {
-        for (g, m) in manifolds.iter_mut().enumerate() {
-            m.profile = fit_profile(m, demos, &train_idx, n, &projected[g], opts, ridge);
-        }
-    }
-
-    // Phase maps: mean over training demos of group g's arc fraction at group 0's fractions.
+/// Phase maps: mean over training demos of group g's arc fraction at group 0's fractions.
+fn phase_maps(
+    manifolds: &[ManifoldModel],
+    projected: &[Vec<Vec<f64>>],
+    train_idx: &[usize],
+) -> Vec<PhaseMap> {
     const PHASE_NODES: usize = 21;
     let mut phase = vec![PhaseMap {
         map: Pchip::identity(),
@@ -846,7 +1005,7 @@ pub fn train(
     for g in 1..manifolds.len() {
         let mut acc = [0.0; PHASE_NODES];
         let mut used = 0;
-        for &di in &train_idx {
+        for &di in train_idx {
             let la = arc_fractions(&projected[0][di], manifolds[0].pca.d(), &mut fa);
             let lg = arc_fractions(&projected[g][di], manifolds[g].pca.d(), &mut fg);
             if la <= 0.0 || lg <= 0.0 {
@@ -881,11 +1040,15 @@ pub fn train(
         };
         phase.push(PhaseMap { map });
     }
+    phase
+}
 
-    // Duration as a linear function of the start-goal joint distance.
+/// Duration as a linear function of the start-goal joint distance (least squares over the
+/// training demonstrations, slope at least 0).
+fn duration_model(demos: &[JointTrajectory], train_idx: &[usize], n: usize) -> DurationModel {
     let (mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0);
     let mut tmin = f64::INFINITY;
-    for &di in &train_idx {
+    for &di in train_idx {
         let dm = &demos[di];
         let t = dm.times[dm.frames() - 1] - dm.times[0];
         let a = dm.frame(0, n);
@@ -913,80 +1076,72 @@ pub fn train(
             intercept = sy / m;
         }
     }
-    let duration = DurationModel {
+    DurationModel {
         intercept,
         slope,
         min_duration: 0.5 * tmin,
-    };
+    }
+}
 
-    let model = MotionModel {
-        n_joints: n,
-        limits: limits.clone(),
-        manifolds,
-        phase,
-        duration,
-        flow: opts.flow,
+/// The held-out demonstrations' mean arc-length deviation from the model's path and the two
+/// baselines' (`None` when nothing is held out); a start or goal the model refuses is counted.
+fn held_out_report(
+    model: &MotionModel,
+    demos: &[JointTrajectory],
+    held_idx: &[usize],
+) -> Option<HeldOutReport> {
+    if held_idx.is_empty() {
+        return None;
+    }
+    let n = model.n_joints;
+    let mut report = HeldOutReport {
+        demonstrations: held_idx.len(),
+        refused: 0,
+        nf: 0.0,
+        joint_line: 0.0,
+        pca_line: 0.0,
+        ratio_to_joint_line: 0.0,
     };
-
-    let held_out = if held_idx.is_empty() {
-        None
-    } else {
-        let mut report = HeldOutReport {
-            demonstrations: held_idx.len(),
-            refused: 0,
-            nf: 0.0,
-            joint_line: 0.0,
-            pca_line: 0.0,
-            ratio_to_joint_line: 0.0,
-        };
-        let mut used = 0;
-        for &di in &held_idx {
-            let dm = &demos[di];
-            let start = dm.frame(0, n);
-            let goal = dm.frame(dm.frames() - 1, n);
-            let mut dev = [0.0; 3];
-            let mut ok = true;
-            for (slot, planner) in [
-                Baseline::NavigationFunction,
-                Baseline::JointLine,
-                Baseline::PcaLine,
-            ]
-            .iter()
-            .enumerate()
-            {
-                let o = TrajectoryOptions {
-                    planner: *planner,
-                    ..TrajectoryOptions::default()
-                };
-                match model.path_positions(start, goal, &o) {
-                    Ok(p) => dev[slot] = arc_length_deviation(&p, &dm.positions, n, 100),
-                    Err(_) => ok = false,
-                }
+    let mut used = 0;
+    for &di in held_idx {
+        let dm = &demos[di];
+        let start = dm.frame(0, n);
+        let goal = dm.frame(dm.frames() - 1, n);
+        let mut dev = [0.0; 3];
+        let mut ok = true;
+        for (slot, planner) in [
+            Baseline::NavigationFunction,
+            Baseline::JointLine,
+            Baseline::PcaLine,
+        ]
+        .iter()
+        .enumerate()
+        {
+            let o = TrajectoryOptions {
+                planner: *planner,
+                ..TrajectoryOptions::default()
+            };
+            match model.path_positions(start, goal, &o) {
+                Ok(p) => dev[slot] = arc_length_deviation(&p, &dm.positions, n, 100),
+                Err(_) => ok = false,
             }
-            if !ok {
-                report.refused += 1;
-                continue;
-            }
-            used += 1;
-            report.nf += dev[0];
-            report.joint_line += dev[1];
-            report.pca_line += dev[2];
         }
-        if used > 0 {
-            report.nf /= used as f64;
-            report.joint_line /= used as f64;
-            report.pca_line /= used as f64;
-            report.ratio_to_joint_line = report.nf / report.joint_line.max(f64::MIN_POSITIVE);
+        if !ok {
+            report.refused += 1;
+            continue;
         }
-        Some(report)
-    };
-    let report = TrainReport {
-        manifolds: fits,
-        duration,
-        training_demonstrations: train_idx.len(),
-        held_out,
-    };
-    Ok((model, report))
+        used += 1;
+        report.nf += dev[0];
+        report.joint_line += dev[1];
+        report.pca_line += dev[2];
+    }
+    if used > 0 {
+        report.nf /= used as f64;
+        report.joint_line /= used as f64;
+        report.pca_line /= used as f64;
+        report.ratio_to_joint_line = report.nf / report.joint_line.max(f64::MIN_POSITIVE);
+    }
+    Some(report)
 }
 
 /// One group's path nodes (`PATH_NODES × n_g`, into `nodes`) from `qs` to `qg` (the group's
@@ -1362,14 +1517,14 @@ impl MotionModel {
             return Err(MotionError::InvalidOption {
                 field: "duration",
                 value: t,
-                reason: "must be positive",
+                reason: "must be positive".into(),
             });
         }
         if !(opts.rate > 0.0 && opts.rate.is_finite() && opts.rate <= 10_000.0) {
             return Err(MotionError::InvalidOption {
                 field: "rate",
                 value: opts.rate,
-                reason: "must be in (0, 10000] Hz",
+                reason: "must be in (0, 10000] Hz".into(),
             });
         }
         let paths = self.group_paths(start, goal, opts.planner)?;

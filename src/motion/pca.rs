@@ -49,7 +49,7 @@ impl Pca {
                     return Err(MotionError::InvalidOption {
                         field: "components",
                         value: c as f64,
-                        reason: "must be between 1 and the number of joints in the group",
+                        reason: "must be between 1 and the number of joints in the group".into(),
                     });
                 }
                 c
@@ -59,7 +59,7 @@ impl Pca {
                     return Err(MotionError::InvalidOption {
                         field: "variance_threshold",
                         value: t,
-                        reason: "must be in (0, 1]",
+                        reason: "must be in (0, 1]".into(),
                     });
                 }
                 1

@@ -611,3 +611,57 @@ fn a_profile_stored_before_profile_inputs_existed_reads_as_group_delta() {
     assert_eq!(ProfileInputs::default(), ProfileInputs::AllEnds);
     assert!(a.iter().zip(&b).any(|(x, y)| (x - y).abs() > 1e-9));
 }
+
+#[test]
+fn every_out_of_range_option_is_named_once_in_field_order() {
+    let data = small_study(3);
+    let n = data.limits.n();
+    assert!(options(&data, None).check(n).is_empty());
+    let bad = TrainOptions {
+        components: Components::Count(0),
+        spline_intervals: 13,
+        regularisation: -1.0,
+        k: KChoice::Value(0.5),
+        profile_ridge: Some(f64::NAN),
+        ..options(&data, None)
+    };
+    let fields: Vec<&str> = bad
+        .check(n)
+        .iter()
+        .map(|e| match e {
+            MotionError::InvalidOption { field, .. } => *field,
+            other => panic!("{other}"),
+        })
+        .collect();
+    assert_eq!(
+        fields,
+        [
+            "components",
+            "spline_intervals",
+            "regularisation",
+            "k",
+            "profile_ridge"
+        ]
+    );
+    // train refuses the first, before touching the data
+    assert!(matches!(
+        train(&data.demos, &data.limits, &bad),
+        Err(MotionError::InvalidOption {
+            field: "components",
+            ..
+        })
+    ));
+    // explicit intervals over the coefficient budget on a fixed component count
+    let large = TrainOptions {
+        components: Components::Count(4),
+        ..options(&data, None)
+    };
+    assert!(matches!(
+        large.check(n).as_slice(),
+        [MotionError::SplineTooLarge {
+            intervals: 6,
+            components: 4,
+            ..
+        }]
+    ));
+}

@@ -1,12 +1,101 @@
-//! Demonstrations: the synthetic study generator as a job.
+//! Demonstrations: upload (ingest, idempotent by external id), list, get, derived frames,
+//! delete, and the synthetic study generator as a job.
 
 use uuid::Uuid;
 
 use super::{Context, Error};
-use crate::human::{self, HumanError, StudyConfig};
+use crate::human::{
+    self, Demonstration, DemonstrationInput, HumanError, HumanFrame, StudyConfig, unpack_frames,
+};
 use crate::jobs::{JobContext, JobError, JobOutput, JobRecord, ResultRef};
-use crate::store::demonstrations as repo;
-use crate::store::now;
+use crate::store::demonstrations::{self as repo, Deleted};
+use crate::store::{blob, is_unique_violation, now};
+
+pub use crate::store::demonstrations::{DemonstrationFilter, DemonstrationRow};
+
+fn not_found(id: &str) -> Error {
+    Error::not_found("demonstration", id)
+}
+
+/// Ingests and stores a demonstration. With an `external_id` already stored, nothing is
+/// ingested and the stored record comes back with `false` (not created).
+pub async fn upload(
+    ctx: &Context,
+    input: DemonstrationInput,
+) -> Result<(DemonstrationRow, bool), Error> {
+    if let Some(ext) = &input.labels.external_id {
+        let mut conn = ctx.db.acquire().await?;
+        if let Some(row) = repo::get_by_external_id(&mut conn, ext).await? {
+            return Ok((row, false));
+        }
+    }
+    let demo = ingest_blocking(input).await?;
+    let id = Uuid::new_v4().to_string();
+    let mut tx = crate::store::begin_write(&ctx.db).await?;
+    match repo::insert(&mut tx, &id, None, &demo, &now()).await {
+        Ok(()) => tx.commit().await?,
+        Err(e) if is_unique_violation(&e) => {
+            // A concurrent upload with the same external id won the race: return its record.
+            drop(tx);
+            let ext = demo.labels.external_id.as_deref().unwrap_or_default();
+            let mut conn = ctx.db.acquire().await?;
+            let row = repo::get_by_external_id(&mut conn, ext)
+                .await?
+                .ok_or_else(|| {
+                    Error::Conflict("a demonstration with this id already exists".into())
+                })?;
+            return Ok((row, false));
+        }
+        Err(e) => return Err(e.into()),
+    }
+    Ok((get(ctx, &id).await?, true))
+}
+
+async fn ingest_blocking(input: DemonstrationInput) -> Result<Demonstration, Error> {
+    tokio::task::spawn_blocking(move || human::ingest(&input))
+        .await
+        .map_err(|e| Error::internal(anyhow::anyhow!("ingest task failed: {e}")))?
+        .map_err(human_error)
+}
+
+/// A page of demonstrations, newest first, and how many match the filter.
+pub async fn list(
+    ctx: &Context,
+    filter: &DemonstrationFilter,
+) -> Result<(Vec<DemonstrationRow>, i64), Error> {
+    Ok(repo::list(&ctx.db, filter).await?)
+}
+
+pub async fn get(ctx: &Context, id: &str) -> Result<DemonstrationRow, Error> {
+    repo::get(&ctx.db, id).await?.ok_or_else(|| not_found(id))
+}
+
+/// A demonstration with its derived frames and their resampled glove angles.
+pub async fn frames(
+    ctx: &Context,
+    id: &str,
+) -> Result<(DemonstrationRow, Vec<HumanFrame>, Vec<[f64; 22]>), Error> {
+    let row = get(ctx, id).await?;
+    let bytes = repo::frames(&ctx.db, id)
+        .await?
+        .ok_or_else(|| not_found(id))?;
+    let array = blob::decode::<f64>(&bytes).map_err(Error::internal)?;
+    let (frames, glove) = unpack_frames(&array.data).map_err(human_error)?;
+    Ok((row, frames, glove))
+}
+
+/// Deletes a demonstration; while mappings use it that is a conflict unless `cascade`, which
+/// deletes them too.
+pub async fn delete(ctx: &Context, id: &str, cascade: bool) -> Result<(), Error> {
+    match repo::delete(&ctx.db, id, cascade).await? {
+        Deleted::Yes { .. } => Ok(()),
+        Deleted::NotFound => Err(not_found(id)),
+        Deleted::InUse { mappings } => Err(Error::Conflict(format!(
+            "demonstration {id} is used by mapping(s) {}; delete them first or pass cascade=true",
+            mappings.join(", ")
+        ))),
+    }
+}
 
 /// A demonstration error: bad input at the field it names, or a bug for unreadable storage.
 pub fn human_error(e: HumanError) -> Error {

@@ -16,7 +16,7 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 use uuid::Uuid;
 
-use super::{Context, Error, Invalid};
+use super::{Context, Error, Invalid, Keyword};
 use crate::human::{HumanFrame, unpack_frames};
 use crate::jobs::{JobContext, JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::System;
@@ -415,7 +415,7 @@ pub fn parse_params(
     let scale = match &reg.scale {
         None => None,
         Some(ScaleIn::Factor(s)) if s.is_finite() && *s > 0.0 => Some(Scale::Factor(*s)),
-        Some(ScaleIn::Named(n)) if n == "auto" => Some(Scale::Auto),
+        Some(ScaleIn::Named(n)) if Keyword::parse(n) == Some(Keyword::Auto) => Some(Scale::Auto),
         Some(other) => {
             errors.push(Invalid::new(
                 "$.registration.scale",
@@ -741,6 +741,160 @@ pub fn mapped_demo_dto(
     }
 }
 
+/// A stored mapping: its row (status is its job's), the request it was submitted with, its
+/// summary once succeeded, and why its job failed.
+#[derive(Debug, Clone)]
+pub struct StoredMapping {
+    pub id: String,
+    pub job_id: String,
+    pub robot: String,
+    pub status: String,
+    pub request: MappingRequestDto,
+    pub summary: Option<MappingSummary>,
+    pub error: Option<crate::jobs::JobFailure>,
+    pub created_at: String,
+}
+
+async fn stored_mapping(ctx: &Context, row: repo::MappingRow) -> Result<StoredMapping, Error> {
+    let request: MappingRequestDto = serde_json::from_str(&row.request)
+        .map_err(|e| Error::internal(anyhow::anyhow!("mappings.request of {}: {e}", row.id)))?;
+    let summary = row
+        .summary
+        .as_deref()
+        .map(serde_json::from_str)
+        .transpose()
+        .map_err(|e| Error::internal(anyhow::anyhow!("mappings.summary of {}: {e}", row.id)))?;
+    let error = if row.status == "failed" {
+        match Uuid::parse_str(&row.job_id) {
+            Ok(job) => ctx.jobs.get(job).await.ok().and_then(|j| j.error),
+            Err(_) => None,
+        }
+    } else {
+        None
+    };
+    Ok(StoredMapping {
+        id: row.id,
+        job_id: row.job_id,
+        robot: row.robot,
+        status: row.status,
+        request,
+        summary,
+        error,
+        created_at: row.created_at,
+    })
+}
+
+/// Which of a mapping's demonstrations to read, and whether with their arrays.
+#[derive(Debug, Clone, Default)]
+pub struct DemoPage<'a> {
+    /// Only this demonstration id.
+    pub demonstration: Option<&'a str>,
+    /// With joint trajectories and per-frame metrics (else the summaries only).
+    pub trajectories: bool,
+    pub limit: u32,
+    pub offset: u32,
+}
+
+/// A mapping, a page of its demonstrations (request order) and how many match without the
+/// page.
+pub async fn get(
+    ctx: &Context,
+    id: &str,
+    page: &DemoPage<'_>,
+) -> Result<(StoredMapping, Vec<MappedDemoDto>, i64), Error> {
+    let row = repo::get_mapping(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("mapping", id))?;
+    let (demo, limit, offset) = (
+        page.demonstration,
+        i64::from(page.limit),
+        i64::from(page.offset),
+    );
+    let (items, total) = if page.trajectories {
+        let (rows, total) = repo::load_page(&ctx.db, id, demo, limit, offset).await?;
+        let items = rows
+            .iter()
+            .map(|(meta, d)| {
+                let mut dto = mapped_demo_dto(
+                    meta.position as usize,
+                    &labels_of(meta, Some(d)),
+                    &d.trajectory,
+                );
+                dto.summary = parse_summary(meta)?;
+                Ok(dto)
+            })
+            .collect::<Result<Vec<_>, Error>>()?;
+        (items, total)
+    } else {
+        let (rows, total) = repo::list_demos(&ctx.db, id, demo, limit, offset).await?;
+        let items = rows
+            .iter()
+            .map(|meta| {
+                let l = labels_of(meta, None);
+                Ok(MappedDemoDto {
+                    position: meta.position as usize,
+                    demonstration_id: l.demonstration_id,
+                    subject_id: l.subject_id,
+                    object_name: l.object_name,
+                    task: l.task,
+                    position_index: l.position_index,
+                    trial: l.trial,
+                    summary: parse_summary(meta)?,
+                    registration: None,
+                    trajectory: None,
+                    metrics: None,
+                })
+            })
+            .collect::<Result<Vec<_>, Error>>()?;
+        (items, total)
+    };
+    Ok((stored_mapping(ctx, row).await?, items, total))
+}
+
+/// Mappings, newest first, optionally of one robot and/or job status, and how many match
+/// without the page.
+pub async fn list(
+    ctx: &Context,
+    robot: Option<&str>,
+    status: Option<crate::jobs::JobStatus>,
+    limit: u32,
+    offset: u32,
+) -> Result<(Vec<StoredMapping>, i64), Error> {
+    let (rows, total) = repo::list_mappings(
+        &ctx.db,
+        i64::from(limit),
+        i64::from(offset),
+        robot,
+        status.map(|s| s.as_str()),
+    )
+    .await?;
+    let mut items = Vec::with_capacity(rows.len());
+    for row in rows {
+        items.push(stored_mapping(ctx, row).await?);
+    }
+    Ok((items, total))
+}
+
+fn parse_summary(row: &repo::MappedDemoRow) -> Result<MappingSummary, Error> {
+    serde_json::from_str(&row.summary).map_err(|e| {
+        Error::internal(anyhow::anyhow!(
+            "mapping_demonstrations.summary of {}: {e}",
+            row.demonstration_id
+        ))
+    })
+}
+
+fn labels_of(row: &repo::MappedDemoRow, d: Option<&repo::StoredMappedDemo>) -> DemoLabels {
+    DemoLabels {
+        demonstration_id: row.demonstration_id.clone(),
+        subject_id: row.subject_id.clone(),
+        object_name: row.object_name.clone(),
+        task: row.task.clone(),
+        position_index: d.map_or(row.position_index as u32, |d| d.position_index),
+        trial: d.map_or(row.trial as u32, |d| d.trial),
+    }
+}
+
 /// The result of `reachgrasp map`.
 #[derive(Debug, Serialize)]
 pub struct OfflineMapping {
@@ -921,7 +1075,8 @@ fn run_job(
     params: &MappingParams,
     mapping: NewMapping,
 ) -> Result<JobOutput, JobError> {
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    // The job runs inside the runner's pool: its threads, shared with the other jobs.
+    let threads = crate::parallel::available_threads();
     let progress = |done: usize, total: usize| {
         ctx.progress(
             done as f64 / total.max(1) as f64,

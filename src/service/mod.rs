@@ -18,9 +18,12 @@
 //! 7. the process: `app` (wiring) and the CLI (`main.rs`), which takes from `api` only the
 //!    OpenAPI document and the rendering of a plan.
 
+pub mod bridges;
 pub mod demonstrations;
 pub mod executions;
+pub mod figures;
 pub mod grasps;
+pub mod jobs;
 pub mod mappings;
 pub mod models;
 pub mod plans;
@@ -41,6 +44,10 @@ use crate::jobs::{JobRunner, RunnerError};
 use crate::shutdown::Shutdown;
 use crate::store::library::{LibraryError, RobotLibrary};
 
+/// The stored grasp and object records the grasp and plan use cases hand out, named here so
+/// that the edges render them without naming the store.
+pub use crate::store::grasps::{GraspRow, ObjectRow};
+
 /// Everything a use case may need; cheap to clone.
 #[derive(Clone, Debug)]
 pub struct Context {
@@ -60,6 +67,32 @@ pub struct Context {
 impl AsRef<Hub> for Context {
     fn as_ref(&self) -> &Hub {
         &self.bridges
+    }
+}
+
+/// A word a request may give in place of a value: `"auto"` (learn or choose it) where a number
+/// is expected, `"current"` (the connected worker's measured state) where a configuration is.
+/// Requests carry the word as text, so that an unknown one is quoted back in the 422 that
+/// refuses it (and the OpenAPI schemas stay `string`); the use cases parse it here, once, and
+/// match on the enum.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Keyword {
+    Auto,
+    Current,
+}
+
+impl Keyword {
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Keyword::Auto => "auto",
+            Keyword::Current => "current",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Keyword> {
+        [Keyword::Auto, Keyword::Current]
+            .into_iter()
+            .find(|k| k.as_str() == s)
     }
 }
 
@@ -181,6 +214,21 @@ impl From<BridgeError> for Error {
     }
 }
 
+/// Readiness: the database answers a query within `within`.
+pub async fn ready(ctx: &Context, within: std::time::Duration) -> Result<(), Error> {
+    match tokio::time::timeout(within, crate::store::ping(&ctx.db)).await {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(e)) => {
+            tracing::warn!(error = %e, "readiness check failed");
+            Err(Error::Unavailable("the database does not answer".into()))
+        }
+        Err(_) => Err(Error::Unavailable(format!(
+            "the database did not answer within {} s",
+            within.as_secs()
+        ))),
+    }
+}
+
 /// Standard base64 (RFC 4648) as uploads carry binary files (meshes): whitespace is ignored,
 /// and padding may be left off, as clients wrap and trim encoded text.
 pub fn decode_base64(s: &str) -> Option<Vec<u8>> {
@@ -231,7 +279,16 @@ pub(crate) async fn test_context(dir: &std::path::Path) -> Context {
 
 #[cfg(test)]
 mod tests {
-    use super::decode_base64;
+    use super::{Keyword, decode_base64};
+
+    #[test]
+    fn keywords_parse_from_their_wire_text_and_nothing_else() {
+        for k in [Keyword::Auto, Keyword::Current] {
+            assert_eq!(Keyword::parse(k.as_str()), Some(k));
+        }
+        assert_eq!(Keyword::parse("Auto"), None);
+        assert_eq!(Keyword::parse(""), None);
+    }
 
     #[test]
     fn base64_decodes_rfc4648_vectors_with_or_without_padding() {

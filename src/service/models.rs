@@ -12,18 +12,18 @@ use std::sync::{Arc, Mutex, OnceLock};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use super::{Context, Error, Invalid};
+use super::{Context, Error, Invalid, Keyword};
 use crate::jobs::{JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::{JointVector, KinematicsError, System};
 use crate::motion::mapped::{DEFAULT_ACCELERATION_LIMIT, system_groups, system_limits};
 use crate::motion::{
     Certificate, Components, ControlParams, DEFAULT_PROFILE_RIDGE, HeldOutReport, JointTrajectory,
-    KChoice, MAX_DIM, MotionError, MotionModel, TensorBSpline, TrainOptions, TrainReport, train,
+    KChoice, MotionError, MotionModel, TrainOptions, TrainReport, train,
 };
 use crate::store::{mappings as mapping_repo, models as repo};
 
 /// Largest spline resolution (knot intervals per PCA axis) a request may ask for.
-pub const MAX_SPLINE_INTERVALS: usize = 12;
+pub use crate::motion::MAX_SPLINE_INTERVALS;
 /// Highest output rate of a trajectory (Hz).
 pub const MAX_RATE: f64 = 1000.0;
 /// Longest trajectory a request may ask for (s).
@@ -486,10 +486,14 @@ struct Validated {
     held_out: bool,
 }
 
+/// The request's training options as [`TrainOptions`], checked once by
+/// [`TrainOptions::check`] (each problem at the request field of the same name); the request's
+/// own rules (one of `components` and `variance_threshold`, the keyword of `k`, a ridge only
+/// with a profile) and the service's options (acceleration limit, gains) are checked here.
 fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, Error> {
     let mut errors = Vec::new();
     let groups = system_groups(system);
-    let smallest = groups.iter().map(Vec::len).min().unwrap_or(0);
+    let n = groups.iter().map(Vec::len).sum();
     let components = match (body.components, body.variance_threshold) {
         (Some(_), Some(_)) => {
             errors.push(Invalid::new(
@@ -498,77 +502,41 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, E
             ));
             Components::default()
         }
-        (Some(c), None) => {
-            let max = MAX_DIM.min(smallest);
-            if c == 0 || c > max {
-                errors.push(Invalid::new(
-                    "$.components",
-                    format!(
-                        "must be between 1 and {max} (the smallest joint group of this robot has {smallest} joints; at most {MAX_DIM} supported), got {c}"
-                    ),
-                ));
-            }
-            Components::Count(c)
-        }
-        (None, Some(t)) => {
-            if !(t > 0.0 && t <= 1.0) {
-                errors.push(Invalid::new(
-                    "$.variance_threshold",
-                    format!("must be in (0, 1], got {t}"),
-                ));
-            }
-            Components::VarianceThreshold(t)
-        }
+        (Some(c), None) => Components::Count(c),
+        (None, Some(t)) => Components::VarianceThreshold(t),
         (None, None) => Components::default(),
     };
-    let intervals = body.spline_intervals.unwrap_or(6);
-    if !(1..=MAX_SPLINE_INTERVALS).contains(&intervals) {
-        errors.push(Invalid::new(
-            "$.spline_intervals",
-            format!("must be between 1 and {MAX_SPLINE_INTERVALS}, got {intervals}"),
-        ));
-    } else if let Components::Count(c) = components
-        && body.spline_intervals.is_some()
-        && (1..=MAX_DIM).contains(&c)
-    {
-        let coefficients = TensorBSpline::coefficient_count(c, intervals);
-        if coefficients > crate::motion::MAX_SPLINE_COEFFICIENTS {
-            errors.push(Invalid::new(
-                "$.spline_intervals",
-                format!(
-                    "{intervals} intervals on {c} components need {coefficients} spline coefficients, at most {} supported",
-                    crate::motion::MAX_SPLINE_COEFFICIENTS
-                ),
-            ));
-        }
-    }
-    let regularisation = body.regularisation.unwrap_or(3.0);
-    if !(regularisation > 0.0 && regularisation.is_finite()) {
-        errors.push(Invalid::new(
-            "$.regularisation",
-            format!("must be a positive number, got {regularisation}"),
-        ));
-    }
     let k = match &body.k {
         None => KChoice::Auto,
-        Some(AutoOr::Auto(s)) if s == "auto" => KChoice::Auto,
-        Some(AutoOr::Auto(s)) => {
-            errors.push(Invalid::new(
-                "$.k",
-                format!("must be \"auto\" or a number ≥ 1, got \"{s}\""),
-            ));
-            KChoice::Auto
-        }
-        Some(AutoOr::Value(k)) => {
-            if !(*k >= 1.0 && k.is_finite()) {
+        Some(AutoOr::Value(k)) => KChoice::Value(*k),
+        Some(AutoOr::Auto(s)) => match Keyword::parse(s) {
+            Some(Keyword::Auto) => KChoice::Auto,
+            _ => {
                 errors.push(Invalid::new(
                     "$.k",
-                    format!("must be \"auto\" or a number ≥ 1, got {k}"),
+                    format!("must be \"auto\" or a number ≥ 1, got \"{s}\""),
                 ));
+                KChoice::Auto
             }
-            KChoice::Value(*k)
-        }
+        },
     };
+    let profile_ridge = body.profile_ridge.unwrap_or(DEFAULT_PROFILE_RIDGE);
+    let options = TrainOptions {
+        groups,
+        components,
+        spline_intervals: body.spline_intervals.unwrap_or(6),
+        // the default resolution is lowered where many components would exceed the
+        // coefficient budget; an explicit one is honoured or refused
+        cap_spline_intervals: body.spline_intervals.is_none(),
+        regularisation: body.regularisation.unwrap_or(3.0),
+        k,
+        profile_ridge: body
+            .residual_profile
+            .unwrap_or(true)
+            .then_some(profile_ridge),
+        ..TrainOptions::default()
+    };
+    errors.extend(options.check(n).into_iter().map(option_error));
     let acceleration = body
         .acceleration_limit
         .unwrap_or(DEFAULT_ACCELERATION_LIMIT);
@@ -576,13 +544,6 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, E
         errors.push(Invalid::new(
             "$.acceleration_limit",
             format!("must be a positive number, got {acceleration}"),
-        ));
-    }
-    let profile_ridge = body.profile_ridge.unwrap_or(DEFAULT_PROFILE_RIDGE);
-    if !(profile_ridge > 0.0 && profile_ridge.is_finite()) {
-        errors.push(Invalid::new(
-            "$.profile_ridge",
-            format!("must be a positive number, got {profile_ridge}"),
         ));
     }
     if body.residual_profile == Some(false) && body.profile_ridge.is_some() {
@@ -605,25 +566,32 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, E
         return Err(Error::Invalid(errors));
     }
     Ok(Validated {
-        options: TrainOptions {
-            groups,
-            components,
-            spline_intervals: intervals,
-            // the default resolution is lowered where many components would exceed the
-            // coefficient budget; an explicit one is honoured or refused
-            cap_spline_intervals: body.spline_intervals.is_none(),
-            regularisation,
-            k,
-            profile_ridge: body
-                .residual_profile
-                .unwrap_or(true)
-                .then_some(profile_ridge),
-            ..TrainOptions::default()
-        },
+        options,
         acceleration,
         gains,
         held_out: body.held_out.unwrap_or(true),
     })
+}
+
+/// A training option [`TrainOptions::check`] refused, at the request field of its name.
+fn option_error(e: MotionError) -> Invalid {
+    match e {
+        MotionError::InvalidOption { field, reason, .. } => {
+            Invalid::new(format!("$.{field}"), reason)
+        }
+        MotionError::SplineTooLarge {
+            intervals,
+            components,
+            coefficients,
+            max,
+        } => Invalid::new(
+            "$.spline_intervals",
+            format!(
+                "{intervals} intervals on {components} components need {coefficients} spline coefficients, at most {max} supported"
+            ),
+        ),
+        other => Invalid::new("$", other.to_string()),
+    }
 }
 
 /// The fewest demonstrations a model with these components can be trained from: every
@@ -878,6 +846,67 @@ pub async fn train_model(ctx: &Context, body: &CreateModel) -> Result<(JobRecord
         return Err(e.into());
     }
     Ok((job, model_id))
+}
+
+/// A stored model: its row (status is its job's), the request as given, the training report
+/// once trained, whether it is marked its robot's default, and its joint names.
+#[derive(Debug, Clone)]
+pub struct StoredModel {
+    pub id: String,
+    pub job_id: String,
+    pub robot: String,
+    pub status: String,
+    pub request: serde_json::Value,
+    pub report: Option<ModelReportDto>,
+    pub default: bool,
+    pub joint_names: Vec<String>,
+    pub created_at: String,
+}
+
+async fn stored_model(ctx: &Context, row: repo::ModelRow) -> Result<StoredModel, Error> {
+    let joint_names = repo::joint_names(&ctx.db, &row.id)
+        .await?
+        .unwrap_or_default();
+    let default = repo::is_marked_default(&ctx.db, &row.id).await?;
+    Ok(StoredModel {
+        request: serde_json::from_str(&row.request).map_err(Error::internal)?,
+        report: row
+            .report
+            .as_deref()
+            .map(serde_json::from_str)
+            .transpose()
+            .map_err(Error::internal)?,
+        id: row.id,
+        job_id: row.job_id,
+        robot: row.robot,
+        status: row.status,
+        default,
+        joint_names,
+        created_at: row.created_at,
+    })
+}
+
+/// Model `id`, pending and failed ones included.
+pub async fn get(ctx: &Context, id: &str) -> Result<StoredModel, Error> {
+    let row = repo::get_model(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("model", id))?;
+    stored_model(ctx, row).await
+}
+
+/// Models, newest first, optionally of one robot; with how many match without the page.
+pub async fn list(
+    ctx: &Context,
+    robot: Option<&str>,
+    limit: u32,
+    offset: u32,
+) -> Result<(Vec<StoredModel>, i64), Error> {
+    let (rows, total) = repo::list_models(&ctx.db, robot, limit, offset).await?;
+    let mut items = Vec::with_capacity(rows.len());
+    for row in rows {
+        items.push(stored_model(ctx, row).await?);
+    }
+    Ok((items, total))
 }
 
 /// The closed-loop law's parameters of trained model `id`.

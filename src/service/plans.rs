@@ -14,13 +14,15 @@ use utoipa::ToSchema;
 use super::grasps::GraspIn;
 use super::models::{AutoOr, JointValues};
 use super::trajectories::{CreateTrajectory, GoalIn, Rejected};
-use super::{Context, Error};
+use super::{Context, Error, Keyword};
 use crate::bridge::{ExecutionPayload, Hub, Mode, WorkerName};
 use crate::motion::ControlParams;
 use crate::store::grasps::{self as grasp_repo, GraspRow, NewGrasp};
 use crate::store::models as model_repo;
-use crate::store::plans::{self as plan_repo, NewPlan, PlanRow};
+use crate::store::plans::{self as plan_repo, NewPlan};
 use crate::store::trajectories::{self, StoredTrajectory, TrajectoryDraft};
+
+pub use crate::store::plans::PlanRow;
 
 /// Where the trajectory starts.
 ///
@@ -180,7 +182,7 @@ async fn resolve_model(ctx: &Context, body: &PlanIn) -> Result<String, Error> {
 fn resolve_start(ctx: &Context, body: &PlanIn) -> Result<JointValues, Error> {
     match &body.start {
         StartIn::Configuration(v) => Ok(v.clone()),
-        StartIn::Current(s) if s == "current" => {
+        StartIn::Current(s) if Keyword::parse(s) == Some(Keyword::Current) => {
             let robot = &body.grasp.robot;
             let worker = ctx
                 .bridges
@@ -341,6 +343,16 @@ fn request_json(body: &PlanIn) -> Result<String, Error> {
         "worker": body.worker,
     });
     serde_json::to_string(&value).map_err(Error::internal)
+}
+
+/// Plans, newest first, optionally of one robot; with how many match without the page.
+pub async fn list(
+    ctx: &Context,
+    robot: Option<&str>,
+    limit: u32,
+    offset: u32,
+) -> Result<(Vec<PlanRow>, i64), Error> {
+    Ok(plan_repo::list(&ctx.db, robot, limit.into(), offset.into()).await?)
 }
 
 /// Stored plan `id` with its grasp and trajectory (a plan whose grasp or trajectory has been

@@ -19,6 +19,8 @@ use crate::kinematics::{
 use crate::store::library::{LibraryError, system_from_stored};
 use crate::store::robots as repo;
 
+pub use crate::store::robots::RobotRow;
+
 // ------------------------------------------------------------------------------------ kinematics
 
 /// Every system with its stored row, bundled first.

@@ -8,13 +8,15 @@ use super::models::{
     AutoOr, CertificateDto, JointValues, MAX_DURATION, MAX_RATE, certificate_dto, check_limits,
     group_name, joint_values, loaded_model, region_error,
 };
-use super::{Context, Error, Invalid};
+use super::{Context, Error, Invalid, Keyword};
 use crate::grasp::GraspResult;
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::motion::{MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint};
 use crate::store::grasps as grasp_repo;
 use crate::store::library::LibraryError;
 use crate::store::trajectories::{self, TrajectoryDraft};
+
+pub use crate::store::trajectories::{StoredTrajectory, TrajectorySummaryRow};
 
 /// Why no trajectory was computed.
 #[derive(Debug)]
@@ -299,6 +301,17 @@ pub async fn check_start(ctx: &Context, model: &str, start: &JointValues) -> Res
     Ok(l.robot.clone())
 }
 
+/// Stored trajectories without their points, newest first, optionally of one model; with how
+/// many match without the page.
+pub async fn list(
+    ctx: &Context,
+    model: Option<&str>,
+    limit: u32,
+    offset: u32,
+) -> Result<(Vec<TrajectorySummaryRow>, i64), Error> {
+    Ok(trajectories::list_trajectories(&ctx.db, model, limit, offset).await?)
+}
+
 /// Stored trajectory `id`.
 pub async fn get(ctx: &Context, id: &str) -> Result<trajectories::StoredTrajectory, Error> {
     trajectories::get_trajectory(&ctx.db, id)
@@ -320,7 +333,7 @@ pub async fn create(
 pub async fn compute(ctx: &Context, body: &CreateTrajectory) -> Result<TrajectoryDraft, Rejected> {
     let requested = match &body.duration {
         None => None,
-        Some(AutoOr::Auto(s)) if s == "auto" => None,
+        Some(AutoOr::Auto(s)) if Keyword::parse(s) == Some(Keyword::Auto) => None,
         Some(AutoOr::Value(t)) if *t > 0.0 && *t <= MAX_DURATION => Some(*t),
         Some(other) => {
             return Err(Error::invalid(

@@ -11,7 +11,7 @@ use uuid::Uuid;
 use super::feedback::{self, Chunk};
 use super::{blob, now};
 use crate::motion::TrajectoryPoint;
-use crate::store::payload::ExecutionPayload;
+use crate::store::payload::{ExecutionPayload, Mode};
 
 /// An execution's state: `queued` and `running` are live, the others final. Stored and sent as
 /// its snake_case name.
@@ -74,7 +74,7 @@ impl std::fmt::Display for ExecutionState {
 pub struct ExecutionRow {
     pub id: String,
     pub robot: String,
-    pub mode: String,
+    pub mode: Mode,
     pub kind: String,
     pub source_id: String,
     pub worker: Option<String>,
@@ -177,7 +177,7 @@ fn join_payload(json: &str, points: Option<&[u8]>) -> Result<ExecutionPayload, s
 pub async fn insert(
     pool: &SqlitePool,
     robot: &str,
-    mode: &str,
+    mode: Mode,
     payload: &ExecutionPayload,
     worker: Option<&str>,
 ) -> Result<ExecutionRow, sqlx::Error> {
@@ -189,7 +189,7 @@ pub async fn insert(
 pub async fn insert_in(
     conn: &mut sqlx::SqliteConnection,
     robot: &str,
-    mode: &str,
+    mode: Mode,
     payload: &ExecutionPayload,
     worker: Option<&str>,
 ) -> Result<ExecutionRow, sqlx::Error> {
@@ -197,7 +197,7 @@ pub async fn insert_in(
     let row = ExecutionRow {
         id: Uuid::new_v4().to_string(),
         robot: robot.to_owned(),
-        mode: mode.to_owned(),
+        mode,
         kind: payload.kind().to_owned(),
         source_id: payload.source_id().to_owned(),
         worker: worker.map(str::to_owned),
@@ -218,7 +218,7 @@ pub async fn insert_in(
     )
     .bind(&row.id)
     .bind(&row.robot)
-    .bind(&row.mode)
+    .bind(row.mode)
     .bind(&row.kind)
     .bind(&row.source_id)
     .bind(&json)
@@ -490,7 +490,7 @@ mod tests {
                 })
                 .collect(),
         };
-        let row = insert(&pool, "wam_ihy", "open_loop", &p, None)
+        let row = insert(&pool, "wam_ihy", Mode::OpenLoop, &p, None)
             .await
             .unwrap();
         assert_eq!(payload(&pool, &row.id).await.unwrap().unwrap(), p);

@@ -403,9 +403,15 @@ mod tests {
                 accelerations: vec![0.0, 0.0],
             }],
         };
-        let row = super::super::executions::insert(&pool, "wam_ihy", "open_loop", &p, None)
-            .await
-            .unwrap();
+        let row = super::super::executions::insert(
+            &pool,
+            "wam_ihy",
+            crate::store::payload::Mode::OpenLoop,
+            &p,
+            None,
+        )
+        .await
+        .unwrap();
         let id = row.id.as_str();
         let mut r = Recorder::new(2);
         assert!(r.pending().is_none());

@@ -8,8 +8,10 @@ use utoipa::ToSchema;
 use crate::motion::{ControlParams, TrajectoryPoint};
 
 /// Execution mode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+// Stored (the `executions.mode` column) and sent as its snake_case name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema, sqlx::Type)]
 #[serde(rename_all = "snake_case")]
+#[sqlx(rename_all = "snake_case")]
 pub enum Mode {
     /// Follow the forwarded trajectory (feedforward velocity + proportional tracking).
     OpenLoop,
@@ -22,14 +24,6 @@ impl Mode {
         match self {
             Mode::OpenLoop => "open_loop",
             Mode::ClosedLoop => "closed_loop",
-        }
-    }
-
-    pub fn parse(s: &str) -> Option<Mode> {
-        match s {
-            "open_loop" => Some(Mode::OpenLoop),
-            "closed_loop" => Some(Mode::ClosedLoop),
-            _ => None,
         }
     }
 }
