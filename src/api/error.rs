@@ -294,7 +294,7 @@ impl ApiError {
         let cause = cause.into();
         if cause.chain().any(|e| {
             e.downcast_ref::<sqlx::Error>()
-                .is_some_and(crate::store::is_disk_full)
+                .is_some_and(crate::service::is_disk_full)
         }) {
             tracing::warn!(error = %cause, "the database is full");
             return ApiError::insufficient_storage();

@@ -165,6 +165,10 @@ impl Error {
     }
 }
 
+/// Whether a storage error is a full database (disk or size cap): the edge answers 507 for it,
+/// wherever in an internal error's chain it sits.
+pub use crate::store::is_disk_full;
+
 impl From<sqlx::Error> for Error {
     fn from(e: sqlx::Error) -> Self {
         if crate::store::is_unique_violation(&e) {
