@@ -272,9 +272,25 @@ pub struct SyntheticRequest {
     pub config: StudyConfig,
 }
 
+/// Read as the study's own object, so that errors keep their field paths; only an object is a
+/// study (a derived struct would also take a JSON array of its fields in order).
 impl<'de> Deserialize<'de> for SyntheticRequest {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        StudyConfig::deserialize(d).map(|config| SyntheticRequest { config })
+        struct Study;
+        impl<'de> serde::de::Visitor<'de> for Study {
+            type Value = StudyConfig;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a study object")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                map: A,
+            ) -> Result<StudyConfig, A::Error> {
+                StudyConfig::deserialize(serde::de::value::MapAccessDeserializer::new(map))
+            }
+        }
+        d.deserialize_map(Study)
+            .map(|config| SyntheticRequest { config })
     }
 }
 

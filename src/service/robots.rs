@@ -256,7 +256,8 @@ pub struct JacobianRequest {
     pub joint_names: Vec<String>,
     pub positions: Vec<f64>,
     pub frame: String,
-    /// Point rigidly attached to the frame, in frame coordinates (default the origin).
+    /// Point rigidly attached to the frame, in frame coordinates (default the origin); each
+    /// coordinate within ±1000 m.
     #[schema(min_items = 3, max_items = 3)]
     pub point: Option<[f64; 3]>,
 }
@@ -519,6 +520,23 @@ pub fn finite_array<const N: usize>(v: &[f64; N], path: &str) -> Result<(), Erro
     }
 }
 
+/// Largest coordinate of an IK target or point (m): far beyond any arm, and small enough that
+/// every residual stays finite (a target at 1e305 m made the errors infinite, which JSON cannot
+/// carry).
+pub const MAX_TARGET_COORDINATE: f64 = 1e3;
+
+/// Finite, and every coordinate within ±[`MAX_TARGET_COORDINATE`].
+fn within_reach_of_any_robot(v: &[f64; 3], path: &str) -> Result<(), Error> {
+    finite_array(v, path)?;
+    match v.iter().position(|x| x.abs() > MAX_TARGET_COORDINATE) {
+        Some(i) => Err(Error::invalid(
+            format!("{path}[{i}]"),
+            format!("must be within ±{MAX_TARGET_COORDINATE} m, got {}", v[i]),
+        )),
+        None => Ok(()),
+    }
+}
+
 /// Unit quaternion from `[w, x, y, z]` (normalised; zero norm rejected).
 pub fn quaternion(q: &[f64; 4], path: &str) -> Result<UnitQuaternion<f64>, Error> {
     finite_array(q, path)?;
@@ -547,7 +565,7 @@ pub struct IkRequest {
     /// Point rigidly attached to the frame, in frame coordinates (default the origin).
     #[schema(min_items = 3, max_items = 3)]
     pub point: Option<[f64; 3]>,
-    /// Target position of the point, metres, world frame.
+    /// Target position of the point, metres, world frame; each coordinate within ±1000 m.
     #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
     /// Target orientation `[w, x, y, z]`; omit for a position-only target.
@@ -591,8 +609,8 @@ pub fn parse_ik(
         None => s.wrist_frame,
     };
     let point = body.point.unwrap_or([0.0; 3]);
-    finite_array(&point, &format!("{base}.point"))?;
-    finite_array(&body.position, &format!("{base}.position"))?;
+    within_reach_of_any_robot(&point, &format!("{base}.point"))?;
+    within_reach_of_any_robot(&body.position, &format!("{base}.position"))?;
     let rotation = match &body.orientation {
         Some(q) => quaternion(q, &format!("{base}.orientation"))?,
         None => UnitQuaternion::identity(),

@@ -135,3 +135,21 @@ pub async fn assert_problem(res: reqwest::Response, status: u16, kind: &str) -> 
     assert!(body["detail"].as_str().is_some_and(|t| !t.is_empty()));
     body
 }
+
+/// Submits a job-creating POST and waits for it to succeed; returns the filled resource id.
+pub async fn run_job(app: &TestApp, path: &str, body: Value) -> String {
+    let res = app.post_json(path, &body).await;
+    assert_eq!(res.status(), 202, "{path}");
+    let resource = res
+        .headers()
+        .get("content-location")
+        .map(|v| v.to_str().unwrap().rsplit('/').next().unwrap().to_owned());
+    let job: Value = res.json().await.unwrap();
+    let done = app
+        .wait_job(job["id"].as_str().unwrap(), |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{path}: {done}");
+    resource.unwrap_or_else(|| job["id"].as_str().unwrap().to_owned())
+}

@@ -89,6 +89,18 @@ async fn a_wrong_type_in_a_study_names_the_field() {
     assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
 }
 
+/// A JSON array is no study, though a derived struct would read one as its fields in order
+/// (a conformance run found `[]` accepted with a 202).
+#[tokio::test]
+async fn an_array_is_no_study() {
+    let app = spawn_app().await;
+    let (path, message) = field_error(&app, "/v1/demonstrations/synthetic", &json!([])).await;
+    assert_eq!(path, "$");
+    assert!(message.contains("a study object"), "{message}");
+    let jobs: Value = app.get("/v1/jobs").await.json().await.unwrap();
+    assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
+}
+
 #[tokio::test]
 async fn a_huge_radius_is_out_of_range_at_the_radius() {
     let app = spawn_app().await;

@@ -4,7 +4,7 @@
 
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, run_job, spawn_app_with};
 
 const ROBOT: &str = "wam_ihy";
 
@@ -13,24 +13,6 @@ async fn app() -> TestApp {
         c.robots = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
     })
     .await
-}
-
-/// Submits a job-creating POST and waits for it to succeed; returns the filled resource id.
-async fn run_job(app: &TestApp, path: &str, body: Value) -> String {
-    let res = app.post_json(path, &body).await;
-    assert_eq!(res.status(), 202, "{path}");
-    let resource = res
-        .headers()
-        .get("content-location")
-        .map(|v| v.to_str().unwrap().rsplit('/').next().unwrap().to_owned());
-    let job: Value = res.json().await.unwrap();
-    let done = app
-        .wait_job(job["id"].as_str().unwrap(), |j| {
-            j["status"] != "queued" && j["status"] != "running"
-        })
-        .await;
-    assert_eq!(done["status"], "succeeded", "{path}: {done}");
-    resource.unwrap_or_else(|| job["id"].as_str().unwrap().to_owned())
 }
 
 async fn count(app: &TestApp, path: &str) -> i64 {

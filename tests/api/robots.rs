@@ -200,6 +200,19 @@ async fn ik_round_trips_and_an_unreachable_target_is_200_with_residuals() {
     assert_eq!(far["success"], false);
     assert!(far["position_error"].as_f64().unwrap() > 3.0);
     assert_eq!(far["positions"].as_array().unwrap().len(), names.len());
+    // A target so far away that its residuals would overflow (a conformance run found `null`
+    // errors in a 200 at 6e304 m) is refused at its coordinate.
+    let absurd = assert_problem(
+        app.post_json(
+            "/v1/robots/pa10_t42/ik",
+            &json!({"position": [0.0, -6.3e304, 0.0]}),
+        )
+        .await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(absurd["errors"][0]["path"], "$.position[1]", "{absurd}");
 }
 
 #[tokio::test]

@@ -5,30 +5,12 @@ use std::time::Duration;
 
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, run_job, spawn_app_with};
 
 const ROBOT: &str = "wam_ihy";
 
 fn robots() -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
-}
-
-/// Submits a job-creating POST and waits for it to succeed; returns the filled resource id.
-async fn run_job(app: &TestApp, path: &str, body: Value) -> String {
-    let res = app.post_json(path, &body).await;
-    assert_eq!(res.status(), 202, "{path}");
-    let resource = res
-        .headers()
-        .get("content-location")
-        .map(|v| v.to_str().unwrap().rsplit('/').next().unwrap().to_owned());
-    let job: Value = res.json().await.unwrap();
-    let done = app
-        .wait_job(job["id"].as_str().unwrap(), |j| {
-            j["status"] != "queued" && j["status"] != "running"
-        })
-        .await;
-    assert_eq!(done["status"], "succeeded", "{path}: {done}");
-    resource.unwrap_or_else(|| job["id"].as_str().unwrap().to_owned())
 }
 
 /// A small study mapped and trained as the robot's default model; returns (model, start).
