@@ -541,7 +541,7 @@ fn bridge(config: &Config, args: BridgeArgs) -> anyhow::Result<()> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
-    runtime.block_on(run_worker(opts, None, shutdown_signal()))?;
+    runtime.block_on(async { run_worker(opts, None, shutdown_signal()).await })?;
     Ok(())
 }
 
