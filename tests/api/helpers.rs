@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use reachgrasp::app::App;
 use reachgrasp::config::Config;
-use serde_json::Value;
+use serde_json::{Value, json};
 
 pub struct TestApp {
     /// `http://127.0.0.1:<port>`, no trailing slash.
@@ -152,4 +152,37 @@ pub async fn run_job(app: &TestApp, path: &str, body: Value) -> String {
         .await;
     assert_eq!(done["status"], "succeeded", "{path}: {done}");
     resource.unwrap_or_else(|| job["id"].as_str().unwrap().to_owned())
+}
+
+/// A small study (seed 5, 15 demonstrations) mapped onto `robot` and trained as its default
+/// model; returns the model id and a start where the demonstrations started (inside the
+/// model's workspace).
+pub async fn trained(app: &TestApp, robot: &str) -> (String, Value) {
+    let study = run_job(
+        app,
+        "/v1/demonstrations/synthetic",
+        json!({"seed": 5, "subjects": 1, "positions": 5, "trials": 3}),
+    )
+    .await;
+    let mapping = run_job(
+        app,
+        "/v1/mappings",
+        json!({"robot": robot, "demonstrations": {"job_id": study}, "output_rate_hz": 20}),
+    )
+    .await;
+    let model = run_job(
+        app,
+        "/v1/models",
+        json!({"robot": robot, "mappings": [mapping], "held_out": false, "default": true}),
+    )
+    .await;
+    let m: Value = app
+        .get(&format!("/v1/mappings/{mapping}?limit=1"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    let t = &m["demonstrations"]["items"][0]["trajectory"];
+    let start = json!({"joint_names": t["joint_names"], "positions": t["positions"][0]});
+    (model, start)
 }

@@ -4,7 +4,7 @@
 
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, run_job, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, spawn_app_with, trained};
 
 const ROBOT: &str = "wam_ihy";
 
@@ -50,35 +50,9 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
     .await;
     assert_eq!(body["errors"][0]["path"], "$.model", "{body}");
 
-    // A small study, mapped and trained through the API.
-    let study = run_job(
-        &app,
-        "/v1/demonstrations/synthetic",
-        json!({"seed": 5, "subjects": 1, "positions": 5, "trials": 3}),
-    )
-    .await;
-    let mapping = run_job(
-        &app,
-        "/v1/mappings",
-        json!({"robot": ROBOT, "demonstrations": {"job_id": study}, "output_rate_hz": 20}),
-    )
-    .await;
-    let model = run_job(
-        &app,
-        "/v1/models",
-        json!({"robot": ROBOT, "mappings": [mapping], "held_out": false, "default": true}),
-    )
-    .await;
-
-    // Plans start where the demonstrations started (inside the model's workspace).
-    let m: Value = app
-        .get(&format!("/v1/mappings/{mapping}?limit=1"))
-        .await
-        .json()
-        .await
-        .unwrap();
-    let t = &m["demonstrations"]["items"][0]["trajectory"];
-    let start = json!({"joint_names": t["joint_names"], "positions": t["positions"][0]});
+    // A small study, mapped and trained through the API; plans start where the
+    // demonstrations started (inside the model's workspace).
+    let (model, start) = trained(&app, ROBOT).await;
 
     // A plan with the default model: grasp, trajectory ending exactly at it, all stored.
     let res = app.post_json("/v1/plans", &ball_plan(&start)).await;

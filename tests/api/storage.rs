@@ -5,43 +5,12 @@ use std::time::Duration;
 
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, run_job, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, spawn_app_with, trained};
 
 const ROBOT: &str = "wam_ihy";
 
 fn robots() -> std::path::PathBuf {
     std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
-}
-
-/// A small study mapped and trained as the robot's default model; returns (model, start).
-async fn trained(app: &TestApp) -> (String, Value) {
-    let study = run_job(
-        app,
-        "/v1/demonstrations/synthetic",
-        json!({"seed": 5, "subjects": 1, "positions": 5, "trials": 3}),
-    )
-    .await;
-    let mapping = run_job(
-        app,
-        "/v1/mappings",
-        json!({"robot": ROBOT, "demonstrations": {"job_id": study}, "output_rate_hz": 20}),
-    )
-    .await;
-    let model = run_job(
-        app,
-        "/v1/models",
-        json!({"robot": ROBOT, "mappings": [mapping], "held_out": false, "default": true}),
-    )
-    .await;
-    let m: Value = app
-        .get(&format!("/v1/mappings/{mapping}?limit=1"))
-        .await
-        .json()
-        .await
-        .unwrap();
-    let t = &m["demonstrations"]["items"][0]["trajectory"];
-    let start = json!({"joint_names": t["joint_names"], "positions": t["positions"][0]});
-    (model, start)
 }
 
 /// Plan requests at reachable placements (as `benches/plans.rs`).
@@ -90,7 +59,7 @@ async fn delete(app: &TestApp, path: &str) -> reqwest::Response {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn deleting_a_plan_deletes_what_it_owns_once_its_execution_has_finished() {
     let app = spawn_app_with(|c| c.robots = robots()).await;
-    let (model, start) = trained(&app).await;
+    let (model, start) = trained(&app, ROBOT).await;
     let mut body = feasible_request(&app, &start).await;
     body["execute"] = json!(true);
     let res = app.post_json("/v1/plans", &body).await;
@@ -204,7 +173,7 @@ async fn retention_keeps_the_newest_plans_and_never_what_a_queued_execution_need
         c.maintenance_interval_secs = 1;
     })
     .await;
-    let (_, start) = trained(&app).await;
+    let (_, start) = trained(&app, ROBOT).await;
     let body = feasible_request(&app, &start).await;
     // The oldest kept plan: its execution is queued (no worker).
     let mut queued = body.clone();
