@@ -57,19 +57,7 @@ pub(super) fn finger_geometry(
 ) -> (Vec<FingerGeometry>, Vec<usize>, Vec<usize>) {
     let model = &*sys.model;
     let geo = &sys.geometry;
-    let chains: Vec<Vec<usize>> = sys
-        .fingers
-        .iter()
-        .map(|f| {
-            let mut c = vec![f.tip.0];
-            let mut fr = f.tip;
-            while let Some(p) = model.frame_parent(fr) {
-                c.push(p.0);
-                fr = p;
-            }
-            c
-        })
-        .collect();
+    let chains = sys.finger_chains();
     // A shape belongs to a finger when it lies on that finger's chain only and a hand joint
     // moves it (the palm lies on every chain; a shared spread link on two).
     let finger_of_shape: Vec<Option<usize>> = geo
@@ -83,7 +71,7 @@ pub(super) fn finger_geometry(
             let mut on = chains
                 .iter()
                 .enumerate()
-                .filter(|(_, c)| c.contains(&s.frame.0));
+                .filter(|(_, c)| c.contains(&s.frame));
             match (moved, on.next(), on.next()) {
                 (true, Some((f, _)), None) => Some(f),
                 _ => None,

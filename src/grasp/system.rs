@@ -300,6 +300,22 @@ impl HandArm {
             .fold(f64::INFINITY, f64::min)
     }
 
+    /// Each finger's kinematic chain: its tip frame and every ancestor, tip first.
+    pub fn finger_chains(&self) -> Vec<Vec<FrameId>> {
+        self.fingers
+            .iter()
+            .map(|f| {
+                let mut chain = vec![f.tip];
+                let mut fr = f.tip;
+                while let Some(p) = self.model.frame_parent(fr) {
+                    chain.push(p);
+                    fr = p;
+                }
+                chain
+            })
+            .collect()
+    }
+
     /// Collect the link spheres of eq. 29 from the model's collision shapes: every link moved by
     /// a hand joint, plus links moved by any of the last `wrist_joints` arm joints (the parts
     /// that come near the object and the table). Spheres on a fingertip link that overlap its
@@ -340,20 +356,7 @@ impl HandArm {
                 body
             })
             .collect();
-        // Each finger's kinematic chain: its tip frame and every ancestor.
-        let chains: Vec<Vec<FrameId>> = self
-            .fingers
-            .iter()
-            .map(|f| {
-                let mut chain = vec![f.tip];
-                let mut fr = f.tip;
-                while let Some(p) = model.frame_parent(fr) {
-                    chain.push(p);
-                    fr = p;
-                }
-                chain
-            })
-            .collect();
+        let chains = self.finger_chains();
         let mut data = Data::new(model);
         forward_kinematics(model, &mut data, &model.neutral());
         let mut spheres = Vec::new();
