@@ -146,7 +146,7 @@ pub async fn list(
         columns!(),
         " FROM demonstrations",
         filter!(),
-        " ORDER BY created_at DESC, id LIMIT ?5 OFFSET ?6"
+        " ORDER BY created_at DESC, rowid LIMIT ?5 OFFSET ?6"
     ))
     .bind(f.subject.as_deref())
     .bind(f.object.as_deref())

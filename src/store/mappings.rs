@@ -612,7 +612,11 @@ pub struct DemoSelection {
     pub job_id: Option<String>,
 }
 
-/// Ids of the demonstrations matching `f`, oldest first (a stable request order), at most `limit`.
+/// Ids of the demonstrations matching `f`, oldest first in insertion order, at most `limit`.
+///
+/// A study stores all its trials under one `created_at`, so the tie-break is the rowid (the
+/// order they were written), not the random UUID: ordering by id made the mapping's input order,
+/// and with it the trained model and every plan built on it, differ from run to run.
 pub async fn select_demonstrations(
     pool: &SqlitePool,
     f: &DemoSelection,
@@ -622,7 +626,7 @@ pub async fn select_demonstrations(
         "SELECT id FROM demonstrations WHERE (?1 IS NULL OR subject_id = ?1) \
          AND (?2 IS NULL OR object_name = ?2) AND (?3 IS NULL OR task = ?3) \
          AND (?4 IS NULL OR position_index = ?4) AND (?5 IS NULL OR synthetic = ?5) \
-         AND (?6 IS NULL OR job_id = ?6) ORDER BY created_at, id LIMIT ?7",
+         AND (?6 IS NULL OR job_id = ?6) ORDER BY created_at, rowid LIMIT ?7",
     )
     .bind(f.subject.as_deref())
     .bind(f.object.as_deref())

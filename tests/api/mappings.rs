@@ -470,6 +470,69 @@ async fn a_cancelled_mapping_stores_no_trajectory() {
     assert_eq!(list["total"], 0);
 }
 
+/// A mapping over a study's job takes the trials in the order the study generated them, the
+/// same on every run: the study stores them under one timestamp, and a tie broken by the random
+/// row id gave each run a different input order (and so a different model and different plans).
+#[tokio::test]
+async fn a_study_is_mapped_in_the_order_its_trials_were_generated() {
+    let app = app().await;
+    let cfg = json!({"seed": 11, "subjects": 1, "positions": 2, "trials": 3});
+    let res = app.post_json("/v1/demonstrations/synthetic", &cfg).await;
+    assert_eq!(res.status(), 202);
+    let job: Value = res.json().await.unwrap();
+    let job = job["id"].as_str().unwrap().to_owned();
+    let done = app
+        .wait_job(&job, |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+    // The reference order: the library's own generator, trial by trial.
+    let expected: Vec<String> =
+        generate_study(&serde_json::from_value::<StudyConfig>(cfg).unwrap())
+            .unwrap()
+            .into_iter()
+            .map(|d| d.labels.external_id.unwrap())
+            .collect();
+    assert_eq!(expected.len(), 6);
+
+    // Both job slots busy, so the mapping stays queued and is cancelled before it computes: the
+    // order is fixed when the request is resolved.
+    let blockers = [
+        app.start_sleep_job(400, 50).await,
+        app.start_sleep_job(400, 50).await,
+    ];
+    let res = app
+        .post_json(
+            "/v1/mappings",
+            &json!({"robot": "wam_ihy", "demonstrations": {"job_id": job}}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+    let mapping_url = res.headers()["content-location"]
+        .to_str()
+        .unwrap()
+        .to_owned();
+    let accepted: Value = res.json().await.unwrap();
+    let m: Value = app.get(&mapping_url).await.json().await.unwrap();
+    let mut got = Vec::new();
+    for id in m["request"]["demonstrations"].as_array().unwrap() {
+        let d: Value = app
+            .get(&format!("/v1/demonstrations/{}", id.as_str().unwrap()))
+            .await
+            .json()
+            .await
+            .unwrap();
+        got.push(d["external_id"].as_str().unwrap().to_owned());
+    }
+    assert_eq!(got, expected);
+    let id = accepted["id"].as_str().unwrap();
+    for j in std::iter::once(id).chain(blockers.iter().map(|b| b["id"].as_str().unwrap())) {
+        app.post_json(&format!("/v1/jobs/{j}/cancel"), &json!({}))
+            .await;
+    }
+}
+
 /// A hand-only system registered as README "Mappings" shows (the descriptor of
 /// `robots/examples/ihy_hand.toml` with the hand URDF as `urdf`) maps demonstrations: every
 /// frame within the hand's limits, no swivel (no arm), no scene; a placement is a 422 naming it.
