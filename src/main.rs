@@ -85,9 +85,12 @@ enum Command {
         /// `maximize` or `minimize` for --direction.
         #[arg(long, default_value = "maximize")]
         goal: String,
-        /// Starts of the multi-start search.
+        /// Starts of the multi-start search (its first round).
         #[arg(long)]
         starts: Option<usize>,
+        /// Most starts in all while none is feasible (default 32).
+        #[arg(long)]
+        max_starts: Option<usize>,
         /// Seed.
         #[arg(long)]
         seed: Option<u64>,
@@ -239,6 +242,7 @@ fn main() -> anyhow::Result<()> {
             kind,
             goal,
             starts,
+            max_starts,
             seed,
         } => {
             let body: serde_json::Value = match request {
@@ -255,6 +259,7 @@ fn main() -> anyhow::Result<()> {
                         "object_id": object.ok_or_else(|| anyhow::anyhow!("--object is required without --request"))?,
                         "task_directions": dirs,
                         "starts": starts,
+                        "max_starts": max_starts,
                         "seed": seed,
                     })
                 }

@@ -14,8 +14,8 @@ pub mod system;
 pub use indexes::{Ellipsoids, Goal, TaskDirection, Transmission};
 pub use objects::{Object, ObjectSpec, ShapeSpec, SupportPlane};
 pub use optimizer::{
-    Contact, ExactCheck, GoalRegion, GraspRequest, GraspResult, NamedJoint, QualityMeasure,
-    Residuals, Terms, Weights, plan_grasp,
+    Contact, DEFAULT_MAX_STARTS, ExactCheck, GoalRegion, GraspRequest, GraspResult, NamedJoint,
+    QualityMeasure, Residuals, Terms, Weights, plan_grasp,
 };
 pub use system::{Finger, HandArm, JointValue, LinkSphere, SpreadOrder};
 

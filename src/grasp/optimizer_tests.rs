@@ -970,6 +970,49 @@ fn an_object_out_of_reach_is_infeasible_with_a_reason() {
     let reason = r.reason.unwrap();
     assert!(reason.contains("out of reach"), "{reason}");
     assert!(r.residuals.max_surface_distance > 0.5);
+    // Beyond the reach ball: no further rounds of starts.
+    assert_eq!(r.starts_used, req.starts);
+}
+
+/// The reach ball contains every fingertip contact sphere at 2,000 random configurations of
+/// each bundled system (forward kinematics, not the bound's own sum), and is not loose: the
+/// farthest sampled sphere reaches beyond 80 % of its radius.
+#[test]
+fn the_reach_ball_contains_every_sampled_fingertip() {
+    use rand::{RngExt, SeedableRng};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    for name in [
+        "wam_t42",
+        "wam_ihy",
+        "wam_ob4f",
+        "pa10_t42",
+        "pa10_ihy",
+        "pa10_ob4f",
+    ] {
+        let s = crate::kinematics::System::from_file(&dir.join(format!("{name}.toml"))).unwrap();
+        let sys = HandArm::from_system(&s).unwrap();
+        let (c, r) = sys.reach_ball().expect("revolute chains");
+        let model = &*sys.model;
+        let mut data = Data::new(model);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let mut farthest: f64 = 0.0;
+        for _ in 0..2000 {
+            let q: Vec<f64> = (0..model.nq())
+                .map(|k| {
+                    let (lo, hi) = (model.lower_limits()[k], model.upper_limits()[k]);
+                    rng.random_range(lo.max(-3.2)..=hi.min(3.2))
+                })
+                .collect();
+            forward_kinematics(model, &mut data, &q);
+            for f in &sys.fingers {
+                let p = data.frame(f.tip) * Point3::from(f.tip_offset);
+                let d = (p - c).norm() + f.radius;
+                assert!(d <= r + 1e-9, "{name}: {d} > {r}");
+                farthest = farthest.max(d);
+            }
+        }
+        assert!(farthest > 0.8 * r, "{name}: farthest {farthest}, bound {r}");
+    }
 }
 
 #[test]
@@ -1388,6 +1431,55 @@ fn survey_claim_b_alignment() {
 /// Determinism: the same request twice, the second time while busy threads load every core,
 /// gives a bit-identical answer (timings aside). With the former 150 ms per-start wall cap the
 /// second answer ended at other iterates whenever the load slowed a start down.
+/// While no start is exactly feasible the search runs further rounds (4, then 8 more, ...) up to
+/// `max_starts`, and stops at the first round with a feasible start. The wam_t42 bottle lifted
+/// along z has no feasible start among the first 4 (survey of the closing note) but has one
+/// within 32. The rounds are one prefix of a fixed start sequence: the escalated answer is the
+/// answer of a single round of that many starts.
+#[test]
+fn an_infeasible_first_round_escalates_until_a_start_is_feasible() {
+    let systems = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    let s = crate::kinematics::System::from_file(&systems.join("wam_t42.toml")).unwrap();
+    let sys = HandArm::from_system(&s).unwrap();
+    let obj = Object::new(crate::grasp::objects::seeded_object("bottle", 0.5, 0.0, 0.0).unwrap())
+        .unwrap();
+    let mut req = GraspRequest::new(
+        obj,
+        vec![dir(Vector3::z(), Transmission::Force)],
+        QualityMeasure::CentroidDistance,
+    );
+    let answer = |req: &GraspRequest| {
+        let mut r = plan_grasp(&sys, req).unwrap();
+        r.time_s = 0.0;
+        if let Some(s) = r.solver.as_mut() {
+            s.time_s = 0.0;
+        }
+        r
+    };
+    req.starts = 4;
+    req.max_starts = 4;
+    let first = answer(&req);
+    assert!(!first.feasible);
+    assert_eq!((first.starts_used, first.starts_feasible), (4, 0));
+
+    req.max_starts = 32;
+    let escalated = answer(&req);
+    assert!(escalated.feasible, "{:?}", escalated.reason);
+    let used = escalated.starts_used;
+    assert!([8, 16, 32].contains(&used), "{used}");
+    assert!(escalated.starts_feasible >= 1);
+    // The round before the last had no feasible start.
+    req.max_starts = used / 2;
+    assert_eq!(answer(&req).starts_feasible, 0);
+    // One round of `used` starts gives the same answer.
+    req.starts = used;
+    req.max_starts = used;
+    assert_eq!(
+        serde_json::to_string(&answer(&req)).unwrap(),
+        serde_json::to_string(&escalated).unwrap()
+    );
+}
+
 #[test]
 fn the_same_request_under_load_gives_the_identical_answer() {
     use std::sync::atomic::{AtomicBool, Ordering};

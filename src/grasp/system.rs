@@ -9,7 +9,7 @@ use nalgebra::{Point3, Vector3};
 use parry3d_f64::shape::{Shape, TypedShape};
 
 use crate::geometry::RobotGeometry;
-use crate::kinematics::{Data, FrameId, Model, System, forward_kinematics};
+use crate::kinematics::{Data, FrameId, JointKind, Model, System, forward_kinematics};
 
 use super::GraspError;
 
@@ -314,6 +314,49 @@ impl HandArm {
                 chain
             })
             .collect()
+    }
+
+    /// A ball every fingertip contact sphere stays inside over the whole configuration space:
+    /// centre at the origin of the chain's first moving joint (fixed in the world, since only
+    /// fixed frames lie above it), radius the sum of the constant distances between successive
+    /// joint origins down to the contact sphere, plus its radius. Revolute joints rotate their
+    /// child about an axis through the child's origin, so each such distance is invariant; with
+    /// a prismatic joint on a chain there is no such bound (`None`).
+    pub fn reach_ball(&self) -> Option<(Point3<f64>, f64)> {
+        let model = &*self.model;
+        let mut data = Data::new(model);
+        forward_kinematics(model, &mut data, &model.neutral());
+        let origin = |f: FrameId| Point3::from(data.frame(f).translation.vector);
+        let mut centre: Option<Point3<f64>> = None;
+        let mut radius: f64 = 0.0;
+        for (chain, finger) in self.finger_chains().iter().zip(&self.fingers) {
+            let tip = data.frame(finger.tip) * Point3::from(finger.tip_offset);
+            // Moving frames, tip side first.
+            let mut moving = Vec::new();
+            for &f in chain {
+                match model.joint_of_frame(f).map(|j| j.kind) {
+                    Some(JointKind::Prismatic { .. }) => return None,
+                    Some(JointKind::Revolute { .. } | JointKind::Continuous { .. }) => {
+                        moving.push(origin(f))
+                    }
+                    _ => {}
+                }
+            }
+            let first = *moving.last()?;
+            if centre.is_some_and(|c| (c - first).norm() > 1e-9) {
+                // Fingers hanging off different fixed roots: no common centre.
+                return None;
+            }
+            centre = Some(first);
+            let mut r = finger.radius;
+            let mut at = tip;
+            for &o in &moving {
+                r += (at - o).norm();
+                at = o;
+            }
+            radius = radius.max(r);
+        }
+        centre.map(|c| (c, radius))
     }
 
     /// Collect the link spheres of eq. 29 from the model's collision shapes: every link moved by

@@ -13,8 +13,8 @@ use crate::grasp::objects::{
     MAX_OBJECT_EXTENT, ObjectSpec, ShapeSpec, SupportPlane, parse_obj, parse_stl,
 };
 use crate::grasp::{
-    Goal, GoalRegion, GraspError, GraspRequest, GraspResult, HandArm, Object, QualityMeasure,
-    TaskDirection, Transmission, Weights, plan_grasp,
+    DEFAULT_MAX_STARTS, Goal, GoalRegion, GraspError, GraspRequest, GraspResult, HandArm, Object,
+    QualityMeasure, TaskDirection, Transmission, Weights, plan_grasp,
 };
 use crate::jobs::{JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::System;
@@ -80,8 +80,11 @@ pub struct GraspIn {
     pub quality: Option<QualityMeasure>,
     /// Weights of eq. 22 (defaults: tc 1, gc 0, q 1, d 1).
     pub weights: Option<Weights>,
-    /// Starts of the multi-start search, 1 to 64 (default 4).
+    /// Starts of the multi-start search, 1 to 64 (default 4): its first round.
     pub starts: Option<usize>,
+    /// While no start is exactly feasible, further rounds double the starts run, up to this
+    /// many in all: `starts` to 64 (default 32, or `starts` if larger).
+    pub max_starts: Option<usize>,
     /// Seed of the start perturbations (default 0).
     pub seed: Option<u64>,
     /// Human elbow reference for the anthropomorphism term D (m, world).
@@ -101,6 +104,7 @@ pub struct GraspBatchIn {
     pub quality: Option<QualityMeasure>,
     pub weights: Option<Weights>,
     pub starts: Option<usize>,
+    pub max_starts: Option<usize>,
     pub seed: Option<u64>,
 }
 
@@ -119,6 +123,9 @@ pub struct GraspSettings {
     pub quality: QualityMeasure,
     pub weights: Weights,
     pub starts: usize,
+    /// Grasps stored before start rounds existed ran `starts` only.
+    #[serde(default)]
+    pub max_starts: usize,
     pub seed: u64,
     #[schema(min_items = 3, max_items = 3)]
     pub elbow_reference: Option<[f64; 3]>,
@@ -367,7 +374,7 @@ fn parse_settings(
     task_directions: &[TaskDirectionIn],
     quality: Option<QualityMeasure>,
     weights: Option<Weights>,
-    starts: Option<usize>,
+    (starts, max_starts): (Option<usize>, Option<usize>),
     seed: Option<u64>,
     elbow_reference: Option<[f64; 3]>,
 ) -> Result<Settings, Error> {
@@ -410,6 +417,13 @@ fn parse_settings(
             format!("must be between 1 and 64, got {starts}"),
         ));
     }
+    let max_starts = max_starts.unwrap_or(DEFAULT_MAX_STARTS.max(starts));
+    if !(starts..=64).contains(&max_starts) {
+        errors.push(Invalid::new(
+            "$.max_starts",
+            format!("must be between starts ({starts}) and 64, got {max_starts}"),
+        ));
+    }
     if let Some(e) = elbow_reference
         && e.iter().any(|x| !x.is_finite())
     {
@@ -425,6 +439,7 @@ fn parse_settings(
             quality: quality.unwrap_or(QualityMeasure::CentroidDistance),
             weights,
             starts,
+            max_starts,
             seed: seed.unwrap_or(0),
             elbow_reference,
         },
@@ -435,6 +450,8 @@ fn make_request(object: Object, s: &Settings) -> GraspRequest {
     let mut req = GraspRequest::new(object, s.task.clone(), s.dto.quality);
     req.weights = s.dto.weights;
     req.starts = s.dto.starts;
+    // Stored settings from before start rounds (`max_starts` 0) mean one round.
+    req.max_starts = s.dto.max_starts.max(s.dto.starts);
     req.seed = s.dto.seed;
     req.elbow_reference = s.dto.elbow_reference.map(Point3::from);
     req
@@ -497,7 +514,7 @@ pub async fn compute(
         &body.task_directions,
         body.quality,
         body.weights,
-        body.starts,
+        (body.starts, body.max_starts),
         body.seed,
         body.elbow_reference,
     )?;
@@ -615,7 +632,7 @@ pub async fn submit_batch(ctx: &Context, body: &GraspBatchIn) -> Result<JobRecor
         &body.task_directions,
         body.quality,
         body.weights,
-        body.starts,
+        (body.starts, body.max_starts),
         body.seed,
         None,
     )?;
@@ -662,7 +679,7 @@ pub fn offline(robots: &std::path::Path, body: &GraspIn) -> Result<GraspResult, 
         &body.task_directions,
         body.quality,
         body.weights,
-        body.starts,
+        (body.starts, body.max_starts),
         body.seed,
         body.elbow_reference,
     )?;

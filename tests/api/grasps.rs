@@ -245,6 +245,8 @@ async fn bad_grasp_requests_are_rejected_naming_the_field() {
         (with(json!({"weights": {"q": -1.0}})), "$.weights.q"),
         (with(json!({"quality": "polygon_area"})), "$.quality"),
         (with(json!({"starts": 0})), "$.starts"),
+        (with(json!({"starts": 8, "max_starts": 4})), "$.max_starts"),
+        (with(json!({"max_starts": 65})), "$.max_starts"),
     ];
     for (body, path) in cases {
         let p = assert_problem(app.post_json("/v1/grasps", &body).await, 422, "validation").await;
