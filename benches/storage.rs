@@ -204,6 +204,7 @@ async fn run() -> anyhow::Result<()> {
                 duration: None,
                 rate: None,
             },
+            None,
         )
         .await
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;

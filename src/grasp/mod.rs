@@ -3,14 +3,17 @@
 //! - [`objects`]: graspable objects as parry shapes with a pose and an optional support plane.
 //! - [`indexes`]: manipulability, transmission ratios, TC/GC, grasp matrix, hand-object
 //!   Jacobian, Q_DC and Q_AGP (eq. 12-21).
+//! - [`clearance`]: the exact clearance of a trajectory in a grasp's scene.
 //! - [`optimizer`]: the constrained problem of eq. 22-29 solved through [`crate::optim`],
 //!   multi-start, best feasible result with every term and residual.
 
+pub mod clearance;
 pub mod indexes;
 pub mod objects;
 pub mod optimizer;
 pub mod system;
 
+pub use clearance::{ClearanceHit, PathClearance, path_clearance};
 pub use indexes::{Ellipsoids, Goal, TaskDirection, Transmission};
 pub use objects::{Object, ObjectSpec, ShapeSpec, SupportPlane};
 pub use optimizer::{

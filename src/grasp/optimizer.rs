@@ -581,13 +581,18 @@ struct Eval<'a> {
 }
 /// The grasp's scene for the exact checker: the object and its support half-space.
 fn grasp_checker(sys: &HandArm, req: &GraspRequest) -> CollisionChecker {
-    let (shape, pose) = req.object.shape();
+    grasp_checker_for(sys, &req.object)
+}
+
+/// The exact checker of `object` (and its support half-space) against the system's links.
+pub(super) fn grasp_checker_for(sys: &HandArm, object: &Object) -> CollisionChecker {
+    let (shape, pose) = object.shape();
     let mut scene = Scene::new().with_object(SceneShape::new(
-        req.object.spec().name.clone(),
+        object.spec().name.clone(),
         shape.clone(),
         *pose,
     ));
-    if let Some(p) = req.object.support().and_then(|sp| Plane::try_from(sp).ok()) {
+    if let Some(p) = object.support().and_then(|sp| Plane::try_from(sp).ok()) {
         scene = scene.with_support(p);
     }
     CollisionChecker::new(sys.geometry.clone(), scene)
@@ -2045,4 +2050,4 @@ mod repair;
 
 #[cfg(test)]
 #[path = "optimizer_tests.rs"]
-mod tests;
+pub(crate) mod tests;

@@ -505,11 +505,19 @@ fn new_grasp(
 ///
 /// With a motion model's goal `regions` (a plan's), every start begins at their centre and the
 /// grasp must lie inside them ([`crate::grasp::GraspRequest::goal_regions`]).
+/// A computed grasp's scene: the system and the object (with its support), for checking the
+/// motion that reaches it.
+#[derive(Clone)]
+pub struct GraspScene {
+    pub sys: Arc<HandArm>,
+    pub object: Object,
+}
+
 pub async fn compute(
     ctx: &Context,
     body: &GraspIn,
     regions: &[super::models::NamedGoalRegion],
-) -> Result<(repo::NewGrasp, GraspResult), Error> {
+) -> Result<(repo::NewGrasp, GraspResult, GraspScene), Error> {
     let settings = parse_settings(
         &body.task_directions,
         body.quality,
@@ -553,6 +561,7 @@ pub async fn compute(
         }
         q
     });
+    let view = sys.clone();
     let (result, object) = tokio::task::spawn_blocking(move || {
         let mut req = make_request(object.clone(), &settings);
         req.arm_seed = arm_seed;
@@ -566,6 +575,7 @@ pub async fn compute(
     Ok((
         new_grasp(&body.robot, object_id, &object, &dto, &result),
         result,
+        GraspScene { sys: view, object },
     ))
 }
 
@@ -607,7 +617,7 @@ pub async fn batch(ctx: &Context, id: &str) -> Result<(repo::BatchRow, Vec<Strin
 /// Computes and stores one grasp. An infeasible request (object out of reach, too large) is a
 /// stored result with `feasible: false` and a reason.
 pub async fn create(ctx: &Context, body: &GraspIn) -> Result<repo::GraspRow, Error> {
-    let (new, _) = compute(ctx, body, &[]).await?;
+    let (new, _, _) = compute(ctx, body, &[]).await?;
     Ok(repo::insert_grasp(&ctx.db, &new).await?)
 }
 

@@ -240,7 +240,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     // A plan's grasp must land in the model's certified goal regions: the search starts at
     // their centre (the arm branch and hand posture the demonstrations end on) and keeps inside.
     let regions = super::models::goal_regions(ctx, &model_id).await?;
-    let (new_grasp, result) = super::grasps::compute(ctx, &body.grasp, &regions).await?;
+    let (new_grasp, result, scene) = super::grasps::compute(ctx, &body.grasp, &regions).await?;
     let grasp_s = t0.elapsed().as_secs_f64();
     let mut reason = (!result.feasible).then(|| {
         format!(
@@ -267,7 +267,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             duration: body.duration.clone(),
             rate: body.rate,
         };
-        match super::trajectories::compute(ctx, &request).await {
+        match super::trajectories::compute(ctx, &request, Some(scene)).await {
             Ok(t) => trajectory = Some(t),
             // The grasp is the goal: a goal the model cannot certify (outside its goal region
             // or its joint limits) makes the plan infeasible, not the request bad.

@@ -9,7 +9,7 @@ use super::models::{
     group_name, joint_values, loaded_model, region_error,
 };
 use super::{Context, Error, Invalid, Keyword};
-use crate::grasp::GraspResult;
+use crate::grasp::{GraspResult, PathClearance, path_clearance};
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::motion::{MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint};
 use crate::store::grasps as grasp_repo;
@@ -132,6 +132,12 @@ pub struct TrajectoryReportDto {
     pub elbow_paths: Vec<FramePathDto>,
     /// The grasp the goal came from, if any.
     pub grasp: Option<String>,
+    /// A plan's trajectory: its exact clearance in the grasp's scene (every link's collision
+    /// shape against the object, the support and the other links, continuous along the path
+    /// through the points). Reported, not yet acted on: the motion model has no term that avoids
+    /// the object or the table (issue 18).
+    #[serde(default)]
+    pub clearance: Option<PathClearance>,
 }
 
 /// FK along the points: fingertip and elbow paths (robot base frame).
@@ -223,6 +229,7 @@ fn trajectory_report(
         fingertip_paths,
         elbow_paths,
         grasp,
+        clearance: None,
     }
 }
 
@@ -324,13 +331,18 @@ pub async fn create(
     ctx: &Context,
     body: &CreateTrajectory,
 ) -> Result<trajectories::StoredTrajectory, Error> {
-    let draft = compute(ctx, body).await?;
+    let draft = compute(ctx, body, None).await?;
     Ok(trajectories::insert_trajectory(&ctx.db, &draft.as_new()).await?)
 }
 
 /// Generates one trajectory, not yet stored (shared with `/v1/plans`, which stores it with its
 /// grasp).
-pub async fn compute(ctx: &Context, body: &CreateTrajectory) -> Result<TrajectoryDraft, Rejected> {
+/// With a grasp's `scene` (a plan's), the trajectory's exact clearance in it is reported.
+pub async fn compute(
+    ctx: &Context,
+    body: &CreateTrajectory,
+    scene: Option<super::grasps::GraspScene>,
+) -> Result<TrajectoryDraft, Rejected> {
     let requested = match &body.duration {
         None => None,
         Some(AutoOr::Auto(s)) if Keyword::parse(s) == Some(Keyword::Auto) => None,
@@ -403,7 +415,13 @@ pub async fn compute(ctx: &Context, body: &CreateTrajectory) -> Result<Trajector
                     Rejected::Other(e)
                 }
             })?;
-            let report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
+            let mut report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
+            report.clearance = scene.map(|sc| {
+                let points: Vec<Vec<f64>> =
+                    traj.points.iter().map(|p| p.positions.clone()).collect();
+                let times: Vec<f64> = traj.points.iter().map(|p| p.t).collect();
+                path_clearance(&sc.sys, &sc.object, &points, &times)
+            });
             Ok::<_, Rejected>((traj, report))
         })
         .await

@@ -83,6 +83,25 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
             assert!((v - j["value"].as_f64().unwrap()).abs() < 1e-9, "{j}");
         }
         assert_eq!(points[0]["positions"], start["positions"]);
+        // The exact clearance along the path, in the grasp's scene. Its end is the grasp, so
+        // the object clearance is no larger than the grasp's own exact pad distances there.
+        let c = &t["report"]["clearance"];
+        assert_eq!(c["complete"], true, "{c}");
+        assert!(c["collision_free"].is_boolean(), "{c}");
+        let duration = t["report"]["duration"].as_f64().unwrap();
+        let at = c["closest"]["time_s"].as_f64().unwrap();
+        assert!((0.0..=duration + 1e-9).contains(&at), "{c}");
+        let pad = result["contacts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|k| k["surface_distance"].as_f64().unwrap())
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            c["object"]["distance_m"].as_f64().unwrap() <= pad + 1e-9,
+            "{c} {pad}"
+        );
+        assert!(c["support"]["distance_m"].is_number(), "{c}");
     } else {
         // A model of 15 demonstrations may not cover the optimiser's grasp; the plan says so.
         assert!(plan["trajectory"].is_null());

@@ -1,0 +1,239 @@
+//! Exact clearance of a joint trajectory in a grasp's scene (issue 18, item 2).
+//!
+//! Every link's URDF collision shape against the object, the support half-space and every
+//! non-adjacent link of the system, continuous along the piecewise-linear path through the
+//! trajectory's points (the path a position-controlled robot interpolates between them), by the
+//! conservative advancement of [`CollisionChecker::check_path`]: the true minimum distance lies
+//! at most `tolerance_m` below the reported one, so no penetration deeper than that is missed.
+//!
+//! The fingertip pads end the trajectory on the object (the grasp's contacts, at most
+//! [`EXACT_PENETRATION_TOLERANCE`] deep), so a penetration within that tolerance is contact, not
+//! collision; anything deeper, anywhere on the path, is a collision.
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{Category, PathHit, PathOptions, Polyline};
+
+use super::optimizer::{EXACT_PENETRATION_TOLERANCE, grasp_checker_for};
+use super::{HandArm, Object};
+
+/// Where along the trajectory a distance was found.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ClearanceHit {
+    /// Signed distance, m (< 0: penetration depth).
+    pub distance_m: f64,
+    /// Time from the trajectory's start, s.
+    pub time_s: f64,
+    /// The robot link.
+    pub link: String,
+    /// "object", "support" or the other link's name.
+    pub other: String,
+}
+
+/// The exact clearance of a trajectory (see the module docs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct PathClearance {
+    /// No pair deeper than the contact tolerance anywhere on the path.
+    pub collision_free: bool,
+    /// Penetration accepted as contact (the grasp's own contacts at the end), m.
+    pub contact_tolerance_m: f64,
+    /// The true minimum lies at most this far below each reported distance, m.
+    pub tolerance_m: f64,
+    /// The check covered the whole path (its step budget did not run out).
+    pub complete: bool,
+    /// Smallest distance of any pair, and where.
+    pub closest: Option<ClearanceHit>,
+    /// Smallest distance of a link to the object.
+    pub object: Option<ClearanceHit>,
+    /// Smallest distance of a link to the support plane.
+    pub support: Option<ClearanceHit>,
+    /// Smallest distance between two non-adjacent links.
+    pub self_collision: Option<ClearanceHit>,
+    /// Conservative-advancement steps and exact distance queries spent.
+    pub steps: usize,
+    pub exact_queries: usize,
+}
+
+/// Steps of the conservative advancement (deterministic budget; `complete` says if it ran out).
+const MAX_STEPS: usize = 200_000;
+/// Tolerance of the continuous check, m.
+const TOLERANCE: f64 = 5e-4;
+
+/// The clearance of the path through `points` (each `sys.model.nq()` joint values in model
+/// order) at times `times` (s), in the scene of `object` (and its support plane).
+pub fn path_clearance(
+    sys: &HandArm,
+    object: &Object,
+    points: &[Vec<f64>],
+    times: &[f64],
+) -> PathClearance {
+    let nq = sys.model.nq();
+    assert_eq!(points.len(), times.len(), "one time per point");
+    assert!(!points.is_empty(), "a path has at least one point");
+    let flat: Vec<f64> = points
+        .iter()
+        .flat_map(|p| {
+            assert_eq!(p.len(), nq, "a point has the wrong number of joint values");
+            p.iter().copied()
+        })
+        .collect();
+    let checker = grasp_checker_for(sys, object);
+    let mut data = checker.data();
+    let report = checker.check_path(
+        &mut data,
+        &Polyline::new(&flat, nq),
+        &PathOptions {
+            tolerance: TOLERANCE,
+            max_steps: MAX_STEPS,
+        },
+    );
+    // The path parameter counts segments: interpolate the time.
+    let time = |s: f64| {
+        let k = (s.floor() as usize).min(times.len() - 1);
+        let next = (k + 1).min(times.len() - 1);
+        times[k] + (s - k as f64) * (times[next] - times[k])
+    };
+    let hit = |h: Option<&PathHit>| {
+        h.map(|h| {
+            let label = checker.label(h.pair);
+            ClearanceHit {
+                distance_m: h.distance.distance,
+                time_s: time(h.s),
+                link: label.link,
+                other: label.other,
+            }
+        })
+    };
+    let closest = hit(report.min.as_ref());
+    PathClearance {
+        collision_free: report.complete
+            && closest
+                .as_ref()
+                .is_none_or(|c| c.distance_m >= -EXACT_PENETRATION_TOLERANCE),
+        contact_tolerance_m: EXACT_PENETRATION_TOLERANCE,
+        tolerance_m: report.tolerance,
+        complete: report.complete,
+        closest,
+        object: hit(report.category(Category::Object)),
+        support: hit(report.category(Category::Support)),
+        self_collision: hit(report.category(Category::SelfCollision)),
+        steps: report.steps,
+        exact_queries: report.exact_queries,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Point3;
+
+    use super::*;
+    use crate::grasp::objects::{ObjectSpec, ShapeSpec, SupportPlane};
+    use crate::grasp::optimizer::tests::test_system;
+    use crate::kinematics::{Data, forward_kinematics};
+
+    /// Lowest height above the plane `z = h` of the test system's collision shapes, in closed
+    /// form (capsule: its lower end minus the radius; box: its lowest corner), independent of
+    /// the parry queries the checker runs.
+    fn lowest(sys: &HandArm, data: &mut Data, q: &[f64], h: f64) -> f64 {
+        let model = &*sys.model;
+        forward_kinematics(model, data, q);
+        let frame = |n: &str| *data.frame(model.frame_id(n).unwrap());
+        let capsule = |link: &str, z0: f64, z1: f64, r: f64| {
+            let f = frame(link);
+            let (a, b) = (f * Point3::new(0.0, 0.0, z0), f * Point3::new(0.0, 0.0, z1));
+            a.z.min(b.z) - r - h
+        };
+        let mut low = capsule("j4_link", 0.05, 0.22, 0.035);
+        for k in 0..2 {
+            low = low.min(capsule(&format!("f{k}_prox_link"), 0.012, 0.05, 0.008));
+            low = low.min(capsule(&format!("f{k}_dist_link"), 0.0, 0.036, 0.008));
+        }
+        let palm = frame("palm");
+        for sx in [-1.0, 1.0] {
+            for sy in [-1.0, 1.0] {
+                for sz in [-1.0, 1.0] {
+                    let c = palm * Point3::new(0.025 * sx, 0.05 * sy, -0.02 + 0.02 * sz);
+                    low = low.min(c.z - h);
+                }
+            }
+        }
+        low
+    }
+
+    /// The support clearance of a path, against dense closed-form sampling of the same
+    /// polyline: within the check's tolerance of the sampled minimum, found at the same time
+    /// inside the segment, and a dip under the table is a collision while a path above it is
+    /// free.
+    #[test]
+    fn the_support_clearance_of_a_path_matches_dense_closed_form_sampling() {
+        let sys = test_system();
+        let nq = sys.model.nq();
+        let table = 0.167;
+        let object = Object::new(ObjectSpec {
+            name: "ball".into(),
+            shape: ShapeSpec::Sphere { radius: 0.033 },
+            position: [0.5, 0.4, 0.2],
+            orientation: [1.0, 0.0, 0.0, 0.0],
+            support: Some(SupportPlane::horizontal(table)),
+        })
+        .unwrap();
+        let j2 = sys.model.q_index("j2").unwrap();
+        let j4 = sys.model.q_index("j4").unwrap();
+        let mut data = Data::new(&sys.model);
+        // One segment: the shoulder holds, the elbow sweeps through the posture where the
+        // forearm points straight down (j2 + j4 = pi), so the lowest point lies inside the
+        // segment, not at a given point. Shoulder forward: the hand passes under the table;
+        // shoulder nearly upright: it stays clear.
+        for (shoulder, dips) in [(1.6, true), (0.2, false)] {
+            let points: Vec<Vec<f64>> = [-0.5, 2.5]
+                .iter()
+                .map(|&elbow| {
+                    let mut q = vec![0.0; nq];
+                    q[j2] = shoulder;
+                    q[j4] = elbow;
+                    q
+                })
+                .collect();
+            let times = [0.0, 2.0];
+            let c = path_clearance(&sys, &object, &points, &times);
+            assert!(c.complete);
+            let support = c.support.clone().expect("a support plane");
+            // Dense sampling of the same polyline.
+            let (mut best, mut at) = (f64::INFINITY, 0.0);
+            let n = 4000;
+            let mut q = vec![0.0; nq];
+            for i in 0..=n {
+                let f = i as f64 / n as f64;
+                for j in 0..nq {
+                    q[j] = points[0][j] + f * (points[1][j] - points[0][j]);
+                }
+                let d = lowest(&sys, &mut data, &q, table);
+                if d < best {
+                    (best, at) = (d, 2.0 * f);
+                }
+            }
+            assert!(
+                (support.distance_m - best).abs() <= c.tolerance_m + 2e-4,
+                "reported {} vs sampled {best}",
+                support.distance_m
+            );
+            assert!(
+                (support.time_s - at).abs() < 0.05,
+                "{} vs {at}",
+                support.time_s
+            );
+            assert_eq!(best < -1e-3, dips);
+            assert_eq!(
+                !c.collision_free,
+                dips || c.closest.as_ref().unwrap().distance_m < -1e-3
+            );
+            if dips {
+                assert!(!c.collision_free);
+                assert!(
+                    at > 0.1 && at < 1.9,
+                    "the lowest point lies inside the segment: {at}"
+                );
+            }
+        }
+    }
+}
