@@ -1428,9 +1428,21 @@ fn survey_claim_b_alignment() {
     }
 }
 
-/// Determinism: the same request twice, the second time while busy threads load every core,
-/// gives a bit-identical answer (timings aside). With the former 150 ms per-start wall cap the
-/// second answer ended at other iterates whenever the load slowed a start down.
+/// The wam_t42 system and a request to lift the seeded bottle at (0.5, 0) along z.
+fn wam_t42_bottle_lift() -> (HandArm, GraspRequest) {
+    let systems = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
+    let s = crate::kinematics::System::from_file(&systems.join("wam_t42.toml")).unwrap();
+    let sys = HandArm::from_system(&s).unwrap();
+    let obj = Object::new(crate::grasp::objects::seeded_object("bottle", 0.5, 0.0, 0.0).unwrap())
+        .unwrap();
+    let req = GraspRequest::new(
+        obj,
+        vec![dir(Vector3::z(), Transmission::Force)],
+        QualityMeasure::CentroidDistance,
+    );
+    (sys, req)
+}
+
 /// While no start is exactly feasible the search runs further rounds (4, then 8 more, ...) up to
 /// `max_starts`, and stops at the first round with a feasible start. The wam_t42 bottle lifted
 /// along z has no feasible start among the first 4 (survey of the closing note) but has one
@@ -1438,16 +1450,7 @@ fn survey_claim_b_alignment() {
 /// answer of a single round of that many starts.
 #[test]
 fn an_infeasible_first_round_escalates_until_a_start_is_feasible() {
-    let systems = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
-    let s = crate::kinematics::System::from_file(&systems.join("wam_t42.toml")).unwrap();
-    let sys = HandArm::from_system(&s).unwrap();
-    let obj = Object::new(crate::grasp::objects::seeded_object("bottle", 0.5, 0.0, 0.0).unwrap())
-        .unwrap();
-    let mut req = GraspRequest::new(
-        obj,
-        vec![dir(Vector3::z(), Transmission::Force)],
-        QualityMeasure::CentroidDistance,
-    );
+    let (sys, mut req) = wam_t42_bottle_lift();
     let answer = |req: &GraspRequest| {
         let mut r = plan_grasp(&sys, req).unwrap();
         r.time_s = 0.0;
@@ -1480,19 +1483,13 @@ fn an_infeasible_first_round_escalates_until_a_start_is_feasible() {
     );
 }
 
+/// Determinism: the same request twice, the second time while busy threads load every core,
+/// gives a bit-identical answer (timings aside). With the former 150 ms per-start wall cap the
+/// second answer ended at other iterates whenever the load slowed a start down.
 #[test]
 fn the_same_request_under_load_gives_the_identical_answer() {
     use std::sync::atomic::{AtomicBool, Ordering};
-    let systems = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
-    let s = crate::kinematics::System::from_file(&systems.join("wam_t42.toml")).unwrap();
-    let sys = HandArm::from_system(&s).unwrap();
-    let obj = Object::new(crate::grasp::objects::seeded_object("bottle", 0.5, 0.0, 0.0).unwrap())
-        .unwrap();
-    let mut req = GraspRequest::new(
-        obj,
-        vec![dir(Vector3::z(), Transmission::Force)],
-        QualityMeasure::CentroidDistance,
-    );
+    let (sys, mut req) = wam_t42_bottle_lift();
     req.starts = 4;
     req.threads = 2;
     let answer = || {

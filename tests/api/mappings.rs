@@ -52,6 +52,14 @@ async fn mapping_count(app: &TestApp) -> u64 {
     list["total"].as_u64().unwrap()
 }
 
+/// Two long sleep jobs: both job slots busy, so a job submitted next waits queued.
+async fn occupy_job_slots(app: &TestApp) -> [Value; 2] {
+    [
+        app.start_sleep_job(400, 50).await,
+        app.start_sleep_job(400, 50).await,
+    ]
+}
+
 async fn mapping_jobs(app: &TestApp) -> usize {
     let list: Value = app.get("/v1/jobs").await.json().await.unwrap();
     let items = list
@@ -426,10 +434,7 @@ async fn a_cancelled_mapping_stores_no_trajectory() {
     let job = study(&app, 1).await;
     let ids = demo_ids(&app, &job).await;
     // Both job slots busy: the mapping waits queued, so the cancellation surely comes first.
-    let blockers = [
-        app.start_sleep_job(400, 50).await,
-        app.start_sleep_job(400, 50).await,
-    ];
+    let blockers = occupy_job_slots(&app).await;
     let res = app
         .post_json(
             "/v1/mappings",
@@ -498,10 +503,7 @@ async fn a_study_is_mapped_in_the_order_its_trials_were_generated() {
 
     // Both job slots busy, so the mapping stays queued and is cancelled before it computes: the
     // order is fixed when the request is resolved.
-    let blockers = [
-        app.start_sleep_job(400, 50).await,
-        app.start_sleep_job(400, 50).await,
-    ];
+    let blockers = occupy_job_slots(&app).await;
     let res = app
         .post_json(
             "/v1/mappings",
