@@ -513,6 +513,18 @@ pub struct GraspScene {
     pub object: Object,
 }
 
+/// The scene of stored grasp `id`: its system and its object as it was computed (`None`: no such
+/// grasp).
+pub async fn stored_scene(ctx: &Context, id: &str) -> Result<Option<GraspScene>, Error> {
+    let Some(row) = repo::get_grasp(&ctx.db, id).await? else {
+        return Ok(None);
+    };
+    let spec: ObjectSpec = serde_json::from_str(&row.object).map_err(Error::internal)?;
+    let object = Object::new(spec).map_err(|e| Error::internal(anyhow::anyhow!("{e}")))?;
+    let sys = robot_view(ctx, &row.robot).await?;
+    Ok(Some(GraspScene { sys, object }))
+}
+
 pub async fn compute(
     ctx: &Context,
     body: &GraspIn,

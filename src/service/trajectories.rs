@@ -337,7 +337,8 @@ pub async fn create(
 
 /// Generates one trajectory, not yet stored (shared with `/v1/plans`, which stores it with its
 /// grasp).
-/// With a grasp's `scene` (a plan's), the trajectory's exact clearance in it is reported.
+/// With a grasp's `scene` (a plan's, or the stored grasp's when the goal is one), the
+/// trajectory's exact clearance in it is reported.
 pub async fn compute(
     ctx: &Context,
     body: &CreateTrajectory,
@@ -392,6 +393,12 @@ pub async fn compute(
     };
     check_limits(&l.model, &l.names, &goal, goal_names.as_deref(), goal_base)
         .map_err(Rejected::goal)?;
+    // A goal that is a stored grasp brings its scene (a plan passes the one it just computed).
+    let scene = match (scene, &grasp) {
+        (Some(s), _) => Some(s),
+        (None, Some(id)) => super::grasps::stored_scene(ctx, id).await?,
+        (None, None) => None,
+    };
     let opts = TrajectoryOptions {
         duration: requested,
         rate,

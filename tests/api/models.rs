@@ -536,6 +536,16 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
     for (j, name) in study.joint_names.iter().enumerate() {
         assert_eq!(last[j].as_f64().unwrap(), study.grasp_q[name]);
     }
+    // The stored grasp brings its scene: the path's exact clearance in it, ending at the grasp.
+    let c = &g["report"]["clearance"];
+    assert_eq!(c["complete"], true, "{c}");
+    let end = c["object"]["time_s"].as_f64().unwrap();
+    assert!(
+        end >= 0.0 && end <= g["report"]["duration"].as_f64().unwrap() + 1e-9,
+        "{c}"
+    );
+    // Without a grasp there is no scene to check against.
+    assert!(short["report"]["clearance"].is_null());
 
     let list: Value = app
         .get(&format!("/v1/trajectories?model={id}"))
