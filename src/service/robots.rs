@@ -573,13 +573,22 @@ pub struct IkRequest {
     pub orientation: Option<[f64; 4]>,
     /// Start configuration (default: mid-range); joints not named keep mid-range values.
     pub seed: Option<SeedDto>,
+    /// Weight of the position residual, >= 0; it and `orientation_weight` cannot both be 0.
+    #[schema(minimum = 0)]
     pub position_weight: Option<f64>,
+    /// Weight of the orientation residual, >= 0; above 0 only with an `orientation` target.
+    #[schema(minimum = 0)]
     pub orientation_weight: Option<f64>,
+    #[schema(minimum = 0)]
     pub position_tolerance: Option<f64>,
+    #[schema(minimum = 0)]
     pub orientation_tolerance: Option<f64>,
     /// The solver's CPU-time budget in ms (default 5, at most 2000): time the thread is
     /// descheduled is not charged, and the wall time of one solve is capped at 4 × the budget.
+    #[schema(minimum = 0, maximum = 2000)]
     pub time_budget_ms: Option<f64>,
+    /// Most random restarts, 0 to 100000.
+    #[schema(maximum = 100000)]
     pub max_restarts: Option<usize>,
     /// Seed of the random restarts (default 0): the same request gives the same answer.
     pub random_seed: Option<u64>,
