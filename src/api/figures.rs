@@ -117,7 +117,7 @@ pub struct GraspPlotQuery {
     #[param(minimum = -90, maximum = 90)]
     pub elevation: Option<f64>,
     /// `velocity` or `force` (default: the kind of the first task direction, else velocity).
-    #[param(value_type = Option<EllipsoidParam>)]
+    #[param(value_type = Option<EllipsoidParam>, inline)]
     pub ellipsoid: Option<String>,
 }
 
