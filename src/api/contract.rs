@@ -156,6 +156,15 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
         "enum",
         json!(["text", "base64", null]),
     );
+    // With `encoding: base64`, `data` is base64 (422 "invalid base64"; padding optional).
+    let base64 = json!([
+        {"properties": {"encoding": {"enum": ["text", null]}}},
+        {"required": ["encoding"], "properties": {
+            "encoding": {"const": "base64"},
+            "data": {"pattern": "^([A-Za-z0-9+/]{4})*([A-Za-z0-9+/]{2}(==)?|[A-Za-z0-9+/]{3}=?)?$"}}},
+    ]);
+    set("MeshIn", "", "oneOf", base64.clone());
+    set("MeshUpload", "", "oneOf", base64);
     // A stored trajectory, an inline one, or a model's law in closed loop with its goal
     // (422 "give exactly one of trajectory_id, trajectory and model_id", "model_id needs a
     // goal", "a model runs its law in closed_loop", "goal is only for model_id").

@@ -265,7 +265,9 @@ pub struct MappingPlotQuery {
     /// Camera elevation, degrees, -90 to 90 (default 20).
     #[param(minimum = -90, maximum = 90)]
     pub elevation: Option<f64>,
-    /// Which mapped demonstration, 0-based in the mapping's order (default 0).
+    /// Which mapped demonstration, 0-based in the mapping's order (default 0); a mapping holds
+    /// at most [`crate::service::mappings::MAX_DEMONSTRATIONS`] (500).
+    #[param(minimum = 0, maximum = 499)]
     pub demo: Option<usize>,
     /// Robot postures drawn along the motion, 0 to 10 (default 3).
     #[param(minimum = 0, maximum = 10)]
