@@ -33,7 +33,8 @@ TOLERATED = [
      r"object is .* across)"),
     # Registration: an explicit `transform` replaces the subject axes, placement and hand
     # scale (giving both is a 422 naming the field); the combinations are many and optional.
-    ("registration rule", r"^\$\.registration\.", r"^an explicit transform replaces"),
+    ("registration rule", r"^\$\.registration\.", r"^(an explicit transform replaces|"
+     r"\"auto\" needs the default \(scene-keeping\) registration)"),
     # Cross-field rule of the mapping weights (each >= 0 is in the schema; not all four 0).
     ("mapping weights rule", r"^\$\.weights$", r"^at least one weight must be positive"),
     # JSON Schema counts 6.0 as an integer; serde reads integer fields from integer literals

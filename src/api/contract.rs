@@ -273,6 +273,11 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
                     p.insert("maxItems".into(), json!(3));
                 }
             }
+            // Mesh vertex coordinates within 1e6 m (larger ones overflow the mesh checks).
+            if let Some(Value::Object(p)) = alt.pointer_mut("/properties/vertices/items/items") {
+                p.insert("minimum".into(), json!(-1e6));
+                p.insert("maximum".into(), json!(1e6));
+            }
             if let Some(Value::Object(p)) = alt.pointer_mut("/properties/size/items") {
                 p.insert("exclusiveMinimum".into(), json!(0));
                 p.insert("maximum".into(), json!(2.0));
