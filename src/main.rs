@@ -226,7 +226,10 @@ fn main() -> anyhow::Result<()> {
     match cli.command.unwrap_or(Command::Serve) {
         Command::Serve => serve(cli.config),
         Command::Openapi => {
-            println!("{}", reachgrasp::api::openapi().to_pretty_json()?);
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&reachgrasp::api::openapi())?
+            );
             Ok(())
         }
         Command::Ik { robot, targets } => ik(&cli.config, &robot, &targets),

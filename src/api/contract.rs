@@ -43,12 +43,17 @@ fn add(responses: &mut serde_json::Map<String, Value>, status: &str, description
 }
 
 /// The document with what every operation can answer and the enforced parameter ranges.
-pub fn complete(doc: utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi {
+///
+/// It stays JSON from here on: utoipa's document model has no place for some of what is added
+/// (a `oneOf` beside an object's `properties`) and would drop it on the way back.
+pub fn complete(doc: utoipa::openapi::OpenApi) -> Value {
     let mut v = serde_json::to_value(&doc).expect("an OpenAPI document serializes");
-    let Some(paths) = v.get_mut("paths").and_then(Value::as_object_mut) else {
-        return doc;
-    };
-    for (path, item) in paths.iter_mut() {
+    let paths = v
+        .get_mut("paths")
+        .and_then(Value::as_object_mut)
+        .into_iter()
+        .flatten();
+    for (path, item) in paths {
         let Some(item) = item.as_object_mut() else {
             continue;
         };
@@ -62,7 +67,231 @@ pub fn complete(doc: utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi {
             complete_operation(path, method, op);
         }
     }
-    serde_json::from_value(v).unwrap_or(doc)
+    if let Some(schemas) = v
+        .pointer_mut("/components/schemas")
+        .and_then(Value::as_object_mut)
+    {
+        constrain_schemas(schemas);
+    }
+    v
+}
+
+/// `{"type": "null"}` for `field`: absent or `null` (serde reads both as `None`).
+fn absent(fields: &[&str]) -> Value {
+    let props: serde_json::Map<String, Value> = fields
+        .iter()
+        .map(|f| ((*f).to_owned(), json!({"type": "null"})))
+        .collect();
+    Value::Object(props)
+}
+
+/// Exactly one of the alternatives: each names the field it requires (its schema) and the
+/// fields that must then be absent or `null`.
+fn exactly_one(alternatives: &[(&str, Value, &[&str])]) -> Value {
+    let one_of: Vec<Value> = alternatives
+        .iter()
+        .map(|(field, schema, others)| {
+            let mut props = absent(others);
+            props[*field] = schema.clone();
+            json!({"required": [field], "properties": props})
+        })
+        .collect();
+    json!(one_of)
+}
+
+/// What the handlers enforce on request bodies and the derives cannot state: the one-of rules
+/// between fields (each is a 422 naming the field), ranges of types owned by the numeric core
+/// (whose derives stay free of API concerns) and the closed string sets read as strings.
+fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
+    let mut set = |schema: &str, pointer: &str, key: &str, value: Value| {
+        let Some(target) = schemas.get_mut(schema) else {
+            return;
+        };
+        if let Some(Value::Object(o)) = target.pointer_mut(pointer) {
+            o.insert(key.to_owned(), value);
+        }
+    };
+    let object_ref = json!({"$ref": "#/components/schemas/ObjectIn"});
+    let id = json!({"type": "string", "minLength": 1});
+    // `object_id` or an inline `object` (422 "give exactly one of object_id and object").
+    let object_or_id = exactly_one(&[
+        ("object_id", id.clone(), &["object"]),
+        ("object", object_ref, &["object_id"]),
+    ]);
+    set("GraspIn", "", "oneOf", object_or_id.clone());
+    set("BatchItemIn", "", "oneOf", object_or_id);
+    // `shape` or `mesh` (422 "give exactly one of shape and mesh").
+    set(
+        "ObjectIn",
+        "",
+        "oneOf",
+        exactly_one(&[
+            (
+                "shape",
+                json!({"$ref": "#/components/schemas/ShapeSpec"}),
+                &["mesh"],
+            ),
+            (
+                "mesh",
+                json!({"$ref": "#/components/schemas/MeshIn"}),
+                &["shape"],
+            ),
+        ]),
+    );
+    set(
+        "MeshIn",
+        "/properties/format",
+        "enum",
+        json!(["obj", "stl"]),
+    );
+    set(
+        "MeshIn",
+        "/properties/encoding",
+        "enum",
+        json!(["text", "base64", null]),
+    );
+    set(
+        "MeshUpload",
+        "/properties/encoding",
+        "enum",
+        json!(["text", "base64", null]),
+    );
+    // With `encoding: base64`, `data` is base64 (422 "invalid base64"; padding optional).
+    let base64 = json!([
+        {"properties": {"encoding": {"enum": ["text", null]}}},
+        {"required": ["encoding"], "properties": {
+            "encoding": {"const": "base64"},
+            "data": {"pattern": "^([A-Za-z0-9+/]{4})*([A-Za-z0-9+/]{2}(==)?|[A-Za-z0-9+/]{3}=?)?$"}}},
+    ]);
+    set("MeshIn", "", "oneOf", base64.clone());
+    set("MeshUpload", "", "oneOf", base64);
+    // A stored trajectory, an inline one, or a model's law in closed loop with its goal
+    // (422 "give exactly one of trajectory_id, trajectory and model_id", "model_id needs a
+    // goal", "a model runs its law in closed_loop", "goal is only for model_id").
+    set(
+        "CreateExecution",
+        "",
+        "oneOf",
+        json!([
+            {"required": ["trajectory_id"], "properties": {
+                "trajectory_id": id, "trajectory": {"type": "null"},
+                "model_id": {"type": "null"}, "goal": {"type": "null"}}},
+            {"required": ["trajectory"], "properties": {
+                "trajectory": {"$ref": "#/components/schemas/InlineTrajectory"},
+                "trajectory_id": {"type": "null"}, "model_id": {"type": "null"},
+                "goal": {"type": "null"}}},
+            {"required": ["model_id", "goal"], "properties": {
+                "model_id": id, "goal": {"$ref": "#/components/schemas/JointValues"},
+                "mode": {"const": "closed_loop"},
+                "trajectory_id": {"type": "null"}, "trajectory": {"type": "null"}}},
+        ]),
+    );
+    // The grasp optimiser's weights (eq. 22) are finite and non-negative.
+    for w in ["tc", "gc", "q", "d"] {
+        set("Weights", &format!("/properties/{w}"), "minimum", json!(0));
+    }
+    // Target coordinates within ±1000 m.
+    for (schema, field) in [
+        ("IkRequest", "position"),
+        ("IkRequest", "point"),
+        ("JacobianRequest", "point"),
+        ("ManipulabilityRequest", "point"),
+    ] {
+        set(
+            schema,
+            &format!("/properties/{field}/items"),
+            "minimum",
+            json!(-1000),
+        );
+        set(
+            schema,
+            &format!("/properties/{field}/items"),
+            "maximum",
+            json!(1000),
+        );
+    }
+    // Worker names: 1 to 64 letters, digits, '-', '_', '.'.
+    let worker = json!("^[A-Za-z0-9._-]{1,64}$");
+    set(
+        "CreateExecution",
+        "/properties/worker",
+        "pattern",
+        worker.clone(),
+    );
+    set("PlanIn", "/allOf/1/properties/worker", "pattern", worker);
+    // `"auto"` or a number in the field's own range.
+    let auto_or = |number: Value| json!({"oneOf": [{"type": "string", "enum": ["auto"]}, number, {"type": "null"}]});
+    let seconds = auto_or(json!({"type": "number", "exclusiveMinimum": 0, "maximum": 60}));
+    for (schema, pointer) in [
+        ("CreateTrajectory", "/properties"),
+        ("PlanIn", "/allOf/1/properties"),
+    ] {
+        set(schema, pointer, "duration", seconds.clone());
+    }
+    set(
+        "CreateModel",
+        "/properties",
+        "k",
+        auto_or(json!({"type": "number", "minimum": 1})),
+    );
+    set("AutoOr", "/oneOf/1", "enum", json!(["auto"]));
+    // The registration's scale: a positive number or `"auto"`.
+    set("ScaleIn", "/oneOf/0", "exclusiveMinimum", json!(0));
+    set("ScaleIn", "/oneOf/1", "enum", json!(["auto"]));
+    set(
+        "RegistrationIn",
+        "/properties/hand_scale",
+        "exclusiveMinimum",
+        json!(0),
+    );
+    // A mapping's demonstrations by id: 1 to MAX_DEMONSTRATIONS.
+    set("SelectionIn", "/oneOf/0", "minItems", json!(1));
+    set(
+        "SelectionIn",
+        "/oneOf/0",
+        "maxItems",
+        json!(crate::service::mappings::MAX_DEMONSTRATIONS),
+    );
+    // Object dimensions: positive lengths, each alone within the largest accepted object
+    // (2 m across; the object as a whole is checked too, a 422 at `shape`).
+    if let Some(Value::Array(alts)) = schemas
+        .get_mut("ShapeSpec")
+        .and_then(|s| s.get_mut("oneOf"))
+    {
+        for alt in alts.iter_mut() {
+            for (field, max) in [("radius", 1.0), ("height", 2.0), ("length", 2.0)] {
+                if let Some(Value::Object(p)) = alt.pointer_mut(&format!("/properties/{field}")) {
+                    p.insert("exclusiveMinimum".into(), json!(0));
+                    p.insert("maximum".into(), json!(max));
+                }
+            }
+            for field in ["vertices", "triangles"] {
+                if let Some(Value::Object(p)) =
+                    alt.pointer_mut(&format!("/properties/{field}/items"))
+                {
+                    p.insert("minItems".into(), json!(3));
+                    p.insert("maxItems".into(), json!(3));
+                }
+            }
+            // Mesh vertex coordinates within 1e6 m (larger ones overflow the mesh checks).
+            if let Some(Value::Object(p)) = alt.pointer_mut("/properties/vertices/items/items") {
+                p.insert("minimum".into(), json!(-1e6));
+                p.insert("maximum".into(), json!(1e6));
+            }
+            if let Some(Value::Object(p)) = alt.pointer_mut("/properties/size/items") {
+                p.insert("exclusiveMinimum".into(), json!(0));
+                p.insert("maximum".into(), json!(2.0));
+            }
+        }
+    }
+    // `"current"` is the only word a plan's start takes.
+    if let Some(Value::Array(alts)) = schemas.get_mut("StartIn").and_then(|s| s.get_mut("oneOf")) {
+        for alt in alts.iter_mut() {
+            if alt.get("type") == Some(&json!("string")) {
+                alt["enum"] = json!(["current"]);
+            }
+        }
+    }
 }
 
 fn complete_operation(path: &str, method: &str, op: &mut Value) {

@@ -247,6 +247,7 @@ pub struct FramesDto {
 #[into_params(parameter_in = Query)]
 pub struct FramesQuery {
     /// Keep every n-th frame (decimation), 1 to 1000 (default 1).
+    #[param(minimum = 1, maximum = 1000)]
     pub every: Option<u32>,
 }
 

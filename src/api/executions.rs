@@ -147,10 +147,20 @@ pub struct FeedbackHistoryDto {
     pub next_since: Option<f64>,
 }
 
+/// The `state` parameter's schema: the names of [`ExecutionState::ALL`], the states the handler
+/// accepts (any other value is a 400 naming `state`).
+fn execution_states() -> utoipa::openapi::Object {
+    utoipa::openapi::ObjectBuilder::new()
+        .schema_type(utoipa::openapi::schema::Type::String)
+        .enum_values(Some(ExecutionState::ALL.iter().map(|s| s.as_str())))
+        .build()
+}
+
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
 pub struct ListExecutionsQuery {
     /// Only executions in this state.
+    #[param(schema_with = execution_states)]
     pub state: Option<String>,
     /// Only executions of this robot.
     pub robot: Option<String>,

@@ -71,11 +71,18 @@ where
 #[into_params(parameter_in = Query)]
 pub struct PostureQuery {
     /// Camera azimuth about the vertical axis, degrees, -180 to 180 (default 35).
+    #[param(minimum = -180, maximum = 180)]
     pub azimuth: Option<f64>,
     /// Camera elevation, degrees, -90 to 90 (default 20).
+    #[param(minimum = -90, maximum = 90)]
     pub elevation: Option<f64>,
     /// Independent joint values, comma-separated, in the robot's joint order (default: the
-    /// neutral configuration). Each must be within its joint limits.
+    /// neutral configuration). Each must be within its joint limits. How many values and
+    /// their limits depend on the robot (`GET /v1/robots/{id}`), so the schema states only
+    /// the form: comma-separated decimal numbers.
+    #[param(
+        pattern = r"^ *[-+]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][-+]?[0-9]+)? *(, *[-+]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][-+]?[0-9]+)? *)*$"
+    )]
     pub q: Option<String>,
 }
 
@@ -83,19 +90,34 @@ pub struct PostureQuery {
 #[into_params(parameter_in = Query)]
 pub struct ViewQuery {
     /// Camera azimuth about the vertical axis, degrees, -180 to 180 (default 35).
+    #[param(minimum = -180, maximum = 180)]
     pub azimuth: Option<f64>,
     /// Camera elevation, degrees, -90 to 90 (default 20).
+    #[param(minimum = -90, maximum = 90)]
     pub elevation: Option<f64>,
+}
+
+/// The values of `ellipsoid` (documentation only: the handler reads the string and answers 400
+/// naming the parameter for any other value).
+#[derive(utoipa::ToSchema)]
+#[schema(rename_all = "snake_case")]
+#[allow(dead_code)]
+pub enum EllipsoidParam {
+    Velocity,
+    Force,
 }
 
 #[derive(Debug, Deserialize, IntoParams)]
 #[into_params(parameter_in = Query)]
 pub struct GraspPlotQuery {
     /// Camera azimuth about the vertical axis, degrees, -180 to 180 (default 35).
+    #[param(minimum = -180, maximum = 180)]
     pub azimuth: Option<f64>,
     /// Camera elevation, degrees, -90 to 90 (default 20).
+    #[param(minimum = -90, maximum = 90)]
     pub elevation: Option<f64>,
     /// `velocity` or `force` (default: the kind of the first task direction, else velocity).
+    #[param(value_type = Option<EllipsoidParam>, inline)]
     pub ellipsoid: Option<String>,
 }
 
@@ -238,12 +260,17 @@ async fn grasp_plot(
 #[into_params(parameter_in = Query)]
 pub struct MappingPlotQuery {
     /// Camera azimuth about the vertical axis, degrees, -180 to 180 (default 35).
+    #[param(minimum = -180, maximum = 180)]
     pub azimuth: Option<f64>,
     /// Camera elevation, degrees, -90 to 90 (default 20).
+    #[param(minimum = -90, maximum = 90)]
     pub elevation: Option<f64>,
-    /// Which mapped demonstration, 0-based in the mapping's order (default 0).
+    /// Which mapped demonstration, 0-based in the mapping's order (default 0); a mapping holds
+    /// at most [`crate::service::mappings::MAX_DEMONSTRATIONS`] (500).
+    #[param(minimum = 0, maximum = 499)]
     pub demo: Option<usize>,
     /// Robot postures drawn along the motion, 0 to 10 (default 3).
+    #[param(minimum = 0, maximum = 10)]
     pub postures: Option<usize>,
 }
 

@@ -89,6 +89,7 @@ pub struct ListQuery {
     /// Only this robot.
     pub robot: Option<String>,
     /// Only this status.
+    #[param(value_type = Option<crate::jobs::JobStatus>)]
     pub status: Option<String>,
     /// Page size, 1 to 500 (default 50).
     #[allow(dead_code)] // documents the parameter; `page::Listing` reads it

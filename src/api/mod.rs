@@ -178,7 +178,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
 }
 
 /// The OpenAPI 3.1 document (`/openapi.json`, `reachgrasp openapi`, `openapi/openapi.json`).
-pub fn openapi() -> utoipa::openapi::OpenApi {
+pub fn openapi() -> serde_json::Value {
     contract::complete(openapi_router().split_for_parts().1)
 }
 
@@ -189,7 +189,7 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
 pub fn router(state: AppState, pages: Router<AppState>) -> Router {
     let (mut router, api) = openapi_router().split_for_parts();
     let api = contract::complete(api);
-    router = router.merge(SwaggerUi::new("/docs").url("/openapi.json", api));
+    router = router.merge(SwaggerUi::new("/docs").external_url_unchecked("/openapi.json", api));
     router = router.merge(pages);
     if state.config.test_jobs {
         tracing::warn!("TEST-ONLY job routes are enabled (REACHGRASP_TEST_JOBS)");

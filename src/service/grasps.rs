@@ -41,6 +41,8 @@ pub struct MeshIn {
 /// An object description. Give `shape` (a primitive or explicit mesh) or `mesh` (a file).
 #[derive(Debug, Clone, Deserialize, ToSchema)]
 pub struct ObjectIn {
+    /// A name with at least one non-blank character.
+    #[schema(min_length = 1, pattern = r"\S")]
     pub name: String,
     pub shape: Option<ShapeSpec>,
     pub mesh: Option<MeshIn>,
@@ -68,6 +70,7 @@ pub struct TaskDirectionIn {
 pub struct GraspIn {
     /// Robot (arm-hand system) id: a bundled system such as `wam_ihy`, or the id of one registered
     /// with `POST /v1/robots`.
+    #[schema(min_length = 1)]
     pub robot: String,
     /// Id of a stored object (give this or `object`).
     pub object_id: Option<String>,
@@ -81,9 +84,11 @@ pub struct GraspIn {
     /// Weights of eq. 22 (defaults: tc 1, gc 0, q 1, d 1).
     pub weights: Option<Weights>,
     /// Starts of the multi-start search, 1 to 64 (default 4): its first round.
+    #[schema(minimum = 1, maximum = 64)]
     pub starts: Option<usize>,
     /// While no start is exactly feasible, further rounds double the starts run, up to this
     /// many in all: `starts` to 64 (default 32, or `starts` if larger).
+    #[schema(minimum = 1, maximum = 64)]
     pub max_starts: Option<usize>,
     /// Seed of the start perturbations (default 0).
     pub seed: Option<u64>,
@@ -96,14 +101,21 @@ pub struct GraspIn {
 #[derive(Debug, Clone, Deserialize, ToSchema)]
 pub struct GraspBatchIn {
     /// Robot id (bundled or registered), as in `POST /v1/grasps`.
+    #[schema(min_length = 1)]
     pub robot: String,
-    /// Each item is an object id or an inline object (e.g. the same shape at several poses).
+    /// Each item is an object id or an inline object (e.g. the same shape at several poses),
+    /// 1 to [`MAX_BATCH`] items.
+    #[schema(min_items = 1, max_items = 200)]
     pub items: Vec<BatchItemIn>,
     #[serde(default)]
     pub task_directions: Vec<TaskDirectionIn>,
     pub quality: Option<QualityMeasure>,
     pub weights: Option<Weights>,
+    /// Starts of the multi-start search, 1 to 64 (default 4).
+    #[schema(minimum = 1, maximum = 64)]
     pub starts: Option<usize>,
+    /// At most this many starts in all, as in `POST /v1/grasps`.
+    #[schema(minimum = 1, maximum = 64)]
     pub max_starts: Option<usize>,
     pub seed: Option<u64>,
 }

@@ -65,12 +65,16 @@ pub struct DemoFilterIn {
 #[serde(deny_unknown_fields)]
 pub struct WeightsIn {
     /// `w_x`, on squared fingertip position errors (per m²).
+    #[schema(minimum = 0)]
     pub position: Option<f64>,
     /// `w_o`, on fingertip quaternion distances (per rad).
+    #[schema(minimum = 0)]
     pub orientation: Option<f64>,
     /// `w_D`, on squared human-elbow-to-robot-joint distances (per m²).
+    #[schema(minimum = 0)]
     pub elbow: Option<f64>,
     /// On `2 (1 − cos Δφ)`, the elbow swivel-angle difference (not in the paper).
+    #[schema(minimum = 0)]
     pub swivel: Option<f64>,
 }
 
@@ -122,6 +126,7 @@ pub struct RegistrationIn {
 #[serde(deny_unknown_fields)]
 pub struct MappingIn {
     /// Arm-hand system id (bundled, e.g. `wam_ihy`, or registered).
+    #[schema(min_length = 1)]
     pub robot: String,
     /// Demonstration ids, or a filter `{subject, object, task, position, synthetic, job_id}`.
     pub demonstrations: SelectionIn,
@@ -130,6 +135,7 @@ pub struct MappingIn {
     #[serde(default)]
     pub registration: RegistrationIn,
     /// Rate of the output trajectories, Hz, in (0, 500]; default: each demonstration's own.
+    #[schema(exclusive_minimum = 0, maximum = 500)]
     pub output_rate_hz: Option<f64>,
 }
 

@@ -88,19 +88,26 @@ impl Default for ControlGains {
 #[serde(deny_unknown_fields)]
 pub struct CreateModel {
     /// Robot (arm-hand system) id; every mapping must be of this robot.
+    #[schema(min_length = 1)]
     pub robot: String,
-    /// Ids of succeeded mappings whose demonstrations are the training data.
+    /// Ids of succeeded mappings whose demonstrations are the training data (at least one).
+    #[schema(min_items = 1)]
     pub mappings: Vec<String>,
-    /// Fixed number of principal components per joint group (arm, hand); give this or
-    /// `variance_threshold`.
+    /// Fixed number of principal components per joint group (arm, hand), 1 to 5 and at most
+    /// the robot's smallest joint group; give this or `variance_threshold`.
+    #[schema(minimum = 1, maximum = 5)]
     pub components: Option<usize>,
-    /// Keep the fewest components explaining this fraction of the variance (default 0.88).
+    /// Keep the fewest components explaining this fraction of the variance, in (0, 1]
+    /// (default 0.88).
+    #[schema(exclusive_minimum = 0, maximum = 1)]
     pub variance_threshold: Option<f64>,
-    /// Spline resolution: knot intervals per PCA axis of the learned field (default 6, lowered
-    /// for a manifold with so many components that the spline would exceed its coefficient
-    /// budget; an explicit value is never lowered).
+    /// Spline resolution: knot intervals per PCA axis of the learned field, 1 to 12 (default 6,
+    /// lowered for a manifold with so many components that the spline would exceed its
+    /// coefficient budget; an explicit value is never lowered).
+    #[schema(minimum = 1, maximum = 12)]
     pub spline_intervals: Option<usize>,
-    /// Weight of the spline fit's smoothness + ridge penalty (default 3).
+    /// Weight of the spline fit's smoothness + ridge penalty, positive (default 3).
+    #[schema(exclusive_minimum = 0)]
     pub regularisation: Option<f64>,
     /// `k` of eq. 9: `"auto"` (the smallest certified value, default) or a number ≥ 1 (the
     /// learned field is shrunk until the certificate holds).
@@ -116,8 +123,10 @@ pub struct CreateModel {
     pub residual_profile: Option<bool>,
     /// Ridge of the residual profile's fit (default 0.1, per demonstration and rad² of
     /// start-goal difference); must be positive.
+    #[schema(exclusive_minimum = 0)]
     pub profile_ridge: Option<f64>,
-    /// Joint acceleration limit, rad/s² (default 5; URDF has none).
+    /// Joint acceleration limit, rad/s², positive (default 5; URDF has none).
+    #[schema(exclusive_minimum = 0)]
     pub acceleration_limit: Option<f64>,
     pub control: Option<ControlGains>,
     /// Make this the robot's default model once trained (default false).

@@ -356,6 +356,9 @@ fn combined_urdf(row: &repo::RobotRow, hand: &str) -> anyhow::Result<String> {
 /// Longest IK time budget a request may ask for.
 pub const MAX_IK_BUDGET_MS: f64 = 2000.0;
 
+/// Largest IK residual weight.
+pub const MAX_IK_WEIGHT: f64 = 1e6;
+
 /// The loaded system `id` (a path parameter: unknown is "not found").
 pub async fn system(ctx: &Context, id: &str) -> Result<Arc<System>, Error> {
     Ok(ctx.robots.system(id).await?)
@@ -573,13 +576,22 @@ pub struct IkRequest {
     pub orientation: Option<[f64; 4]>,
     /// Start configuration (default: mid-range); joints not named keep mid-range values.
     pub seed: Option<SeedDto>,
+    /// Weight of the position residual, 0 to 1e6; it and `orientation_weight` cannot both be 0.
+    #[schema(minimum = 0, maximum = 1e6)]
     pub position_weight: Option<f64>,
+    /// Weight of the orientation residual, 0 to 1e6; above 0 only with an `orientation` target.
+    #[schema(minimum = 0, maximum = 1e6)]
     pub orientation_weight: Option<f64>,
+    #[schema(minimum = 0)]
     pub position_tolerance: Option<f64>,
+    #[schema(minimum = 0)]
     pub orientation_tolerance: Option<f64>,
     /// The solver's CPU-time budget in ms (default 5, at most 2000): time the thread is
     /// descheduled is not charged, and the wall time of one solve is capped at 4 × the budget.
+    #[schema(minimum = 0, maximum = 2000)]
     pub time_budget_ms: Option<f64>,
+    /// Most random restarts, 0 to 100000.
+    #[schema(maximum = 100000)]
     pub max_restarts: Option<usize>,
     /// Seed of the random restarts (default 0): the same request gives the same answer.
     pub random_seed: Option<u64>,
@@ -639,6 +651,18 @@ pub fn parse_ik(
         "orientation_weight",
         opts.orientation_weight,
     )?;
+    // Weights near f64::MAX overflow the weighted residuals (NaN errors were answered as null).
+    for (name, w) in [
+        ("position_weight", opts.position_weight),
+        ("orientation_weight", opts.orientation_weight),
+    ] {
+        if w > MAX_IK_WEIGHT {
+            return Err(Error::invalid(
+                format!("{base}.{name}"),
+                format!("at most {MAX_IK_WEIGHT:e}, got {w}"),
+            ));
+        }
+    }
     if body.orientation.is_none() && opts.orientation_weight > 0.0 {
         return Err(Error::invalid(
             format!("{base}.orientation_weight"),

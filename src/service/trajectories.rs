@@ -76,13 +76,15 @@ pub struct GoalIn {
 #[serde(deny_unknown_fields)]
 pub struct CreateTrajectory {
     /// Model id.
+    #[schema(min_length = 1)]
     pub model: String,
     pub start: JointValues,
     pub goal: GoalIn,
     /// `"auto"` (learned from the demonstrations, default) or seconds. A duration too short for
     /// the joint limits is replaced by the shortest feasible one (`stretched`, `note`).
     pub duration: Option<AutoOr>,
-    /// Output rate, Hz (default 100, at most 1000).
+    /// Output rate, Hz, in (0, 1000] (default 100).
+    #[schema(exclusive_minimum = 0, maximum = 1000)]
     pub rate: Option<f64>,
 }
 
