@@ -40,6 +40,12 @@ pub enum GraspError {
         /// Field path.
         field: String,
     },
+    /// A direction-like vector (orientation quaternion, plane normal) that is zero.
+    #[error("{field} must not be the zero vector")]
+    ZeroVector {
+        /// Field path.
+        field: String,
+    },
     /// A mesh that cannot be parsed or indexed.
     #[error("malformed mesh: {reason}")]
     MalformedMesh {

@@ -72,8 +72,13 @@ impl Object {
         }
         let q = spec.orientation;
         let qn = (q.iter().map(|x| x * x).sum::<f64>()).sqrt();
-        if !qn.is_finite() || qn < 1e-9 {
+        if !qn.is_finite() {
             return Err(GraspError::NonFinite {
+                field: "orientation".into(),
+            });
+        }
+        if qn < 1e-9 {
+            return Err(GraspError::ZeroVector {
                 field: "orientation".into(),
             });
         }
@@ -95,9 +100,14 @@ impl Object {
         if let Some(plane) = &mut spec.support {
             let n = Vector3::from(plane.normal);
             let nn = n.norm();
-            if !nn.is_finite() || nn < 1e-9 || !plane.offset.is_finite() {
+            if !nn.is_finite() || !plane.offset.is_finite() {
                 return Err(GraspError::NonFinite {
                     field: "support".into(),
+                });
+            }
+            if nn < 1e-9 {
+                return Err(GraspError::ZeroVector {
+                    field: "support.normal".into(),
                 });
             }
             plane.normal = (n / nn).into();
@@ -378,6 +388,22 @@ mod tests {
         let mut s = spec(ShapeSpec::Sphere { radius: 0.1 });
         s.position[1] = f64::INFINITY;
         assert!(matches!(Object::new(s), Err(GraspError::NonFinite { .. })));
+        // A zero quaternion or support normal is named as such, not as "not finite".
+        let mut s = spec(ShapeSpec::Sphere { radius: 0.1 });
+        s.orientation = [0.0; 4];
+        assert_eq!(
+            Object::new(s).unwrap_err().to_string(),
+            "orientation must not be the zero vector"
+        );
+        let mut s = spec(ShapeSpec::Sphere { radius: 0.1 });
+        s.support = Some(SupportPlane {
+            normal: [0.0; 3],
+            offset: 0.0,
+        });
+        assert_eq!(
+            Object::new(s).unwrap_err().to_string(),
+            "support.normal must not be the zero vector"
+        );
     }
 
     #[test]

@@ -148,7 +148,9 @@ pub struct GraspSettings {
 
 fn grasp_error(prefix: &str, e: GraspError) -> Error {
     let path = match &e {
-        GraspError::InvalidDimension { field, .. } | GraspError::NonFinite { field } => {
+        GraspError::InvalidDimension { field, .. }
+        | GraspError::NonFinite { field }
+        | GraspError::ZeroVector { field } => {
             format!("{prefix}.{field}")
         }
         GraspError::MalformedMesh { .. }
