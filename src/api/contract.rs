@@ -144,18 +144,6 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
         "enum",
         json!(["obj", "stl"]),
     );
-    set(
-        "MeshIn",
-        "/properties/encoding",
-        "enum",
-        json!(["text", "base64", null]),
-    );
-    set(
-        "MeshUpload",
-        "/properties/encoding",
-        "enum",
-        json!(["text", "base64", null]),
-    );
     // With `encoding: base64`, `data` is base64 (422 "invalid base64"; padding optional).
     let base64 = json!([
         {"properties": {"encoding": {"enum": ["text", null]}}},
@@ -163,8 +151,15 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
             "encoding": {"const": "base64"},
             "data": {"pattern": "^([A-Za-z0-9+/]{4})*([A-Za-z0-9+/]{2}(==)?|[A-Za-z0-9+/]{3}=?)?$"}}},
     ]);
-    set("MeshIn", "", "oneOf", base64.clone());
-    set("MeshUpload", "", "oneOf", base64);
+    for mesh in ["MeshIn", "MeshUpload"] {
+        set(
+            mesh,
+            "/properties/encoding",
+            "enum",
+            json!(["text", "base64", null]),
+        );
+        set(mesh, "", "oneOf", base64.clone());
+    }
     // A stored trajectory, an inline one, or a model's law in closed loop with its goal
     // (422 "give exactly one of trajectory_id, trajectory and model_id", "model_id needs a
     // goal", "a model runs its law in closed_loop", "goal is only for model_id").

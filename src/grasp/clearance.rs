@@ -59,29 +59,26 @@ const MAX_STEPS: usize = 200_000;
 /// Tolerance of the continuous check, m.
 const TOLERANCE: f64 = 5e-4;
 
-/// The clearance of the path through `points` (each `sys.model.nq()` joint values in model
-/// order) at times `times` (s), in the scene of `object` (and its support plane).
+/// The clearance of the path through `points` (row-major, `sys.model.nq()` joint values in
+/// model order per point) at times `times` (s), in the scene of `object` (and its support plane).
 pub fn path_clearance(
     sys: &HandArm,
     object: &Object,
-    points: &[Vec<f64>],
+    points: &[f64],
     times: &[f64],
 ) -> PathClearance {
     let nq = sys.model.nq();
-    assert_eq!(points.len(), times.len(), "one time per point");
-    assert!(!points.is_empty(), "a path has at least one point");
-    let flat: Vec<f64> = points
-        .iter()
-        .flat_map(|p| {
-            assert_eq!(p.len(), nq, "a point has the wrong number of joint values");
-            p.iter().copied()
-        })
-        .collect();
+    assert_eq!(
+        points.len(),
+        nq * times.len(),
+        "one time per point of nq values"
+    );
+    assert!(!times.is_empty(), "a path has at least one point");
     let checker = grasp_checker_for(sys, object);
     let mut data = checker.data();
     let report = checker.check_path(
         &mut data,
-        &Polyline::new(&flat, nq),
+        &Polyline::new(points, nq),
         &PathOptions {
             tolerance: TOLERANCE,
             max_steps: MAX_STEPS,
@@ -195,7 +192,7 @@ mod tests {
                 })
                 .collect();
             let times = [0.0, 2.0];
-            let c = path_clearance(&sys, &object, &points, &times);
+            let c = path_clearance(&sys, &object, &points.concat(), &times);
             assert!(c.complete);
             let support = c.support.clone().expect("a support plane");
             // Dense sampling of the same polyline.

@@ -1718,6 +1718,7 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
         let gap = (req.object.centroid() - c).norm() - req.object.bounding_radius();
         (gap > r).then_some((gap, r))
     });
+    let cap = req.max_starts.max(req.starts);
     let mut outcomes: Vec<StartOutcome> = Vec::new();
     let mut round = req.starts;
     loop {
@@ -1731,7 +1732,6 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
         );
         more.sort_by_key(|o| o.start);
         outcomes.append(&mut more);
-        let cap = req.max_starts.max(req.starts);
         if outcomes.iter().any(|o| o.feasible) || outcomes.len() >= cap || beyond.is_some() {
             break;
         }

@@ -426,8 +426,11 @@ pub async fn compute(
             })?;
             let mut report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
             report.clearance = scene.map(|sc| {
-                let points: Vec<Vec<f64>> =
-                    traj.points.iter().map(|p| p.positions.clone()).collect();
+                let points: Vec<f64> = traj
+                    .points
+                    .iter()
+                    .flat_map(|p| p.positions.iter().copied())
+                    .collect();
                 let times: Vec<f64> = traj.points.iter().map(|p| p.t).collect();
                 path_clearance(&sc.sys, &sc.object, &points, &times)
             });

@@ -52,6 +52,17 @@ async fn mapping_count(app: &TestApp) -> u64 {
     list["total"].as_u64().unwrap()
 }
 
+/// Submits a mapping job (202); returns the accepted job and the mapping's URL.
+async fn submit_mapping(app: &TestApp, body: Value) -> (Value, String) {
+    let res = app.post_json("/v1/mappings", &body).await;
+    assert_eq!(res.status(), 202);
+    let mapping_url = res.headers()["content-location"]
+        .to_str()
+        .unwrap()
+        .to_owned();
+    (res.json().await.unwrap(), mapping_url)
+}
+
 /// Two long sleep jobs: both job slots busy, so a job submitted next waits queued.
 async fn occupy_job_slots(app: &TestApp) -> [Value; 2] {
     [
@@ -435,18 +446,11 @@ async fn a_cancelled_mapping_stores_no_trajectory() {
     let ids = demo_ids(&app, &job).await;
     // Both job slots busy: the mapping waits queued, so the cancellation surely comes first.
     let blockers = occupy_job_slots(&app).await;
-    let res = app
-        .post_json(
-            "/v1/mappings",
-            &json!({"robot": "wam_ihy", "demonstrations": ids, "output_rate_hz": 60}),
-        )
-        .await;
-    assert_eq!(res.status(), 202);
-    let mapping_url = res.headers()["content-location"]
-        .to_str()
-        .unwrap()
-        .to_owned();
-    let accepted: Value = res.json().await.unwrap();
+    let (accepted, mapping_url) = submit_mapping(
+        &app,
+        json!({"robot": "wam_ihy", "demonstrations": ids, "output_rate_hz": 60}),
+    )
+    .await;
     let id = accepted["id"].as_str().unwrap().to_owned();
     let res = app
         .post_json(&format!("/v1/jobs/{id}/cancel"), &json!({}))
@@ -504,18 +508,11 @@ async fn a_study_is_mapped_in_the_order_its_trials_were_generated() {
     // Both job slots busy, so the mapping stays queued and is cancelled before it computes: the
     // order is fixed when the request is resolved.
     let blockers = occupy_job_slots(&app).await;
-    let res = app
-        .post_json(
-            "/v1/mappings",
-            &json!({"robot": "wam_ihy", "demonstrations": {"job_id": job}}),
-        )
-        .await;
-    assert_eq!(res.status(), 202);
-    let mapping_url = res.headers()["content-location"]
-        .to_str()
-        .unwrap()
-        .to_owned();
-    let accepted: Value = res.json().await.unwrap();
+    let (accepted, mapping_url) = submit_mapping(
+        &app,
+        json!({"robot": "wam_ihy", "demonstrations": {"job_id": job}}),
+    )
+    .await;
     let m: Value = app.get(&mapping_url).await.json().await.unwrap();
     let mut got = Vec::new();
     for id in m["request"]["demonstrations"].as_array().unwrap() {
@@ -577,18 +574,11 @@ async fn a_hand_only_system_registered_over_http_maps_demonstrations() {
     assert!(e["message"].as_str().unwrap().contains("fixed base"), "{e}");
     assert_eq!(mapping_count(&app).await, 0);
 
-    let res = app
-        .post_json(
-            "/v1/mappings",
-            &json!({"robot": id, "demonstrations": {"job_id": job}, "output_rate_hz": 30}),
-        )
-        .await;
-    assert_eq!(res.status(), 202);
-    let mapping_url = res.headers()["content-location"]
-        .to_str()
-        .unwrap()
-        .to_owned();
-    let accepted: Value = res.json().await.unwrap();
+    let (accepted, mapping_url) = submit_mapping(
+        &app,
+        json!({"robot": id, "demonstrations": {"job_id": job}, "output_rate_hz": 30}),
+    )
+    .await;
     let done = app
         .wait_job(accepted["id"].as_str().unwrap(), |j| {
             j["status"] != "queued" && j["status"] != "running"
