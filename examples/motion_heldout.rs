@@ -20,7 +20,9 @@ use reachgrasp::kinematics::System;
 use reachgrasp::mapping::{
     BatchItem, MappingModel, RegistrationSpec, SolverOptions, Weights, map_batch,
 };
-use reachgrasp::motion::mapped::{DEFAULT_ACCELERATION_LIMIT, system_groups, system_limits};
+use reachgrasp::motion::mapped::{
+    DEFAULT_ACCELERATION_LIMIT, DEFAULT_JERK_LIMIT, system_groups, system_limits,
+};
 use reachgrasp::motion::{DEFAULT_PROFILE_RIDGE, JointTrajectory, ProfileInputs, TrainOptions};
 use reachgrasp::service::models::held_out_folds;
 
@@ -105,7 +107,7 @@ fn main() {
             .collect();
         let map_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let limits = system_limits(&sys, DEFAULT_ACCELERATION_LIMIT);
+        let limits = system_limits(&sys, DEFAULT_ACCELERATION_LIMIT, DEFAULT_JERK_LIMIT);
         let opts = TrainOptions {
             groups: system_groups(&sys),
             cap_spline_intervals: true,

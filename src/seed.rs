@@ -142,6 +142,7 @@ async fn seed_robot(state: &AppState, robot: &str, demos: Vec<String>) -> anyhow
         residual_profile: None,
         profile_ridge: None,
         acceleration_limit: None,
+        jerk_limit: None,
         control: None,
         default: true,
     };

@@ -50,6 +50,7 @@ pub mod mapped;
 mod model;
 mod nf;
 mod pca;
+mod retime;
 pub mod synthetic;
 #[cfg(test)]
 mod tests;

@@ -4,9 +4,10 @@ use serde::{Deserialize, Serialize};
 
 use super::control::ControlGroup;
 use super::fit::{DemoY, MAX_COEFFICIENTS, certify, fit_spline};
+use super::retime;
 use super::{
-    Certificate, Components, ControlParams, FlowOptions, FlowPath, MAX_DIM, MinimumJerk,
-    MotionError, NaturalCubic, NavigationFunction, Pca, Pchip, TensorBSpline, integrate_flow,
+    Certificate, Components, ControlParams, FlowOptions, FlowPath, MAX_DIM, MotionError,
+    NaturalCubic, NavigationFunction, Pca, Pchip, TensorBSpline, integrate_flow,
 };
 
 /// A demonstrated (mapped) joint trajectory: `times` (s, increasing) and `positions`
@@ -26,18 +27,31 @@ impl JointTrajectory {
     }
 }
 
-/// Per-joint limits (rad, rad/s, rad/s²), model joint order.
+/// Per-joint limits (rad, rad/s, rad/s², rad/s³), model joint order.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JointLimits {
     pub lower: Vec<f64>,
     pub upper: Vec<f64>,
     pub velocity: Vec<f64>,
     pub acceleration: Vec<f64>,
+    /// Empty in models stored before trajectories were jerk-limited: they use
+    /// [`DEFAULT_JERK_LIMIT`](super::mapped::DEFAULT_JERK_LIMIT).
+    #[serde(default)]
+    pub jerk: Vec<f64>,
 }
 
 impl JointLimits {
     pub fn n(&self) -> usize {
         self.lower.len()
+    }
+
+    /// The jerk limits, the default for every joint where none were stored.
+    pub fn jerk_limits(&self) -> Vec<f64> {
+        if self.jerk.is_empty() {
+            vec![super::mapped::DEFAULT_JERK_LIMIT; self.n()]
+        } else {
+            self.jerk.clone()
+        }
     }
     fn validate(&self) -> Result<(), MotionError> {
         let n = self.n();
@@ -45,8 +59,9 @@ impl JointLimits {
             ("upper", &self.upper),
             ("velocity", &self.velocity),
             ("acceleration", &self.acceleration),
+            ("jerk", &self.jerk),
         ] {
-            if v.len() != n {
+            if v.len() != n && !(field == "jerk" && v.is_empty()) {
                 return Err(MotionError::JointCount {
                     field,
                     expected: n,
@@ -74,6 +89,14 @@ impl JointLimits {
                 return Err(MotionError::InvalidLimits {
                     joint: j,
                     reason: "acceleration limit must be positive",
+                });
+            }
+            if let Some(&jerk) = self.jerk.get(j)
+                && !(jerk > 0.0 && jerk.is_finite())
+            {
+                return Err(MotionError::InvalidLimits {
+                    joint: j,
+                    reason: "jerk limit must be positive",
                 });
             }
         }
@@ -511,11 +534,16 @@ pub struct Trajectory {
     /// The requested (or learned) duration before stretching.
     pub requested_duration: f64,
     pub learned_duration: f64,
-    /// The duration was lengthened to respect velocity/acceleration limits.
+    /// The duration was lengthened to respect velocity/acceleration/jerk limits (locally: the
+    /// clock is slowed only where a limit would be exceeded).
     pub stretched: bool,
-    /// Largest velocity / acceleration limit use along the output (≤ 1).
+    /// The shortest duration along this path under the velocity and acceleration limits alone (a
+    /// time-optimal bang-bang profile, jerk unbounded): what the limits force, for comparison.
+    pub time_optimal_duration: f64,
+    /// Largest velocity / acceleration / jerk limit use along the output (≤ 1).
     pub max_velocity_ratio: f64,
     pub max_acceleration_ratio: f64,
+    pub max_jerk_ratio: f64,
     /// Largest excursion beyond a position limit of the interpolated path before it was held
     /// on the limit (0 when within limits); the output points are always within limits.
     pub max_position_excess: f64,
@@ -1444,20 +1472,24 @@ impl MotionModel {
         let samples = 200;
         let mut out = vec![0.0; samples * n];
         let mut scratch = vec![0.0; 3 * n];
-        for s in 0..samples {
-            let a = s as f64 / (samples - 1) as f64;
-            for (g, (m, p)) in self.manifolds.iter().zip(&paths).enumerate() {
-                let (sig, _, _) = self.phase[g].map.eval(a);
-                let ng = m.joints.len();
-                let (pp, rest) = scratch.split_at_mut(ng);
-                let (dp, ddp) = rest.split_at_mut(ng);
-                p.spline.eval(sig, pp, dp, &mut ddp[..ng]);
-                for (i, &j) in m.joints.iter().enumerate() {
-                    out[s * n + j] = pp[i];
-                }
-            }
+        for (s, row) in out.chunks_exact_mut(n).enumerate() {
+            self.composite_at(&paths, s as f64 / (samples - 1) as f64, row, &mut scratch);
         }
         Ok(out)
+    }
+
+    /// The untimed path at shared progress `x`: each group's spline at its phase.
+    fn composite_at(&self, paths: &[GroupPath], x: f64, out: &mut [f64], scratch: &mut [f64]) {
+        for (g, (m, p)) in self.manifolds.iter().zip(paths).enumerate() {
+            let (sig, _, _) = self.phase[g].map.eval(x);
+            let ng = m.joints.len();
+            let (pp, rest) = scratch.split_at_mut(ng);
+            let (dp, ddp) = rest.split_at_mut(ng);
+            p.spline.eval(sig, pp, dp, &mut ddp[..ng]);
+            for (i, &j) in m.joints.iter().enumerate() {
+                out[j] = pp[i];
+            }
+        }
     }
 
     /// Learned duration for a start-goal pair.
@@ -1471,40 +1503,10 @@ impl MotionModel {
         self.duration.eval(d)
     }
 
-    /// Evaluate the timed trajectory at normalised time `tau` for duration `t_total`.
-    #[allow(clippy::too_many_arguments)] // output buffers passed explicitly (no allocation)
-    fn eval_at(
-        &self,
-        paths: &[GroupPath],
-        tau: f64,
-        t_total: f64,
-        p: &mut [f64],
-        v: &mut [f64],
-        a: &mut [f64],
-        scratch: &mut [f64],
-    ) {
-        let (m0, m1, m2) = MinimumJerk::eval(tau);
-        for (g, (m, path)) in self.manifolds.iter().zip(paths).enumerate() {
-            let (sig, h1, h2) = self.phase[g].map.eval(m0);
-            let sd = h1 * m1 / t_total;
-            let sdd = h2 * (m1 / t_total).powi(2) + h1 * m2 / (t_total * t_total);
-            let ng = m.joints.len();
-            let (pp, rest) = scratch.split_at_mut(ng);
-            let (dp, rest) = rest.split_at_mut(ng);
-            let ddp = &mut rest[..ng];
-            path.spline.eval(sig, pp, dp, ddp);
-            for (i, &j) in m.joints.iter().enumerate() {
-                p[j] = pp[i];
-                v[j] = dp[i] * sd;
-                a[j] = ddp[i] * sd * sd + dp[i] * sdd;
-            }
-        }
-    }
-
     /// Generate a timed humanlike trajectory from `start` to `goal` (full joint vectors in the
     /// model's order): flow integration per manifold, exact-endpoint back-projection, one clock,
-    /// minimum-jerk scaling over the learned (or requested) duration, stretched uniformly when a
-    /// velocity or acceleration limit would be exceeded.
+    /// minimum-jerk scaling over the learned (or requested) duration, slowed locally where a
+    /// velocity, acceleration or jerk limit would be exceeded (see `retime`).
     pub fn trajectory(
         &self,
         start: &[f64],
@@ -1531,67 +1533,95 @@ impl MotionModel {
         let n = self.n_joints;
         let learned = self.learned_duration(start, goal);
         let requested = opts.duration.unwrap_or(learned);
-        let (mut p, mut v, mut a) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-        let mut scratch = vec![0.0; 3 * n];
-        // Limit use at T = 1 on a dense grid: velocity scales as 1/T, acceleration as 1/T².
-        let (mut rv, mut ra): (f64, f64) = (0.0, 0.0);
-        let grid = 400;
-        for s in 0..=grid {
-            self.eval_at(
-                &paths,
-                s as f64 / grid as f64,
-                1.0,
-                &mut p,
-                &mut v,
-                &mut a,
-                &mut scratch,
-            );
+        let mut scratch = vec![0.0; 4 * n];
+        // The humanlike path, sampled where the timing spline's control points act and held
+        // within the position limits: the spline then stays inside the limit box everywhere
+        // (convex hull), where the interpolated path could bulge past a limit an end sits on.
+        let xs = retime::greville(retime::PATH_CONTROL_POINTS);
+        let mut samples = vec![0.0; xs.len() * n];
+        let mut excess = 0.0f64;
+        for (k, &x) in xs.iter().enumerate() {
+            let row = &mut samples[k * n..(k + 1) * n];
+            self.composite_at(&paths, x, row, &mut scratch);
             for j in 0..n {
-                rv = rv.max(v[j].abs() / self.limits.velocity[j]);
-                ra = ra.max(a[j].abs() / self.limits.acceleration[j]);
+                excess = excess
+                    .max(self.limits.lower[j] - row[j])
+                    .max(row[j] - self.limits.upper[j]);
+                row[j] = row[j].clamp(self.limits.lower[j], self.limits.upper[j]);
             }
         }
-        let t_min = rv.max(ra.sqrt()) * (1.0 + 1e-3);
-        let mut total = requested.max(t_min);
+        // endpoints are exact by construction of the back-projection; the clamped B-spline
+        // passes through its first and last control points
+        samples[..n].copy_from_slice(start);
+        let last = samples.len() - n;
+        samples[last..].copy_from_slice(goal);
+        let path = retime::Path::new(samples, n);
+        let jerk = self.limits.jerk_limits();
+        let rate_limits = retime::RateLimits {
+            velocity: &self.limits.velocity,
+            acceleration: &self.limits.acceleration,
+            jerk: &jerk,
+        };
+        let time_optimal = retime::time_optimal_duration(&path, &rate_limits, 400);
+        let mut clock = retime::fit_clock(&path, &rate_limits, requested);
+        if clock.duration() > requested * (1.0 + 1e-12) {
+            // The limits refuse the requested clock. Dilating from a base they refuse everywhere
+            // (the time-optimal duration) fits the dilation to where they bind instead of
+            // spreading it from the humanlike profile, and is often shorter: keep the shorter.
+            let fast = retime::fit_clock(&path, &rate_limits, time_optimal.min(requested));
+            if fast.duration() < clock.duration() {
+                clock = fast;
+            }
+        }
+        let (mut p, mut v, mut a, mut jk) =
+            (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         let mut points = Vec::new();
-        let (mut max_v, mut max_a, mut excess) = (0.0f64, 0.0f64, 0.0f64);
+        let (mut max_v, mut max_a, mut max_j) = (0.0f64, 0.0f64, 0.0f64);
+        // The clock is fitted on a grid; the output samples are checked again, and in the rare
+        // case one lies above a limit between grid points the whole clock is slowed uniformly
+        // (an exact scaling), at most three times.
         for _attempt in 0..4 {
             points.clear();
+            let total = clock.duration();
             let count = ((total * opts.rate).ceil() as usize).max(1) + 1;
-            max_v = 0.0;
-            max_a = 0.0;
-            excess = 0.0;
+            (max_v, max_a, max_j) = (0.0, 0.0, 0.0);
+            let mut tau = 0.0;
             for s in 0..count {
-                let tau = s as f64 / (count - 1) as f64;
-                self.eval_at(&paths, tau, total, &mut p, &mut v, &mut a, &mut scratch);
+                let t = total * s as f64 / (count - 1) as f64;
+                tau = clock.tau_at(t, tau);
+                retime::sample(
+                    &path,
+                    &clock,
+                    tau,
+                    retime::Sample {
+                        p: &mut p,
+                        v: &mut v,
+                        a: &mut a,
+                        j: &mut jk,
+                    },
+                    &mut scratch,
+                );
                 for j in 0..n {
                     max_v = max_v.max(v[j].abs() / self.limits.velocity[j]);
                     max_a = max_a.max(a[j].abs() / self.limits.acceleration[j]);
-                    excess = excess
-                        .max(self.limits.lower[j] - p[j])
-                        .max(p[j] - self.limits.upper[j]);
-                    // The interpolated humanlike path can bulge slightly past a limit when an
-                    // end sits on it (a hand joint fully open, say). A robot must never be sent
-                    // past its limits, so the point is held on the limit there.
-                    if p[j] < self.limits.lower[j] || p[j] > self.limits.upper[j] {
-                        p[j] = p[j].clamp(self.limits.lower[j], self.limits.upper[j]);
-                        v[j] = 0.0;
-                        a[j] = 0.0;
-                    }
+                    max_j = max_j.max(jk[j].abs() / jerk[j]);
+                    // a convex combination of in-limit values, up to rounding
+                    p[j] = p[j].clamp(self.limits.lower[j], self.limits.upper[j]);
                 }
                 points.push(TrajectoryPoint {
-                    t: tau * total,
+                    t,
                     positions: p.clone(),
                     velocities: v.clone(),
                     accelerations: a.clone(),
                 });
             }
-            if max_v <= 1.0 && max_a <= 1.0 {
+            let over = max_v.max(max_a.sqrt()).max(max_j.cbrt());
+            if over <= 1.0 {
                 break;
             }
-            total *= max_v.max(max_a.sqrt()) * (1.0 + 1e-3);
+            clock = clock.slowed(over * (1.0 + 1e-3));
         }
-        // endpoints are exact by construction of the back-projection
+        let total = clock.duration();
         if let Some(first) = points.first_mut() {
             first.positions.copy_from_slice(start);
         }
@@ -1603,9 +1633,11 @@ impl MotionModel {
             duration: total,
             requested_duration: requested,
             learned_duration: learned,
-            stretched: total > requested,
+            stretched: total > requested * (1.0 + 1e-12),
+            time_optimal_duration: time_optimal,
             max_velocity_ratio: max_v,
             max_acceleration_ratio: max_a,
+            max_jerk_ratio: max_j,
             max_position_excess: excess.max(0.0),
             converged: paths.iter().all(|g| g.converged),
             final_errors: paths.iter().map(|g| g.error).collect(),

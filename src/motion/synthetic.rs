@@ -138,6 +138,7 @@ pub fn curved_study(study: &SyntheticStudy) -> SyntheticData {
         upper: mean.iter().map(|m| m + 2.5).collect(),
         velocity: vec![2.0; n],
         acceleration: vec![8.0; n],
+        jerk: vec![80.0; n],
     };
     let mut groups = vec![(0..na).collect::<Vec<_>>()];
     if nh > 0 {

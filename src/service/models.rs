@@ -15,7 +15,9 @@ use utoipa::ToSchema;
 use super::{Context, Error, Invalid, Keyword};
 use crate::jobs::{JobError, JobOutput, JobRecord, ResultRef};
 use crate::kinematics::{JointVector, KinematicsError, System};
-use crate::motion::mapped::{DEFAULT_ACCELERATION_LIMIT, system_groups, system_limits};
+use crate::motion::mapped::{
+    DEFAULT_ACCELERATION_LIMIT, DEFAULT_JERK_LIMIT, system_groups, system_limits,
+};
 use crate::motion::{
     Certificate, Components, ControlParams, DEFAULT_PROFILE_RIDGE, HeldOutReport, JointTrajectory,
     KChoice, MotionError, MotionModel, TrainOptions, TrainReport, train,
@@ -128,6 +130,10 @@ pub struct CreateModel {
     /// Joint acceleration limit, rad/s², positive (default 5; URDF has none).
     #[schema(exclusive_minimum = 0)]
     pub acceleration_limit: Option<f64>,
+    /// Joint jerk limit, rad/s³, positive (default 50; URDF has none). Trajectories are slowed
+    /// locally where they would exceed it.
+    #[schema(exclusive_minimum = 0)]
+    pub jerk_limit: Option<f64>,
     pub control: Option<ControlGains>,
     /// Make this the robot's default model once trained (default false).
     #[serde(default)]
@@ -238,6 +244,10 @@ pub struct DurationDto {
     pub min_duration: f64,
 }
 
+fn default_jerk_limit() -> f64 {
+    DEFAULT_JERK_LIMIT
+}
+
 /// What training produced (stored with the model).
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct ModelReportDto {
@@ -246,6 +256,9 @@ pub struct ModelReportDto {
     pub duration: DurationDto,
     /// Joint limits used (model order): acceleration limit, rad/s².
     pub acceleration_limit: f64,
+    /// Jerk limit, rad/s³ (models trained before it was configurable use the default).
+    #[serde(default = "default_jerk_limit")]
+    pub jerk_limit: f64,
     pub held_out: Option<HeldOutSummaryDto>,
 }
 
@@ -491,6 +504,7 @@ pub async fn loaded_model(
 struct Validated {
     options: TrainOptions,
     acceleration: f64,
+    jerk: f64,
     gains: ControlGains,
     held_out: bool,
 }
@@ -555,6 +569,13 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, E
             format!("must be a positive number, got {acceleration}"),
         ));
     }
+    let jerk = body.jerk_limit.unwrap_or(DEFAULT_JERK_LIMIT);
+    if !(jerk > 0.0 && jerk.is_finite()) {
+        errors.push(Invalid::new(
+            "$.jerk_limit",
+            format!("must be a positive number, got {jerk}"),
+        ));
+    }
     if body.residual_profile == Some(false) && body.profile_ridge.is_some() {
         errors.push(Invalid::new(
             "$.profile_ridge",
@@ -577,6 +598,7 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, E
     Ok(Validated {
         options,
         acceleration,
+        jerk,
         gains,
         held_out: body.held_out.unwrap_or(true),
     })
@@ -618,7 +640,7 @@ fn model_report(
     system: &System,
     model: &MotionModel,
     report: &TrainReport,
-    acceleration: f64,
+    limits: (f64, f64),
     held_out: Option<HeldOutSummaryDto>,
 ) -> ModelReportDto {
     let names = system.model.joint_names();
@@ -665,7 +687,8 @@ fn model_report(
             slope: report.duration.slope,
             min_duration: report.duration.min_duration,
         },
-        acceleration_limit: acceleration,
+        acceleration_limit: limits.0,
+        jerk_limit: limits.1,
         held_out,
     }
 }
@@ -802,7 +825,7 @@ pub async fn train_model(ctx: &Context, body: &CreateModel) -> Result<(JobRecord
             ),
         ));
     }
-    let limits = system_limits(&system, v.acceleration);
+    let limits = system_limits(&system, v.acceleration, v.jerk);
     let request = serde_json::to_string(&body).map_err(Error::internal)?;
     let model_id = uuid::Uuid::new_v4().to_string();
     let mut new_model = repo::NewModel {
@@ -834,7 +857,7 @@ pub async fn train_model(ctx: &Context, body: &CreateModel) -> Result<(JobRecord
                 None
             };
             job.check_cancelled()?;
-            let dto = model_report(&system, &model, &report, v.acceleration, held);
+            let dto = model_report(&system, &model, &report, (v.acceleration, v.jerk), held);
             let report = serde_json::to_string(&dto).map_err(JobError::failed)?;
             Ok(JobOutput::persist_with(move |job_id, tx| {
                 Box::pin(async move {

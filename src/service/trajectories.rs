@@ -116,8 +116,14 @@ pub struct TrajectoryReportDto {
     pub requested_duration: Option<f64>,
     /// The duration learned from the demonstrations for this distance.
     pub learned_duration: f64,
-    /// The duration was lengthened to respect the velocity/acceleration limits.
+    /// The duration was lengthened to respect the velocity/acceleration/jerk limits: the
+    /// humanlike (minimum-jerk) clock is slowed only where a limit would be exceeded.
     pub stretched: bool,
+    /// The shortest duration along this path under the velocity and acceleration limits alone
+    /// (time-optimal bang-bang profile, jerk unbounded): the part of `duration` the limits force.
+    /// Absent in trajectories stored before it was reported.
+    #[serde(default)]
+    pub time_optimal_duration: Option<f64>,
     /// Why the duration differs from the request, when it does.
     pub note: Option<String>,
     pub rate: f64,
@@ -127,9 +133,13 @@ pub struct TrajectoryReportDto {
     pub final_error: f64,
     pub errors: Vec<GroupErrorDto>,
     pub certificates: Vec<CertificateDto>,
-    /// Largest fraction of a velocity / acceleration limit used (≤ 1).
+    /// Largest fraction of a velocity / acceleration / jerk limit used over the returned points
+    /// (≤ 1; finite differences of the points agree).
     pub max_velocity_ratio: f64,
     pub max_acceleration_ratio: f64,
+    /// Absent in trajectories stored before jerk was limited.
+    #[serde(default)]
+    pub max_jerk_ratio: Option<f64>,
     pub fingertip_paths: Vec<FramePathDto>,
     pub elbow_paths: Vec<FramePathDto>,
     /// The grasp the goal came from, if any.
@@ -192,12 +202,12 @@ fn trajectory_report(
     let (fingertip_paths, elbow_paths) = cartesian_paths(system, &t.points);
     let note = t.stretched.then(|| match requested {
         Some(r) => format!(
-            "the requested duration {r} s is too short for the joint velocity/acceleration limits; the shortest feasible duration {:.4} s was used",
-            t.duration
+            "the requested duration {r} s would exceed the joint velocity/acceleration/jerk limits; the motion was slowed where they bind, to {:.4} s (velocity and acceleration alone allow at best {:.4} s)",
+            t.duration, t.time_optimal_duration
         ),
         None => format!(
-            "the learned duration {:.4} s was lengthened to {:.4} s to respect the joint velocity/acceleration limits",
-            t.learned_duration, t.duration
+            "the learned duration {:.4} s was lengthened to {:.4} s where the joint velocity/acceleration/jerk limits bind (velocity and acceleration alone allow at best {:.4} s)",
+            t.learned_duration, t.duration, t.time_optimal_duration
         ),
     });
     TrajectoryReportDto {
@@ -226,8 +236,10 @@ fn trajectory_report(
             .enumerate()
             .map(|(g, c)| certificate_dto(group_name(ng, g), c))
             .collect(),
+        time_optimal_duration: Some(t.time_optimal_duration),
         max_velocity_ratio: t.max_velocity_ratio,
         max_acceleration_ratio: t.max_acceleration_ratio,
+        max_jerk_ratio: Some(t.max_jerk_ratio),
         fingertip_paths,
         elbow_paths,
         grasp,

@@ -464,6 +464,7 @@ fn trained() -> Trained {
         upper: hi.to_vec(),
         velocity: m.velocity_limits().to_vec(),
         acceleration: vec![4.0; n],
+        jerk: vec![40.0; n],
     };
     let opts = TrainOptions {
         groups: data.groups.clone(),

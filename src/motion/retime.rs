@@ -1,0 +1,598 @@
+//! A limit-respecting time law for a humanlike path: the minimum-jerk clock of human reaching at
+//! the learned duration, dilated locally (not uniformly) wherever a joint velocity, acceleration
+//! or jerk limit would be exceeded.
+//!
+//! The path is a clamped cubic B-spline `q(x)`, `x ∈ [0, 1]`, whose control points are samples of
+//! the humanlike path held within the position limits. Two properties follow from the B-spline
+//! form and are why it is used here instead of interpolating the samples: the curve lies in the
+//! convex hull of its control points, so within the per-joint limit box (no clamping of the
+//! output, which used to stop a joint dead at a limit and start it again at full speed), and it is
+//! C², so jerk is bounded everywhere.
+//!
+//! The clock: real time `t(τ) = T ∫₀^τ w(u) du` with `T` the learned (or requested) duration and
+//! `w ≥ 1` a cubic B-spline dilation; the path parameter is `x = m(τ)`, `m` the minimum-jerk
+//! progress. With `w ≡ 1` this is exactly the humanlike law; where the limits are exceeded the
+//! dilation grows there only (a multiplicative update per control value, the local usage being
+//! `max(v/v̄, √(a/ā), ∛(j/j̄))` since slowing time by `s` divides velocity, acceleration and jerk by
+//! `s`, `s²`, `s³`). A final uniform factor makes the whole grid feasible if the local updates have
+//! not within their iteration budget (an exact scaling: all derivatives scale as powers of it).
+//!
+//! Not time-optimal: a TOPP-RA style bang-bang profile would be faster but is neither humanlike
+//! nor jerk-bounded. [`time_optimal_duration`] computes that bound (velocity and acceleration
+//! only) as the reference the response reports beside the duration.
+
+use super::MinimumJerk;
+
+/// Control points of the path spline.
+pub const PATH_CONTROL_POINTS: usize = 97;
+/// Control values of the dilation `w(τ)`.
+const WARP_CONTROL_POINTS: usize = 40;
+/// Grid on `τ` where limit use is evaluated while the dilation is fitted.
+const GRID: usize = 1200;
+/// Local dilation rounds before the uniform fallback.
+const WARP_ROUNDS: usize = 40;
+/// Limit use the dilation aims at; the margin keeps the returned samples (and finite
+/// differences of them) within the limits between grid points.
+pub const TARGET_USE: f64 = 0.97;
+
+/// A clamped B-spline on `[0, 1]` with several channels (row-major control points).
+#[derive(Clone, Debug)]
+pub struct BSpline {
+    degree: usize,
+    knots: Vec<f64>,
+    ctrl: Vec<f64>,
+    channels: usize,
+}
+
+impl BSpline {
+    /// A clamped uniform B-spline of `degree` through `ctrl` (`count × channels`).
+    pub fn clamped_uniform(degree: usize, ctrl: Vec<f64>, channels: usize) -> Self {
+        let count = ctrl.len() / channels;
+        assert!(count > degree);
+        let spans = count - degree;
+        let mut knots = vec![0.0; degree + 1];
+        knots.extend((1..spans).map(|i| i as f64 / spans as f64));
+        knots.extend(std::iter::repeat_n(1.0, degree + 1));
+        BSpline {
+            degree,
+            knots,
+            ctrl,
+            channels,
+        }
+    }
+
+    fn count(&self) -> usize {
+        self.ctrl.len() / self.channels
+    }
+
+    /// The derivative, a B-spline of one degree less on the inner knots.
+    pub fn derivative(&self) -> Self {
+        let (p, c) = (self.degree, self.channels);
+        assert!(p >= 1);
+        let count = self.count();
+        let mut ctrl = Vec::with_capacity((count - 1) * c);
+        for i in 0..count - 1 {
+            let span = self.knots[i + p + 1] - self.knots[i + 1];
+            for ch in 0..c {
+                ctrl.push(p as f64 * (self.ctrl[(i + 1) * c + ch] - self.ctrl[i * c + ch]) / span);
+            }
+        }
+        BSpline {
+            degree: p - 1,
+            knots: self.knots[1..self.knots.len() - 1].to_vec(),
+            ctrl,
+            channels: c,
+        }
+    }
+
+    /// The antiderivative that is 0 at 0, a B-spline of one degree more.
+    pub fn integral(&self) -> Self {
+        let (p, c) = (self.degree, self.channels);
+        let count = self.count();
+        let mut knots = Vec::with_capacity(self.knots.len() + 2);
+        knots.push(self.knots[0]);
+        knots.extend_from_slice(&self.knots);
+        knots.push(*self.knots.last().unwrap());
+        let mut ctrl = vec![0.0; (count + 1) * c];
+        for i in 0..count {
+            let w = (self.knots[i + p + 1] - self.knots[i]) / (p + 1) as f64;
+            for ch in 0..c {
+                ctrl[(i + 1) * c + ch] = ctrl[i * c + ch] + self.ctrl[i * c + ch] * w;
+            }
+        }
+        BSpline {
+            degree: p + 1,
+            knots,
+            ctrl,
+            channels: c,
+        }
+    }
+
+    /// Every channel at `x ∈ [0, 1]` (de Boor's algorithm; no allocation).
+    pub fn eval(&self, x: f64, out: &mut [f64]) {
+        let p = self.degree;
+        let count = self.count();
+        let x = x.clamp(0.0, 1.0);
+        // the span k with knots[k] ≤ x < knots[k+1], k ∈ [p, count-1]
+        let (mut lo, mut hi) = (p, count);
+        while hi - lo > 1 {
+            let mid = (lo + hi) / 2;
+            if self.knots[mid] <= x {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let k = lo;
+        let c = self.channels;
+        let mut d = [0.0f64; 6];
+        for ch in 0..c {
+            for j in 0..=p {
+                d[j] = self.ctrl[(j + k - p) * c + ch];
+            }
+            for r in 1..=p {
+                for j in (r..=p).rev() {
+                    let left = self.knots[j + k - p];
+                    let den = self.knots[j + 1 + k - r] - left;
+                    let alpha = if den > 0.0 { (x - left) / den } else { 0.0 };
+                    d[j] = (1.0 - alpha) * d[j - 1] + alpha * d[j];
+                }
+            }
+            out[ch] = d[p];
+        }
+    }
+}
+
+/// The Greville abscissae of a clamped uniform cubic B-spline with `count` control points: where
+/// each control point acts most, so control points sampled there reproduce linear functions.
+pub fn greville(count: usize) -> Vec<f64> {
+    let spans = count - 3;
+    let knot = |i: usize| (i.saturating_sub(3)).min(spans) as f64 / spans as f64;
+    (0..count)
+        .map(|i| (knot(i + 1) + knot(i + 2) + knot(i + 3)) / 3.0)
+        .collect()
+}
+
+/// A C² path with its first three derivatives.
+pub struct Path {
+    pub n: usize,
+    q: BSpline,
+    d1: BSpline,
+    d2: BSpline,
+    d3: BSpline,
+}
+
+impl Path {
+    /// `samples` is `count × n`, row-major, of the path at [`greville`]`(count)`; it is used as
+    /// the control polygon, so the curve starts and ends exactly at the first and last sample and
+    /// reproduces a path linear in `x` exactly (elsewhere it is within `O(h²)` of the samples).
+    pub fn new(samples: Vec<f64>, n: usize) -> Self {
+        let q = BSpline::clamped_uniform(3, samples, n);
+        let d1 = q.derivative();
+        let d2 = d1.derivative();
+        let d3 = d2.derivative();
+        Path { n, q, d1, d2, d3 }
+    }
+}
+
+/// Per-joint limits the time law respects.
+pub struct RateLimits<'a> {
+    pub velocity: &'a [f64],
+    pub acceleration: &'a [f64],
+    pub jerk: &'a [f64],
+}
+
+/// The fitted clock.
+pub struct Clock {
+    base: f64,
+    w: BSpline,
+    dw: BSpline,
+    ddw: BSpline,
+    integral: BSpline,
+    /// Local dilation rounds used; `uniform` the final uniform factor (1 when none was needed).
+    pub rounds: usize,
+    pub uniform: f64,
+}
+
+/// Time derivatives of `τ` for the dilation value `w`, `w'`, `w''`.
+#[inline]
+fn tau_derivatives(base: f64, w: f64, dw: f64, ddw: f64) -> (f64, f64, f64) {
+    let t1 = 1.0 / (base * w);
+    let t2 = -dw / (base * base * w * w * w);
+    let t3 = (3.0 * dw * dw - w * ddw) / (base.powi(3) * w.powi(5));
+    (t1, t2, t3)
+}
+
+impl Clock {
+    fn build(base: f64, ctrl: Vec<f64>) -> Self {
+        let w = BSpline::clamped_uniform(3, ctrl, 1);
+        let dw = w.derivative();
+        let ddw = dw.derivative();
+        let integral = w.integral();
+        Clock {
+            base,
+            w,
+            dw,
+            ddw,
+            integral,
+            rounds: 0,
+            uniform: 1.0,
+        }
+    }
+
+    pub fn duration(&self) -> f64 {
+        self.time_at(1.0)
+    }
+
+    /// The same dilation, every instant slowed by `factor`.
+    pub fn slowed(&self, factor: f64) -> Clock {
+        let mut c = Clock::build(self.base * factor, self.w.ctrl.clone());
+        c.rounds = self.rounds;
+        c.uniform = self.uniform * factor;
+        c
+    }
+
+    /// Real time at clock parameter `τ`.
+    pub fn time_at(&self, tau: f64) -> f64 {
+        let mut v = [0.0];
+        self.integral.eval(tau, &mut v);
+        self.base * v[0]
+    }
+
+    /// `(x, ẋ, ẍ, x⃛)` at clock parameter `τ`.
+    fn progress(&self, tau: f64) -> (f64, f64, f64, f64) {
+        let (mut w, mut dw, mut ddw) = ([0.0], [0.0], [0.0]);
+        self.w.eval(tau, &mut w);
+        self.dw.eval(tau, &mut dw);
+        self.ddw.eval(tau, &mut ddw);
+        let (t1, t2, t3) = tau_derivatives(self.base, w[0], dw[0], ddw[0]);
+        let (m, m1, m2) = MinimumJerk::eval(tau);
+        let m3 = 60.0 * (1.0 - 6.0 * tau + 6.0 * tau * tau);
+        (
+            m,
+            m1 * t1,
+            m2 * t1 * t1 + m1 * t2,
+            m3 * t1 * t1 * t1 + 3.0 * m2 * t1 * t2 + m1 * t3,
+        )
+    }
+
+    /// The clock parameter at real time `t` (Newton on the monotone `t(τ)`, bracketed).
+    pub fn tau_at(&self, t: f64, guess: f64) -> f64 {
+        let total = self.duration();
+        if t <= 0.0 {
+            return 0.0;
+        }
+        if t >= total {
+            return 1.0;
+        }
+        let (mut lo, mut hi) = (0.0, 1.0);
+        let mut tau = guess.clamp(0.0, 1.0);
+        let (mut v, mut w) = ([0.0], [0.0]);
+        for _ in 0..60 {
+            self.integral.eval(tau, &mut v);
+            let f = self.base * v[0] - t;
+            if f.abs() <= 1e-13 * (1.0 + total) {
+                break;
+            }
+            if f > 0.0 {
+                hi = tau;
+            } else {
+                lo = tau;
+            }
+            self.w.eval(tau, &mut w);
+            let next = tau - f / (self.base * w[0]);
+            tau = if next > lo && next < hi {
+                next
+            } else {
+                0.5 * (lo + hi)
+            };
+        }
+        tau
+    }
+}
+
+/// Joint values and time derivatives at one instant; the largest limit uses.
+pub struct Sample<'a> {
+    pub p: &'a mut [f64],
+    pub v: &'a mut [f64],
+    pub a: &'a mut [f64],
+    pub j: &'a mut [f64],
+}
+
+/// `q, q̇, q̈, q⃛` at clock parameter `tau`.
+pub fn sample(path: &Path, clock: &Clock, tau: f64, s: Sample<'_>, scratch: &mut [f64]) {
+    let n = path.n;
+    let (x, xd, xdd, xddd) = clock.progress(tau);
+    let (d1, rest) = scratch.split_at_mut(n);
+    let (d2, rest) = rest.split_at_mut(n);
+    let d3 = &mut rest[..n];
+    path.q.eval(x, s.p);
+    path.d1.eval(x, d1);
+    path.d2.eval(x, d2);
+    path.d3.eval(x, d3);
+    for i in 0..n {
+        s.v[i] = d1[i] * xd;
+        s.a[i] = d2[i] * xd * xd + d1[i] * xdd;
+        s.j[i] = d3[i] * xd * xd * xd + 3.0 * d2[i] * xd * xdd + d1[i] * xddd;
+    }
+}
+
+/// Fit the dilation so that the timed path keeps every limit use at or below [`TARGET_USE`] on a
+/// fine grid. Deterministic: a fixed grid and a fixed number of rounds.
+pub fn fit_clock(path: &Path, limits: &RateLimits<'_>, base: f64) -> Clock {
+    let n = path.n;
+    // The path derivatives at the grid's x = m(τ) do not change with the dilation: once.
+    let taus: Vec<f64> = (0..=GRID).map(|g| g as f64 / GRID as f64).collect();
+    let mut derivs = vec![0.0; (GRID + 1) * 3 * n];
+    for (g, &tau) in taus.iter().enumerate() {
+        let x = MinimumJerk::eval(tau).0;
+        let row = &mut derivs[g * 3 * n..(g + 1) * 3 * n];
+        let (d1, rest) = row.split_at_mut(n);
+        let (d2, d3) = rest.split_at_mut(n);
+        path.d1.eval(x, d1);
+        path.d2.eval(x, d2);
+        path.d3.eval(x, d3);
+    }
+    let mut use_at = vec![0.0; GRID + 1];
+    let mut ctrl = vec![1.0; WARP_CONTROL_POINTS];
+    let spans = WARP_CONTROL_POINTS - 3;
+    let mut clock = Clock::build(base, ctrl.clone());
+    let measure = |clock: &Clock, use_at: &mut [f64]| -> f64 {
+        let mut worst: f64 = 0.0;
+        for (g, &tau) in taus.iter().enumerate() {
+            let (_, xd, xdd, xddd) = clock.progress(tau);
+            let row = &derivs[g * 3 * n..(g + 1) * 3 * n];
+            let mut u: f64 = 0.0;
+            for i in 0..n {
+                let (d1, d2, d3) = (row[i], row[n + i], row[2 * n + i]);
+                let v = (d1 * xd).abs() / limits.velocity[i];
+                let a = (d2 * xd * xd + d1 * xdd).abs() / limits.acceleration[i];
+                let j =
+                    (d3 * xd * xd * xd + 3.0 * d2 * xd * xdd + d1 * xddd).abs() / limits.jerk[i];
+                u = u.max(v).max(a.sqrt()).max(j.cbrt());
+            }
+            use_at[g] = u / TARGET_USE;
+            worst = worst.max(use_at[g]);
+        }
+        worst
+    };
+    let mut worst = measure(&clock, &mut use_at);
+    let mut rounds = 0;
+    while worst > 1.0 && rounds < WARP_ROUNDS {
+        rounds += 1;
+        for (i, c) in ctrl.iter_mut().enumerate() {
+            // control value i acts on τ ∈ [knot_i, knot_{i+4}] of the clamped uniform knots
+            let a = (i.saturating_sub(3)) as f64 / spans as f64;
+            let b = ((i + 1).min(spans)) as f64 / spans as f64;
+            let (ga, gb) = (
+                (a * GRID as f64).floor() as usize,
+                ((b * GRID as f64).ceil() as usize).min(GRID),
+            );
+            let f = use_at[ga..=gb].iter().fold(1.0f64, |m, &u| m.max(u));
+            *c *= f;
+        }
+        clock = Clock::build(base, ctrl.clone());
+        worst = measure(&clock, &mut use_at);
+    }
+    let uniform = worst.max(1.0);
+    if uniform > 1.0 {
+        // slowing every instant by `uniform` divides velocity, acceleration and jerk by
+        // `uniform`, its square and cube: the grid's use falls to at most 1
+        clock = Clock::build(base * uniform, ctrl);
+    }
+    clock.rounds = rounds;
+    clock.uniform = uniform;
+    clock
+}
+
+/// Time-optimal duration along `path` under velocity and acceleration limits only (the bound a
+/// TOPP-RA style bang-bang profile reaches; jerk unbounded), by the backward controllable-set pass
+/// and the greedy forward pass of TOPP-RA on `stages` equal steps of `x`. Used as the reference
+/// for how much of the planned duration the limits force.
+pub fn time_optimal_duration(path: &Path, limits: &RateLimits<'_>, stages: usize) -> f64 {
+    let n = path.n;
+    let h = 1.0 / stages as f64;
+    let mut d1 = vec![0.0; (stages + 1) * n];
+    let mut d2 = vec![0.0; (stages + 1) * n];
+    let mut xmax = vec![f64::INFINITY; stages + 1];
+    for s in 0..=stages {
+        let x = s as f64 * h;
+        path.d1.eval(x, &mut d1[s * n..(s + 1) * n]);
+        path.d2.eval(x, &mut d2[s * n..(s + 1) * n]);
+        for i in 0..n {
+            let qd = d1[s * n + i].abs();
+            if qd > 1e-12 {
+                xmax[s] = xmax[s].min((limits.velocity[i] / qd).powi(2));
+            }
+        }
+    }
+    // u = s̈ admissible at squared speed x: ā ≥ |q' u + q'' x| for every joint
+    let interval = |s: usize, x: f64| -> (f64, f64) {
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for i in 0..n {
+            let (a, b) = (d1[s * n + i], d2[s * n + i] * x);
+            let lim = limits.acceleration[i];
+            if a.abs() > 1e-12 {
+                let (u1, u2) = ((-lim - b) / a, (lim - b) / a);
+                lo = lo.max(u1.min(u2));
+                hi = hi.min(u1.max(u2));
+            } else if b.abs() > lim {
+                return (1.0, -1.0);
+            }
+        }
+        (lo, hi)
+    };
+    // backward: the largest x at stage s from which stage s+1's controllable set [0, K] is
+    // reachable; the set of such x is an interval containing 0 (rest is always admissible)
+    let mut k = vec![0.0; stages + 1];
+    for s in (0..stages).rev() {
+        let feasible = |x: f64| {
+            let (lo, hi) = interval(s, x);
+            let (a, b) = (lo.max(-x / (2.0 * h)), hi.min((k[s + 1] - x) / (2.0 * h)));
+            a <= b
+        };
+        let top = xmax[s].min(1e6);
+        let x = if feasible(top) {
+            top
+        } else {
+            let (mut lo, mut hi) = (0.0, top);
+            for _ in 0..60 {
+                let mid = 0.5 * (lo + hi);
+                if feasible(mid) {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            lo
+        };
+        k[s] = x;
+    }
+    // forward: the largest admissible acceleration that stays controllable
+    let mut x = 0.0f64;
+    let mut total = 0.0;
+    for s in 0..stages {
+        let (lo, hi) = interval(s, x);
+        let u = hi
+            .min((k[s + 1] - x) / (2.0 * h))
+            .max(lo.max(-x / (2.0 * h)));
+        let next = (x + 2.0 * u * h).clamp(0.0, k[s + 1]);
+        let v = x.sqrt() + next.sqrt();
+        total += if v > 0.0 { 2.0 * h / v } else { f64::INFINITY };
+        x = next;
+    }
+    total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spline_derivatives_and_integral_match_finite_differences() {
+        let ctrl: Vec<f64> = (0..9)
+            .flat_map(|i| [(i as f64 * 0.7).sin(), (i * i) as f64 * 0.05])
+            .collect();
+        let s = BSpline::clamped_uniform(3, ctrl.clone(), 2);
+        let (d, dd, int) = (s.derivative(), s.derivative().derivative(), s.integral());
+        let (mut p0, mut p1, mut p2) = ([0.0; 2], [0.0; 2], [0.0; 2]);
+        // the clamped curve interpolates its end control points
+        s.eval(0.0, &mut p0);
+        s.eval(1.0, &mut p1);
+        assert_eq!(p0, [ctrl[0], ctrl[1]]);
+        assert!((p1[0] - ctrl[16]).abs() < 1e-15 && (p1[1] - ctrl[17]).abs() < 1e-15);
+        let h = 1e-6;
+        for &x in &[0.03, 0.31, 0.5, 0.77, 0.97] {
+            s.eval(x + h, &mut p1);
+            s.eval(x - h, &mut p2);
+            d.eval(x, &mut p0);
+            for c in 0..2 {
+                assert!(((p1[c] - p2[c]) / (2.0 * h) - p0[c]).abs() < 1e-6, "{x}");
+            }
+            d.eval(x + h, &mut p1);
+            d.eval(x - h, &mut p2);
+            dd.eval(x, &mut p0);
+            for c in 0..2 {
+                assert!(((p1[c] - p2[c]) / (2.0 * h) - p0[c]).abs() < 1e-5, "{x}");
+            }
+        }
+        // the integral against composite Simpson on a fine grid
+        let m = 2000;
+        let mut simpson = [0.0; 2];
+        for i in 0..=m {
+            let x = i as f64 / m as f64;
+            let w = if i == 0 || i == m {
+                1.0
+            } else if i % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            };
+            s.eval(x, &mut p0);
+            for c in 0..2 {
+                simpson[c] += w * p0[c] / (3.0 * m as f64);
+            }
+        }
+        int.eval(1.0, &mut p0);
+        for c in 0..2 {
+            assert!((p0[c] - simpson[c]).abs() < 1e-9, "{p0:?} {simpson:?}");
+        }
+    }
+
+    /// A straight one-joint path of length `d`: the minimum-jerk law has closed forms for its
+    /// peaks (velocity 15d/8T, acceleration 10d/(√3 T²), jerk 60d/T³) and the time-optimal
+    /// bang-bang profile under v̄, ā takes `d/v̄ + v̄/ā` (or `2√(d/ā)` when v̄ is not reached).
+    #[test]
+    fn a_straight_path_meets_the_closed_forms() {
+        let d = 1.2;
+        let samples: Vec<f64> = greville(PATH_CONTROL_POINTS)
+            .iter()
+            .map(|x| d * x)
+            .collect();
+        let path = Path::new(samples, 1);
+        let (v, a, j) = ([2.0], [5.0], [1000.0]);
+        let limits = RateLimits {
+            velocity: &v,
+            acceleration: &a,
+            jerk: &j,
+        };
+        // at T = 2 s: peak v 1.125, a 1.732, j 9: all limits hold, the clock stays humanlike
+        let clock = fit_clock(&path, &limits, 2.0);
+        assert_eq!(clock.rounds, 0);
+        assert!((clock.duration() - 2.0).abs() < 1e-12);
+        let (mut p, mut vv, mut aa, mut jj) = ([0.0], [0.0], [0.0], [0.0]);
+        let mut scratch = [0.0; 3];
+        let mut peaks = [0.0f64; 3];
+        for g in 0..=1000 {
+            let tau = g as f64 / 1000.0;
+            sample(
+                &path,
+                &clock,
+                tau,
+                Sample {
+                    p: &mut p,
+                    v: &mut vv,
+                    a: &mut aa,
+                    j: &mut jj,
+                },
+                &mut scratch,
+            );
+            peaks[0] = peaks[0].max(vv[0].abs());
+            peaks[1] = peaks[1].max(aa[0].abs());
+            peaks[2] = peaks[2].max(jj[0].abs());
+        }
+        let t = 2.0;
+        assert!((peaks[0] - 15.0 * d / (8.0 * t)).abs() < 1e-6, "{peaks:?}");
+        assert!(
+            (peaks[1] - 10.0 * d / (3f64.sqrt() * t * t)).abs() < 1e-3,
+            "{peaks:?}"
+        );
+        assert!(
+            (peaks[2] - 60.0 * d / (t * t * t)).abs() < 1e-6,
+            "{peaks:?}"
+        );
+        let topp = time_optimal_duration(&path, &limits, 400);
+        let exact = d / 2.0 + 2.0 / 5.0; // v̄ = 2 is reached: d = 1.2 > v̄²/ā = 0.8
+        assert!((topp - exact).abs() < 5e-3 * exact, "{topp} vs {exact}");
+        // at T = 0.3 s every limit is exceeded: the clock slows until each use is below 1
+        let clock = fit_clock(&path, &limits, 0.3);
+        assert!(clock.duration() > exact);
+        for g in 0..=4000 {
+            let tau = g as f64 / 4000.0;
+            sample(
+                &path,
+                &clock,
+                tau,
+                Sample {
+                    p: &mut p,
+                    v: &mut vv,
+                    a: &mut aa,
+                    j: &mut jj,
+                },
+                &mut scratch,
+            );
+            assert!(vv[0].abs() <= v[0] && aa[0].abs() <= a[0] && jj[0].abs() <= j[0]);
+            assert!((clock.tau_at(clock.time_at(tau), 0.5) - tau).abs() < 1e-9);
+        }
+    }
+}
