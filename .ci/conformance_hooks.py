@@ -25,7 +25,7 @@ TOLERATED = [
     # Geometry that is well typed but degenerate: a zero quaternion or axis, parallel axes, an
     # open or degenerate mesh. Not expressible as ranges on the components.
     ("degenerate geometry", r"^\$\.", r"(must not be zero|must not be the zero vector|"
-     r"not parallel|non-zero|malformed mesh|degenerate|^orientation must be finite|"
+     r"not parallel|non-zero|malformed mesh|non-manifold mesh|degenerate|^orientation must be finite|"
      r"^support must be finite)"),
     # Mesh content: base64 `data` is a schema pattern, but an OBJ file must also decode to
     # text, which no pattern on the encoded string can state.

@@ -203,6 +203,7 @@ async fn run() -> anyhow::Result<()> {
                 },
                 duration: None,
                 rate: None,
+                obstacles: Vec::new(),
             },
             None,
         )

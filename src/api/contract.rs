@@ -187,6 +187,7 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
     }
     // Target coordinates within ±1000 m.
     for (schema, field) in [
+        ("ObstacleSpec", "position"),
         ("IkRequest", "position"),
         ("IkRequest", "point"),
         ("JacobianRequest", "point"),

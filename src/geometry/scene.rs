@@ -14,13 +14,16 @@ use super::solid::{HalfSpace, Solid};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ObstacleSpec {
     /// Name used in reports ("which link meets which obstacle").
+    #[schema(min_length = 1)]
     pub name: String,
     /// Geometry.
     pub shape: ShapeSpec,
-    /// Position of the shape's origin in the robot base frame, metres.
+    /// Position of the shape's origin in the robot base frame, metres (within ±1000 m).
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
     /// Orientation quaternion `[w, x, y, z]` (normalised on validation).
     #[serde(default = "identity_quaternion")]
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: [f64; 4],
 }
 

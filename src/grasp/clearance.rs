@@ -12,9 +12,11 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::{Category, PathHit, PathOptions, Polyline};
+use crate::geometry::{
+    Category, CollisionChecker, PathHit, PathOptions, Plane, Polyline, Scene, SceneShape,
+};
 
-use super::optimizer::{EXACT_PENETRATION_TOLERANCE, grasp_checker_for};
+use super::optimizer::EXACT_PENETRATION_TOLERANCE;
 use super::{HandArm, Object};
 
 /// Where along the trajectory a distance was found.
@@ -26,7 +28,7 @@ pub struct ClearanceHit {
     pub time_s: f64,
     /// The robot link.
     pub link: String,
-    /// "object", "support" or the other link's name.
+    /// "object", "support", the obstacle's name or the other link's name.
     pub other: String,
 }
 
@@ -47,6 +49,9 @@ pub struct PathClearance {
     pub object: Option<ClearanceHit>,
     /// Smallest distance of a link to the support plane.
     pub support: Option<ClearanceHit>,
+    /// Smallest distance of a link to any of the request's obstacles (absent without any).
+    #[serde(default)]
+    pub obstacle: Option<ClearanceHit>,
     /// Smallest distance between two non-adjacent links.
     pub self_collision: Option<ClearanceHit>,
     /// Conservative-advancement steps and exact distance queries spent.
@@ -60,10 +65,12 @@ const MAX_STEPS: usize = 200_000;
 const TOLERANCE: f64 = 5e-4;
 
 /// The clearance of the path through `points` (row-major, `sys.model.nq()` joint values in
-/// model order per point) at times `times` (s), in the scene of `object` (and its support plane).
+/// model order per point) at times `times` (s), in the scene of `object` (and its support plane,
+/// when there is an object) and `obstacles`.
 pub fn path_clearance(
     sys: &HandArm,
-    object: &Object,
+    object: Option<&Object>,
+    obstacles: &[SceneShape],
     points: &[f64],
     times: &[f64],
 ) -> PathClearance {
@@ -74,7 +81,20 @@ pub fn path_clearance(
         "one time per point of nq values"
     );
     assert!(!times.is_empty(), "a path has at least one point");
-    let checker = grasp_checker_for(sys, object);
+    let mut scene = Scene::new();
+    if let Some(object) = object {
+        let (shape, pose) = object.shape();
+        scene = scene.with_object(SceneShape::new(
+            object.spec().name.clone(),
+            shape.clone(),
+            *pose,
+        ));
+        if let Some(p) = object.support().and_then(|sp| Plane::try_from(sp).ok()) {
+            scene = scene.with_support(p);
+        }
+    }
+    scene.obstacles = obstacles.to_vec();
+    let checker = CollisionChecker::new(sys.geometry.clone(), scene);
     let mut data = checker.data();
     let report = checker.check_path(
         &mut data,
@@ -113,6 +133,7 @@ pub fn path_clearance(
         closest,
         object: hit(report.category(Category::Object)),
         support: hit(report.category(Category::Support)),
+        obstacle: hit(report.category(Category::Obstacle)),
         self_collision: hit(report.category(Category::SelfCollision)),
         steps: report.steps,
         exact_queries: report.exact_queries,
@@ -124,6 +145,7 @@ mod tests {
     use nalgebra::Point3;
 
     use super::*;
+    use crate::geometry::ObstacleSpec;
     use crate::grasp::objects::{ObjectSpec, ShapeSpec, SupportPlane};
     use crate::grasp::optimizer::tests::test_system;
     use crate::kinematics::{Data, forward_kinematics};
@@ -192,9 +214,38 @@ mod tests {
                 })
                 .collect();
             let times = [0.0, 2.0];
-            let c = path_clearance(&sys, &object, &points.concat(), &times);
+            let c = path_clearance(&sys, Some(&object), &[], &points.concat(), &times);
             assert!(c.complete);
             let support = c.support.clone().expect("a support plane");
+            assert!(c.obstacle.is_none());
+            // The same table as a 10 m x 10 m x 2 m box obstacle, without object or plane: the
+            // obstacle clearance is the same closed form (a link dips through its top face, the
+            // nearest way out of a box that large).
+            let slab = SceneShape::from_spec(
+                &ObstacleSpec {
+                    name: "table top".into(),
+                    shape: ShapeSpec::Box {
+                        size: [10.0, 10.0, 2.0],
+                    },
+                    position: [0.0, 0.0, table - 1.0],
+                    orientation: [1.0, 0.0, 0.0, 0.0],
+                },
+                "$.obstacles[0].",
+            )
+            .unwrap();
+            let o = path_clearance(&sys, None, &[slab], &points.concat(), &times);
+            let hit = o.obstacle.clone().expect("an obstacle");
+            assert_eq!(hit.other, "table top");
+            assert!(o.support.is_none() && o.object.is_none());
+            assert!(
+                (hit.distance_m - support.distance_m).abs() <= 2.0 * o.tolerance_m + 2e-4,
+                "obstacle {} vs support {}",
+                hit.distance_m,
+                support.distance_m
+            );
+            if dips {
+                assert!(!o.collision_free);
+            }
             // Dense sampling of the same polyline.
             let (mut best, mut at) = (f64::INFINITY, 0.0);
             let n = 4000;

@@ -353,7 +353,7 @@ fn hand_arm_of(key: &str, sys: &Arc<System>) -> Result<Arc<HandArm>, Error> {
 
 /// A grasp request's robot: any system of the robots store (bundled or registered), resolved
 /// like every other resource does; an unknown id in the body is a 422 naming `$.robot`.
-async fn robot_view(ctx: &Context, robot: &str) -> Result<Arc<HandArm>, Error> {
+pub(super) async fn robot_view(ctx: &Context, robot: &str) -> Result<Arc<HandArm>, Error> {
     let sys = super::robots::robot_field(ctx, robot, "$.robot").await?;
     let key = robot.to_owned();
     tokio::task::spawn_blocking(move || hand_arm_of(&key, &sys))
@@ -524,7 +524,8 @@ fn new_grasp(
 #[derive(Clone)]
 pub struct GraspScene {
     pub sys: Arc<HandArm>,
-    pub object: Object,
+    /// `None`: a trajectory to a configuration, checked against its obstacles only.
+    pub object: Option<Object>,
 }
 
 /// The scene of stored grasp `id`: its system and its object as it was computed (`None`: no such
@@ -536,7 +537,10 @@ pub async fn stored_scene(ctx: &Context, id: &str) -> Result<Option<GraspScene>,
     let spec: ObjectSpec = serde_json::from_str(&row.object).map_err(Error::internal)?;
     let object = Object::new(spec).map_err(|e| Error::internal(anyhow::anyhow!("{e}")))?;
     let sys = robot_view(ctx, &row.robot).await?;
-    Ok(Some(GraspScene { sys, object }))
+    Ok(Some(GraspScene {
+        sys,
+        object: Some(object),
+    }))
 }
 
 pub async fn compute(
@@ -601,7 +605,10 @@ pub async fn compute(
     Ok((
         new_grasp(&body.robot, object_id, &object, &dto, &result),
         result,
-        GraspScene { sys: view, object },
+        GraspScene {
+            sys: view,
+            object: Some(object),
+        },
     ))
 }
 

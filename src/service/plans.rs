@@ -91,6 +91,12 @@ pub struct PlanIn {
     /// Worker to execute on (default: any idle worker of the robot); also the worker whose
     /// state `"current"` reads.
     pub worker: Option<String>,
+    /// Further obstacles in the robot base frame besides the object and its support (at most
+    /// 32): the trajectory's exact clearance against them is reported; the motion does not yet
+    /// avoid them.
+    #[serde(default)]
+    #[schema(max_items = 32)]
+    pub obstacles: Vec<crate::geometry::ObstacleSpec>,
 }
 
 /// The flat wire form of [`PlanIn`]: every field of [`GraspIn`] and the plan's own, so that
@@ -117,6 +123,8 @@ struct PlanWire {
     execute: bool,
     mode: Option<Mode>,
     worker: Option<String>,
+    #[serde(default)]
+    obstacles: Vec<crate::geometry::ObstacleSpec>,
 }
 
 impl From<PlanWire> for PlanIn {
@@ -141,6 +149,7 @@ impl From<PlanWire> for PlanIn {
             execute: w.execute,
             mode: w.mode,
             worker: w.worker,
+            obstacles: w.obstacles,
         }
     }
 }
@@ -226,6 +235,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     let t0 = Instant::now();
     let robot = body.grasp.robot.clone();
     let worker = body.worker.as_deref().map(WorkerName::parse).transpose()?;
+    super::trajectories::scene_obstacles(&body.obstacles)?;
     super::robots::robot_field(ctx, &robot, "$.robot").await?;
     let model_id = resolve_model(ctx, body).await?;
     let start = resolve_start(ctx, body)?;
@@ -266,6 +276,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             },
             duration: body.duration.clone(),
             rate: body.rate,
+            obstacles: body.obstacles.clone(),
         };
         match super::trajectories::compute(ctx, &request, Some(scene)).await {
             Ok(t) => trajectory = Some(t),
@@ -343,6 +354,7 @@ fn request_json(body: &PlanIn) -> Result<String, Error> {
         "execute": body.execute,
         "mode": body.mode,
         "worker": body.worker,
+        "obstacles": body.obstacles,
     });
     serde_json::to_string(&value).map_err(Error::internal)
 }

@@ -9,6 +9,7 @@ use super::models::{
     group_name, joint_values, loaded_model, region_error,
 };
 use super::{Context, Error, Invalid, Keyword};
+use crate::geometry::{GeometryError, ObstacleSpec, SceneShape, ShapeSpec};
 use crate::grasp::{GraspResult, PathClearance, path_clearance};
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::motion::{MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint};
@@ -86,6 +87,85 @@ pub struct CreateTrajectory {
     /// Output rate, Hz, in (0, 1000] (default 100).
     #[schema(exclusive_minimum = 0, maximum = 1000)]
     pub rate: Option<f64>,
+    /// Further obstacles in the robot base frame (boxes, cylinders, spheres, capsules, meshes,
+    /// each with a pose; at most 32). The trajectory's exact clearance against them is reported
+    /// (`report.clearance.obstacle`); the motion does not yet avoid them.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[schema(max_items = 32)]
+    pub obstacles: Vec<ObstacleSpec>,
+}
+
+/// Most obstacles one request may carry.
+pub const MAX_OBSTACLES: usize = 32;
+
+/// The request's obstacles, validated and placed; each problem at its own field.
+pub fn scene_obstacles(obstacles: &[ObstacleSpec]) -> Result<Vec<SceneShape>, Error> {
+    if obstacles.len() > MAX_OBSTACLES {
+        return Err(Error::invalid(
+            "$.obstacles",
+            format!("at most {MAX_OBSTACLES} obstacles, got {}", obstacles.len()),
+        ));
+    }
+    let mut errors = Vec::new();
+    let mut shapes = Vec::with_capacity(obstacles.len());
+    for (i, spec) in obstacles.iter().enumerate() {
+        let prefix = format!("$.obstacles[{i}].");
+        if spec.name.is_empty() {
+            errors.push(Invalid::new(format!("{prefix}name"), "must not be empty"));
+            continue;
+        }
+        if let Some(k) = spec.position.iter().position(|v| v.abs() > 1000.0) {
+            errors.push(Invalid::new(
+                format!("{prefix}position[{k}]"),
+                format!("must be within ±1000 m, got {}", spec.position[k]),
+            ));
+            continue;
+        }
+        // The shape schema is the objects' (each dimension within 2 m across); a larger
+        // obstacle is several.
+        let too_large = match &spec.shape {
+            ShapeSpec::Sphere { radius } => (*radius > 1.0).then_some(("radius", *radius, 1.0)),
+            ShapeSpec::Cylinder { radius, height } => (*radius > 1.0)
+                .then_some(("radius", *radius, 1.0))
+                .or((*height > 2.0).then_some(("height", *height, 2.0))),
+            ShapeSpec::Capsule { radius, length } => (*radius > 1.0)
+                .then_some(("radius", *radius, 1.0))
+                .or((*length > 2.0).then_some(("length", *length, 2.0))),
+            ShapeSpec::Box { size } => size
+                .iter()
+                .position(|&v| v > 2.0)
+                .map(|k| (["size[0]", "size[1]", "size[2]"][k], size[k], 2.0)),
+            _ => None,
+        };
+        if let Some((field, value, max)) = too_large {
+            errors.push(Invalid::new(
+                format!("{prefix}shape.{field}"),
+                format!("at most {max} m, got {value}"),
+            ));
+            continue;
+        }
+        match SceneShape::from_spec(spec, &prefix) {
+            Ok(shape) => shapes.push(shape),
+            Err(e) => {
+                let (field, message) = match &e {
+                    GeometryError::InvalidDimension { field, value } => (
+                        field.clone(),
+                        format!("must be a positive finite length, got {value}"),
+                    ),
+                    GeometryError::NonFinite { field } => {
+                        (field.clone(), "must be finite and non-zero".to_owned())
+                    }
+                    _ => (format!("{prefix}shape"), e.to_string()),
+                };
+                errors.push(Invalid::new(field, message));
+            }
+        }
+    }
+    if errors.is_empty() {
+        Ok(shapes)
+    } else {
+        Err(Error::Invalid(errors))
+    }
 }
 
 /// A path of one frame in Cartesian space (robot base frame, metres), one position per point.
@@ -144,10 +224,11 @@ pub struct TrajectoryReportDto {
     pub elbow_paths: Vec<FramePathDto>,
     /// The grasp the goal came from, if any.
     pub grasp: Option<String>,
-    /// A plan's trajectory: its exact clearance in the grasp's scene (every link's collision
-    /// shape against the object, the support and the other links, continuous along the path
-    /// through the points). Reported, not yet acted on: the motion model has no term that avoids
-    /// the object or the table (issue 18).
+    /// The trajectory's exact clearance in its scene: a plan's (or a stored grasp goal's) object
+    /// and support plane, and the request's obstacles; every link's collision shape against them
+    /// and against the other links, continuous along the path through the points. Absent for a
+    /// configuration goal without obstacles. Reported, not yet acted on: the motion model has no
+    /// term that avoids the object, the table or obstacles (issue 18).
     #[serde(default)]
     pub clearance: Option<PathClearance>,
 }
@@ -378,6 +459,7 @@ pub async fn compute(
         )
         .into());
     }
+    let obstacles = scene_obstacles(&body.obstacles)?;
     let l = loaded_model(ctx, &body.model, Some("$.model")).await?;
     let system = match ctx.robots.system(&l.robot).await {
         Err(LibraryError::UnknownRobot(_)) => {
@@ -411,6 +493,10 @@ pub async fn compute(
     let scene = match (scene, &grasp) {
         (Some(s), _) => Some(s),
         (None, Some(id)) => super::grasps::stored_scene(ctx, id).await?,
+        (None, None) if !obstacles.is_empty() => Some(super::grasps::GraspScene {
+            sys: super::grasps::robot_view(ctx, &l.robot).await?,
+            object: None,
+        }),
         (None, None) => None,
     };
     let opts = TrajectoryOptions {
@@ -444,7 +530,7 @@ pub async fn compute(
                     .flat_map(|p| p.positions.iter().copied())
                     .collect();
                 let times: Vec<f64> = traj.points.iter().map(|p| p.t).collect();
-                path_clearance(&sc.sys, &sc.object, &points, &times)
+                path_clearance(&sc.sys, sc.object.as_ref(), &obstacles, &points, &times)
             });
             Ok::<_, Rejected>((traj, report))
         })

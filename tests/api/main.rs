@@ -12,6 +12,7 @@ mod jobs;
 mod limits;
 mod mappings;
 mod models;
+mod obstacles;
 mod openapi;
 mod paths;
 mod plans;
