@@ -540,26 +540,25 @@ mod tests {
         let clock = fit_clock(&path, &limits, 2.0);
         assert_eq!(clock.rounds, 0);
         assert!((clock.duration() - 2.0).abs() < 1e-12);
-        let (mut p, mut vv, mut aa, mut jj) = ([0.0], [0.0], [0.0], [0.0]);
-        let mut scratch = [0.0; 3];
+        // velocity, acceleration and jerk of the one joint at clock parameter τ
+        let at = |clock: &Clock, tau: f64| {
+            let (mut p, mut v, mut a, mut j) = ([0.0], [0.0], [0.0], [0.0]);
+            let s = Sample {
+                p: &mut p,
+                v: &mut v,
+                a: &mut a,
+                j: &mut j,
+            };
+            sample(&path, clock, tau, s, &mut [0.0; 3]);
+            (v[0], a[0], j[0])
+        };
         let mut peaks = [0.0f64; 3];
         for g in 0..=1000 {
             let tau = g as f64 / 1000.0;
-            sample(
-                &path,
-                &clock,
-                tau,
-                Sample {
-                    p: &mut p,
-                    v: &mut vv,
-                    a: &mut aa,
-                    j: &mut jj,
-                },
-                &mut scratch,
-            );
-            peaks[0] = peaks[0].max(vv[0].abs());
-            peaks[1] = peaks[1].max(aa[0].abs());
-            peaks[2] = peaks[2].max(jj[0].abs());
+            let (vv, aa, jj) = at(&clock, tau);
+            peaks[0] = peaks[0].max(vv.abs());
+            peaks[1] = peaks[1].max(aa.abs());
+            peaks[2] = peaks[2].max(jj.abs());
         }
         let t = 2.0;
         assert!((peaks[0] - 15.0 * d / (8.0 * t)).abs() < 1e-6, "{peaks:?}");
@@ -579,19 +578,8 @@ mod tests {
         assert!(clock.duration() > exact);
         for g in 0..=4000 {
             let tau = g as f64 / 4000.0;
-            sample(
-                &path,
-                &clock,
-                tau,
-                Sample {
-                    p: &mut p,
-                    v: &mut vv,
-                    a: &mut aa,
-                    j: &mut jj,
-                },
-                &mut scratch,
-            );
-            assert!(vv[0].abs() <= v[0] && aa[0].abs() <= a[0] && jj[0].abs() <= j[0]);
+            let (vv, aa, jj) = at(&clock, tau);
+            assert!(vv.abs() <= v[0] && aa.abs() <= a[0] && jj.abs() <= j[0]);
             assert!((clock.tau_at(clock.time_at(tau), 0.5) - tau).abs() < 1e-9);
         }
     }
