@@ -81,8 +81,9 @@ pub struct CreateTrajectory {
     pub model: String,
     pub start: JointValues,
     pub goal: GoalIn,
-    /// `"auto"` (learned from the demonstrations, default) or seconds. A duration too short for
-    /// the joint limits is replaced by the shortest feasible one (`stretched`, `note`).
+    /// `"auto"` (learned from the demonstrations, default) or seconds. Where that would exceed a
+    /// joint velocity, acceleration or jerk limit the motion is slowed there (`stretched`,
+    /// `note`).
     pub duration: Option<AutoOr>,
     /// Output rate, Hz, in (0, 1000] (default 100).
     #[schema(exclusive_minimum = 0, maximum = 1000)]
