@@ -108,7 +108,7 @@ enum Command {
     /// `./data/reachgrasp.db`), which holds the trained models; the plan, its grasp and its
     /// trajectory are stored there as the service would store them. Prints the plan as JSON.
     #[command(
-        after_help = "Example:\n  reachgrasp plan --request examples/plan-ball.json > plan.json"
+        after_help = "Example:\n  reachgrasp plan --request examples/plan-bottle.json > plan.json"
     )]
     Plan {
         /// JSON request file (the `POST /v1/plans` body; `execute` queues the execution in the

@@ -23,8 +23,9 @@ use tokio::sync::{Notify, mpsc, watch};
 use utoipa::ToSchema;
 
 use super::protocol::{
-    Capability, ErrorCode, ErrorReply, Execute, ExecutionPayload, ExecutionResult, Feedback, Hello,
-    Mode, Outcome, PROTOCOL_VERSION, ServiceMessage, Welcome, WorkerMessage, decode_worker_message,
+    Capability, DEFAULT_START_TOLERANCE, ErrorCode, ErrorReply, Execute, ExecutionPayload,
+    ExecutionResult, Feedback, Hello, Mode, Outcome, PROTOCOL_VERSION, ServiceMessage, Welcome,
+    WorkerMessage, decode_worker_message,
 };
 use super::{BridgeError, WorkerName};
 use crate::shutdown::Shutdown;
@@ -97,6 +98,16 @@ pub struct WorkerSnapshot {
     pub messages: u64,
     /// Last measured positions (from heartbeats and feedback), joint order of `joint_names`.
     pub positions: Vec<f64>,
+    /// The start tolerance the worker announced (rad; `None`: it named none, and
+    /// [`DEFAULT_START_TOLERANCE`] applies).
+    pub start_tolerance: Option<f64>,
+}
+
+impl WorkerSnapshot {
+    /// The start tolerance that applies to this worker (rad).
+    pub fn tolerance(&self) -> f64 {
+        self.start_tolerance.unwrap_or(DEFAULT_START_TOLERANCE)
+    }
 }
 
 struct Worker {
@@ -524,6 +535,13 @@ impl Hub {
         if hello.capabilities.is_empty() {
             return refuse("capabilities must not be empty (open_loop, closed_loop)".into());
         }
+        if let Some(t) = hello.start_tolerance
+            && !(t.is_finite() && t > 0.0)
+        {
+            return refuse(format!(
+                "start_tolerance must be a positive joint distance in rad, got {t}"
+            ));
+        }
         let system = match self.0.robots.system(&hello.robot).await {
             Ok(s) => s,
             Err(e @ LibraryError::UnknownRobot(_)) => return refuse(e.to_string()),
@@ -586,6 +604,7 @@ impl Hub {
                     max_heartbeat_gap_ms: 0.0,
                     messages: 1,
                     positions: Vec::new(),
+                    start_tolerance: hello.start_tolerance,
                 },
                 last_heartbeat: None,
                 tx,

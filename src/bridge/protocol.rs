@@ -45,7 +45,17 @@ pub struct Hello {
     /// The system's independent joints in model order (as `GET /v1/robots/{id}` lists them).
     pub joint_names: Vec<String>,
     pub capabilities: Vec<Capability>,
+    /// Largest joint deviation (rad) between the robot and a trajectory's first point that the
+    /// worker accepts at the start of an execution. The service refuses (422) a plan with
+    /// `execute: true` whose start is farther than this from where the worker will be; a
+    /// worker that does not say gets [`DEFAULT_START_TOLERANCE`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_tolerance: Option<f64>,
 }
+
+/// The start tolerance assumed for a worker whose `hello` names none (rad; the reference
+/// worker's default).
+pub const DEFAULT_START_TOLERANCE: f64 = 0.25;
 
 /// Liveness, sent every `heartbeat_interval_ms`; carries the measured positions so clients can
 /// plan from the robot's current state (`GET /v1/bridges`).

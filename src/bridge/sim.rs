@@ -178,7 +178,7 @@ impl Default for RunOptions {
         RunOptions {
             goal_tolerance: 0.01,
             stop_velocity: 0.05,
-            start_tolerance: 0.25,
+            start_tolerance: super::protocol::DEFAULT_START_TOLERANCE,
             tracking_gain: 8.0,
             settle_time: 2.0,
             closed_loop_timeout: 30.0,

@@ -252,6 +252,7 @@ where
         robot: opts.robot.clone(),
         joint_names: opts.joint_names.clone(),
         capabilities: opts.capabilities.clone(),
+        start_tolerance: Some(opts.run.start_tolerance),
     });
     if let Err(e) = sink.send(text(&hello)).await {
         return SessionEnd::Retry(e.to_string());

@@ -85,7 +85,34 @@ pub async fn create(
     worker: Option<&str>,
 ) -> Result<ExecutionView, Error> {
     let (payload, paths) = resolve(ctx, robot, mode, source, goal).await?;
-    let worker = worker.map(WorkerName::parse).transpose()?;
+    let mut worker = worker.map(WorkerName::parse).transpose()?;
+    // A trajectory must start where the robot will be (a law runs from wherever it is):
+    // checked against the connected workers now, and run on the one it was checked against.
+    if let ExecutionPayload::Trajectory {
+        joint_names,
+        points,
+        ..
+    } = &payload
+        && let Some(first) = points.first()
+    {
+        let path = if paths.points == "$.trajectory_id" {
+            paths.points.clone()
+        } else {
+            format!("{}[0].positions", paths.points)
+        };
+        let checked = super::bridges::check_start(
+            ctx,
+            robot,
+            worker.as_ref().map(WorkerName::as_str),
+            joint_names,
+            &first.positions,
+            &path,
+        )
+        .await?;
+        if worker.is_none() {
+            worker = checked.as_deref().map(WorkerName::parse).transpose()?;
+        }
+    }
     let id = enqueue(ctx, robot, mode, payload, worker)
         .await
         .map_err(|e| match e {

@@ -34,8 +34,9 @@ pub use crate::store::plans::PlanRow;
 pub enum StartIn {
     /// A configuration: every independent joint of the robot once, any order.
     Configuration(JointValues),
-    /// `"current"`: the measured state of the connected worker for the robot (the one named by
-    /// `worker`, if given), as its last heartbeat or feedback reported it.
+    /// `"current"`: where the connected worker for the robot (the one named by `worker`, if
+    /// given) will be when an execution queued now starts: the end of what it runs or has
+    /// queued before, else its state as its last heartbeat or feedback reported it.
     Current(String),
 }
 
@@ -74,7 +75,9 @@ pub struct PlanIn {
     /// grasp optimiser's settings: the body of `POST /v1/grasps`.
     #[serde(flatten)]
     pub grasp: GraspIn,
-    /// Start of the motion: a configuration, or `"current"` (the connected worker's state).
+    /// Start of the motion: a configuration, or `"current"` (where the connected worker will be:
+    /// its measured state, or the end of what it runs or has queued before). With `execute`, a
+    /// configuration farther than the worker's start tolerance from that is a 422.
     pub start: StartIn,
     /// Motion model id (default: the robot's default model).
     pub model: Option<String>,
@@ -88,8 +91,8 @@ pub struct PlanIn {
     /// Execution mode (default `open_loop`: follow the trajectory; `closed_loop`: the worker
     /// runs the model's control law to the grasp configuration).
     pub mode: Option<Mode>,
-    /// Worker to execute on (default: any idle worker of the robot); also the worker whose
-    /// state `"current"` reads.
+    /// Worker to execute on (default: the connected worker of the robot the start was checked
+    /// against, or any when none is connected); also the worker whose state `"current"` reads.
     pub worker: Option<String>,
     /// Further obstacles in the robot base frame besides the object and its support (at most
     /// 32): the trajectory's exact clearance against them is reported; the motion does not yet
@@ -189,18 +192,21 @@ async fn resolve_model(ctx: &Context, body: &PlanIn) -> Result<String, Error> {
     ))
 }
 
-/// The start configuration; `"current"` reads the connected worker's last measured state.
-fn resolve_start(ctx: &Context, body: &PlanIn) -> Result<JointValues, Error> {
+/// The start configuration; `"current"` reads where the connected worker will be when an
+/// execution queued now starts: the end of what it runs or has queued before, else its measured
+/// state. With `"current"`, also the worker it read.
+async fn resolve_start(
+    ctx: &Context,
+    body: &PlanIn,
+) -> Result<(JointValues, Option<String>), Error> {
     match &body.start {
-        StartIn::Configuration(v) => Ok(v.clone()),
+        StartIn::Configuration(v) => Ok((v.clone(), None)),
         StartIn::Current(s) if Keyword::parse(s) == Some(Keyword::Current) => {
             let robot = &body.grasp.robot;
-            let worker = ctx
-                .bridges
-                .workers()
+            let state = super::bridges::expected_states(ctx, robot, body.worker.as_deref())
+                .await?
                 .into_iter()
-                .filter(|w| w.robot == *robot && !w.positions.is_empty())
-                .find(|w| body.worker.as_ref().is_none_or(|n| *n == w.name))
+                .next()
                 .ok_or_else(|| {
                     Error::invalid(
                         "$.start",
@@ -214,10 +220,13 @@ fn resolve_start(ctx: &Context, body: &PlanIn) -> Result<JointValues, Error> {
                         },
                     )
                 })?;
-            Ok(JointValues {
-                joint_names: worker.joint_names,
-                positions: worker.positions,
-            })
+            Ok((
+                JointValues {
+                    joint_names: state.joint_names,
+                    positions: state.positions,
+                },
+                Some(state.worker),
+            ))
         }
         StartIn::Current(other) => Err(Error::invalid(
             "$.start",
@@ -238,7 +247,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     super::trajectories::scene_obstacles(&body.obstacles)?;
     super::robots::robot_field(ctx, &robot, "$.robot").await?;
     let model_id = resolve_model(ctx, body).await?;
-    let start = resolve_start(ctx, body)?;
+    let (start, read_from) = resolve_start(ctx, body).await?;
     let model_robot = super::trajectories::check_start(ctx, &model_id, &start).await?;
     if model_robot != robot {
         return Err(Error::invalid(
@@ -246,6 +255,28 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             format!("model '{model_id}' is of robot '{model_robot}', not '{robot}'"),
         ));
     }
+    // A motion to execute must start where the robot will be: checked against the connected
+    // workers now (nothing to check without one; the worker checks again when it starts), and
+    // the execution goes to the worker it was checked against.
+    let worker = match (body.execute, worker, read_from) {
+        (true, None, Some(w)) => Some(WorkerName::parse(&w)?),
+        (true, w, None) => {
+            let checked = super::bridges::check_start(
+                ctx,
+                &robot,
+                w.as_ref().map(WorkerName::as_str),
+                &start.joint_names,
+                &start.positions,
+                "$.start",
+            )
+            .await?;
+            match (w, checked) {
+                (Some(w), _) => Some(w),
+                (None, c) => c.as_deref().map(WorkerName::parse).transpose()?,
+            }
+        }
+        (_, w, _) => w,
+    };
 
     // A plan's grasp must land in the model's certified goal regions: the search starts at
     // their centre (the arm branch and hand posture the demonstrations end on) and keeps inside.

@@ -296,6 +296,27 @@ pub async fn queued(pool: &SqlitePool) -> Result<Vec<ExecutionRow>, sqlx::Error>
     .await
 }
 
+/// The newest execution that will run on worker `worker` of `robot` before anything queued
+/// now: the one it runs, or a queued one pinned to it or to no worker; its id and payload.
+pub async fn last_pending(
+    pool: &SqlitePool,
+    robot: &str,
+    worker: &str,
+) -> Result<Option<(String, ExecutionPayload)>, sqlx::Error> {
+    let row: Option<(String, String, Option<Vec<u8>>)> = sqlx::query_as(
+        "SELECT id, payload, points FROM executions WHERE robot = ?1 AND \
+         ((state = 'running' AND assigned_worker = ?2) OR \
+          (state = 'queued' AND (worker IS NULL OR worker = ?2))) \
+         ORDER BY created_at DESC, id DESC LIMIT 1",
+    )
+    .bind(robot)
+    .bind(worker)
+    .fetch_optional(pool)
+    .await?;
+    row.map(|(id, json, points)| Ok((id, join_payload(&json, points.as_deref())?)))
+        .transpose()
+}
+
 /// `queued` → `running` on `worker`; false if it was no longer queued (cancelled meanwhile).
 pub async fn mark_running(pool: &SqlitePool, id: &str, worker: &str) -> Result<bool, sqlx::Error> {
     let r = sqlx::query(

@@ -1132,6 +1132,94 @@ async fn executions_are_validated_and_wait_queued_until_the_no_worker_timeout() 
     );
 }
 
+/// A trajectory to execute must start where the worker will be: within the start tolerance it
+/// announced of its measured state, or of the end of what it runs or has queued before. Farther
+/// is a 422 at the start with nothing queued; a tolerance that is not positive refuses the hello.
+#[tokio::test]
+async fn an_execution_must_start_within_the_workers_tolerance_of_where_it_will_be() {
+    let app = spawn(|_| {}).await;
+    let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
+    let mut bad = hello("tol", names(), PROTOCOL_VERSION);
+    bad["start_tolerance"] = json!(-0.1);
+    send(&mut ws, bad).await;
+    assert_eq!(
+        error_code(next_msg(&mut ws).await),
+        (ErrorCode::HelloRefused, true)
+    );
+
+    let mut opts = app.worker("sim-tol");
+    opts.run.start_tolerance = 0.1;
+    let mut w = Worker::start(opts);
+    w.until(10, |e| *e == WorkerEvent::Connected).await;
+    let (a, b) = (home(), target());
+    // its announced tolerance, with the state it reports, is listed
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    loop {
+        let c = &app.get("/v1/bridges").await["items"][0]["connection"];
+        if c["positions"].as_array().is_some_and(|p| !p.is_empty()) {
+            assert_eq!(c["start_tolerance"], 0.1);
+            break;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "no state reported");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+
+    // 0.15 rad off home (the worker is at home): beyond 0.1, refused, nothing queued
+    let mut off = a.clone();
+    off[1] += 0.15;
+    let p = assert_problem(
+        app.post("/v1/executions", &inline(&off, &b, 1.0)).await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(p["errors"][0]["path"], "$.trajectory.points[0].positions");
+    let message = p["errors"][0]["message"].as_str().unwrap();
+    assert!(
+        message.contains("0.150 rad") && message.contains("start tolerance of 0.1 rad"),
+        "{message}"
+    );
+    assert_eq!(
+        app.get("/v1/executions").await["items"]
+            .as_array()
+            .unwrap()
+            .len(),
+        0
+    );
+
+    // 0.05 rad off: accepted and run on that worker; a second one from where the first ends
+    // is accepted while the first still runs; after that second one (back home) one from the
+    // first's end is not
+    let mut near = a.clone();
+    near[1] += 0.05;
+    let first = app.execute(&inline(&near, &b, 1.5)).await;
+    let second = app.execute(&inline(&b, &a, 0.5)).await;
+    let p = assert_problem(
+        app.post("/v1/executions", &inline(&b, &a, 0.5)).await,
+        422,
+        "validation",
+    )
+    .await;
+    let message = p["errors"][0]["message"].as_str().unwrap();
+    assert!(
+        message.contains(&format!("after execution {second}")),
+        "{message}"
+    );
+    for id in [&first, &second] {
+        let done = app
+            .wait(id, 20, |e| {
+                e["state"] == "succeeded" || e["state"] == "failed"
+            })
+            .await;
+        assert_eq!(done["state"], "succeeded", "{done}");
+        assert_eq!(
+            done["worker"], "sim-tol",
+            "pinned to the worker it was checked against"
+        );
+    }
+    w.task.abort();
+}
+
 // ---------------------------------------------------------------------------------------------
 // The real binary: a service restart keeps queued executions; the worker reconnects and runs them.
 

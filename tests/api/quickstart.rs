@@ -160,19 +160,33 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         .kill_on_drop(true)
         .spawn()
         .unwrap();
-    wait_for("the worker to connect", Duration::from_secs(60), || async {
-        let list = get_json(&client, &format!("{base}/v1/bridges")).await;
-        list["items"]
-            .as_array()?
-            .iter()
-            .any(|w| w["robot"] == "wam_ihy" && w["connected"] == true)
-            .then_some(())
-    })
+    wait_for(
+        "the worker to report its state",
+        Duration::from_secs(60),
+        || async {
+            let list = get_json(&client, &format!("{base}/v1/bridges")).await;
+            list["items"]
+                .as_array()?
+                .iter()
+                .any(|w| {
+                    w["robot"] == "wam_ihy"
+                        && w["connected"] == true
+                        && w["connection"]["positions"]
+                            .as_array()
+                            .is_some_and(|p| !p.is_empty())
+                })
+                .then_some(())
+        },
+    )
     .await;
 
     // Every call as written; the plans come back feasible, the ball plan with an execution.
-    let mut execution = None;
-    for line in quickstart_calls() {
+    // Then the plans once more at once, while the first execution may still run: the ball plan
+    // starts at `"current"`, where the robot will be after it, so both executions succeed.
+    let calls = quickstart_calls();
+    let again = calls.iter().filter(|l| l.contains("plan-")).cloned();
+    let mut executions = Vec::new();
+    for line in calls.clone().into_iter().chain(again) {
         let (ok, out) = run_call(&line, &host).await;
         assert!(ok, "`{line}` failed: {out}");
         let v: Value =
@@ -183,21 +197,51 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
             assert!(v["grasp"]["result"]["feasible"] == true);
         }
         if line.contains("plan-ball") {
-            execution = Some(v["execution_id"].as_str().expect("execution id").to_owned());
+            executions.push(v["execution_id"].as_str().expect("execution id").to_owned());
         }
     }
-    let execution = execution.expect("the ball plan was executed");
-    let state = wait_for("the execution to end", Duration::from_secs(180), || async {
-        let e = get_json(&client, &format!("{base}/v1/executions/{execution}")).await;
-        let s = e["state"].as_str()?.to_owned();
-        matches!(
-            s.as_str(),
-            "succeeded" | "failed" | "aborted" | "interrupted" | "cancelled"
-        )
-        .then_some(e)
-    })
-    .await;
-    assert_eq!(state["state"], "succeeded", "{state}");
+    assert_eq!(executions.len(), 2, "the ball plan ran twice");
+    for execution in &executions {
+        let state = wait_for("the execution to end", Duration::from_secs(180), || async {
+            let e = get_json(&client, &format!("{base}/v1/executions/{execution}")).await;
+            let s = e["state"].as_str()?.to_owned();
+            matches!(
+                s.as_str(),
+                "succeeded" | "failed" | "aborted" | "interrupted" | "cancelled"
+            )
+            .then_some(e)
+        })
+        .await;
+        assert_eq!(state["state"], "succeeded", "{state}");
+    }
+
+    // A configuration far from where the robot is cannot be executed: 422 at the start, and
+    // nothing is stored.
+    let plans_before =
+        get_json(&client, &format!("{base}/v1/plans?limit=1")).await["total"].clone();
+    let mut far: Value = serde_json::from_str(
+        &std::fs::read_to_string(root().join("examples/plan-bottle.json")).unwrap(),
+    )
+    .unwrap();
+    far["execute"] = Value::Bool(true);
+    far["start"]["positions"][3] = Value::from(2.0);
+    let res = client
+        .post(format!("{base}/v1/plans"))
+        .json(&far)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 422);
+    let problem: Value = res.json().await.unwrap();
+    let error = &problem["errors"][0];
+    assert_eq!(error["path"], "$.start", "{problem}");
+    let message = error["message"].as_str().unwrap();
+    assert!(
+        message.contains("start tolerance of 0.25 rad") && message.contains("\"current\""),
+        "{message}"
+    );
+    let plans_after = get_json(&client, &format!("{base}/v1/plans?limit=1")).await["total"].clone();
+    assert_eq!(plans_before, plans_after);
     worker.kill().await.unwrap();
 
     // A second start on the same database reuses the models: no seeding job is submitted.

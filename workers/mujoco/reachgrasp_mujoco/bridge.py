@@ -82,6 +82,8 @@ class Worker:
             "robot": self.cfg.robot,
             "joint_names": self.info.joint_names,
             "capabilities": ["open_loop", "closed_loop"],
+            # The service refuses a plan to execute that starts farther than this from our state.
+            "start_tolerance": self.cfg.run.start_tolerance,
             # Ignored by today's service (serde skips unknown fields); see the README.
             "simulator": {"engine": "mujoco", "version": mujoco.__version__, "grasp_trial": self.cfg.trial_enabled},
         }
