@@ -15,6 +15,7 @@
 //! Immutable parts (`RobotGeometry`, `CollisionChecker`) are shared; per-thread scratch is a
 //! [`CheckData`], so posture queries on primitives allocate nothing.
 
+pub mod avoid;
 mod checker;
 mod path;
 mod robot;

@@ -686,3 +686,113 @@ fn bundled_trajectory_check_agrees_with_dense_sampling() {
         assert!(r <= dn + miss, "{cat:?}: report {r} vs dense {dn}");
     }
 }
+
+#[test]
+fn a_path_through_a_box_is_moved_around_it_as_the_continuous_check_confirms() {
+    // The reach of `bundled_trajectory_check_agrees_with_dense_sampling`, as 41 configurations
+    // on the joint line, past a box it passes through. The refinement holds the configurations
+    // to the margin with first-order steps; the continuous check of the polyline through them
+    // (conservative advancement, another method) must find the box clear, the ends unmoved. A
+    // clear path must come back unchanged.
+    let sys = system("wam_t42");
+    let robot = Arc::new(RobotGeometry::from_system(&sys));
+    let boxed = |x: f64| {
+        let obstacle = SceneShape::from_spec(
+            &ObstacleSpec {
+                name: "box".into(),
+                shape: ShapeSpec::Box {
+                    size: [0.1, 0.1, 0.1],
+                },
+                position: [x, 0.0, 0.75],
+                orientation: [1.0, 0.0, 0.0, 0.0],
+            },
+            "",
+        )
+        .unwrap();
+        CollisionChecker::new(
+            robot.clone(),
+            Scene::new()
+                .with_support(Plane::horizontal(0.0))
+                .with_obstacle(obstacle),
+        )
+    };
+    let nq = sys.model.nq();
+    let start = sys.model.neutral();
+    let mut goal = start.clone();
+    goal[..7].copy_from_slice(&[0.1, 1.3, 0.0, 1.6, 0.0, 0.4, 0.0]);
+    let count = 41;
+    let line = |ctrl: &mut Vec<f64>| {
+        ctrl.clear();
+        for k in 0..count {
+            let u = k as f64 / (count - 1) as f64;
+            ctrl.extend(start.iter().zip(&goal).map(|(a, b)| a + u * (b - a)));
+        }
+    };
+    let curve: Vec<avoid::CurveSample> = (0..count)
+        .map(|k| avoid::CurveSample {
+            x: k as f64 / (count - 1) as f64,
+            first: k,
+            w: [1.0, 0.0, 0.0, 0.0],
+        })
+        .collect();
+    let opts = avoid::AvoidOptions::default();
+    let (lower, upper) = (sys.model.lower_limits(), sys.model.upper_limits());
+    let obstacle_clearance = |checker: &CollisionChecker, ctrl: &[f64]| {
+        let mut data = checker.data();
+        let rep = checker.check_path(&mut data, &Polyline::new(ctrl, nq), &PathOptions::default());
+        assert!(rep.complete);
+        rep.category_distance(Category::Obstacle)
+    };
+
+    let checker = boxed(0.45);
+    let mut ctrl = Vec::new();
+    line(&mut ctrl);
+    let before = obstacle_clearance(&checker, &ctrl);
+    assert!(
+        before < -0.02,
+        "the joint line passes through the box: {before}"
+    );
+    let mut data = checker.data();
+    let mut scratch = avoid::AvoidScratch::new(nq, count);
+    let rep = avoid::refine(
+        &checker,
+        &mut data,
+        &mut ctrl,
+        &curve,
+        lower,
+        upper,
+        &opts,
+        &mut scratch,
+    );
+    assert!(rep.below_target > 0 && rep.still_below == 0, "{rep:?}");
+    let after = obstacle_clearance(&checker, &ctrl);
+    assert!(
+        after > 0.005,
+        "clear of the box after the refinement: {after} ({rep:?})"
+    );
+    assert_eq!(&ctrl[..nq], &start[..]);
+    assert_eq!(&ctrl[(count - 1) * nq..], &goal[..]);
+    for (k, row) in ctrl.chunks_exact(nq).enumerate() {
+        for j in 0..nq {
+            assert!(row[j] >= lower[j] && row[j] <= upper[j], "{k}: joint {j}");
+        }
+    }
+
+    // Far from the box, nothing to move.
+    let checker = boxed(-0.8);
+    line(&mut ctrl);
+    let given = ctrl.clone();
+    let mut data = checker.data();
+    let rep = avoid::refine(
+        &checker,
+        &mut data,
+        &mut ctrl,
+        &curve,
+        lower,
+        upper,
+        &opts,
+        &mut scratch,
+    );
+    assert_eq!((rep.rounds, rep.below_target), (0, 0), "{rep:?}");
+    assert_eq!(ctrl, given);
+}

@@ -12,6 +12,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::geometry::avoid::{AvoidOptions, AvoidReport, AvoidScratch, CurveSample, refine};
 use crate::geometry::{
     Category, CollisionChecker, PathHit, PathOptions, Plane, Polyline, Scene, SceneShape,
 };
@@ -64,6 +65,55 @@ const MAX_STEPS: usize = 200_000;
 /// Tolerance of the continuous check, m.
 const TOLERANCE: f64 = 5e-4;
 
+/// The collision checker of `sys` in the scene of `object` (with its support plane) and
+/// `obstacles`.
+pub fn scene_checker(
+    sys: &HandArm,
+    object: Option<&Object>,
+    obstacles: &[SceneShape],
+) -> CollisionChecker {
+    let mut scene = Scene::new();
+    if let Some(object) = object {
+        let (shape, pose) = object.shape();
+        scene = scene.with_object(SceneShape::new(
+            object.spec().name.clone(),
+            shape.clone(),
+            *pose,
+        ));
+        if let Some(p) = object.support().and_then(|sp| Plane::try_from(sp).ok()) {
+            scene = scene.with_support(p);
+        }
+    }
+    scene.obstacles = obstacles.to_vec();
+    CollisionChecker::new(sys.geometry.clone(), scene)
+}
+
+/// Moves the control configurations of a path (rows of `sys.model.nq()` values) the least
+/// amount needed for its points `curve` to keep the default margins from the object, its
+/// support, `obstacles` and the robot's own links ([`crate::geometry::avoid`]).
+pub fn avoid(
+    sys: &HandArm,
+    object: Option<&Object>,
+    obstacles: &[SceneShape],
+    path: &mut [f64],
+    curve: &[CurveSample],
+) -> AvoidReport {
+    let checker = scene_checker(sys, object, obstacles);
+    let mut data = checker.data();
+    let nq = sys.model.nq();
+    let mut scratch = AvoidScratch::new(nq, path.len() / nq);
+    refine(
+        &checker,
+        &mut data,
+        path,
+        curve,
+        sys.model.lower_limits(),
+        sys.model.upper_limits(),
+        &AvoidOptions::default(),
+        &mut scratch,
+    )
+}
+
 /// The clearance of the path through `points` (row-major, `sys.model.nq()` joint values in
 /// model order per point) at times `times` (s), in the scene of `object` (and its support plane,
 /// when there is an object) and `obstacles`.
@@ -81,20 +131,7 @@ pub fn path_clearance(
         "one time per point of nq values"
     );
     assert!(!times.is_empty(), "a path has at least one point");
-    let mut scene = Scene::new();
-    if let Some(object) = object {
-        let (shape, pose) = object.shape();
-        scene = scene.with_object(SceneShape::new(
-            object.spec().name.clone(),
-            shape.clone(),
-            *pose,
-        ));
-        if let Some(p) = object.support().and_then(|sp| Plane::try_from(sp).ok()) {
-            scene = scene.with_support(p);
-        }
-    }
-    scene.obstacles = obstacles.to_vec();
-    let checker = CollisionChecker::new(sys.geometry.clone(), scene);
+    let checker = scene_checker(sys, object, obstacles);
     let mut data = checker.data();
     let report = checker.check_path(
         &mut data,

@@ -51,6 +51,7 @@ mod model;
 mod nf;
 mod pca;
 mod retime;
+pub use retime::{clearance_progress, cubic_basis};
 pub mod synthetic;
 #[cfg(test)]
 mod tests;

@@ -1513,6 +1513,20 @@ impl MotionModel {
         goal: &[f64],
         opts: &TrajectoryOptions,
     ) -> Result<Trajectory, MotionError> {
+        self.trajectory_with(start, goal, opts, |_, _| {})
+    }
+
+    /// [`Self::trajectory`], with `refine` given the path before it is timed: its control
+    /// configurations (row-major, `n` joint values each, held inside the position limits) at
+    /// progress `xs`, to move them (e.g. away from obstacles). The ends stay as given, and the
+    /// configurations are held inside the limits again after it.
+    pub fn trajectory_with(
+        &self,
+        start: &[f64],
+        goal: &[f64],
+        opts: &TrajectoryOptions,
+        refine: impl FnOnce(&mut [f64], &[f64]),
+    ) -> Result<Trajectory, MotionError> {
         if let Some(t) = opts.duration
             && !(t > 0.0 && t.is_finite())
         {
@@ -1554,6 +1568,14 @@ impl MotionModel {
         // passes through its first and last control points
         samples[..n].copy_from_slice(start);
         let last = samples.len() - n;
+        samples[last..].copy_from_slice(goal);
+        refine(&mut samples, &xs);
+        for row in samples.chunks_exact_mut(n) {
+            for j in 0..n {
+                row[j] = row[j].clamp(self.limits.lower[j], self.limits.upper[j]);
+            }
+        }
+        samples[..n].copy_from_slice(start);
         samples[last..].copy_from_slice(goal);
         let path = retime::Path::new(samples, n);
         let jerk = self.limits.jerk_limits();

@@ -143,6 +143,53 @@ impl BSpline {
     }
 }
 
+/// The basis of the clamped uniform cubic B-spline with `count` control points at progress
+/// values `xs` in `[0, 1]`: for each, `(x, first, w)` with the curve at `x` equal to
+/// `Σ_r w[r] · ctrl[first + r]` (at most four control points act at any `x`).
+pub fn cubic_basis(count: usize, xs: &[f64]) -> Vec<(f64, usize, [f64; 4])> {
+    assert!(count >= 4);
+    // The identity as control points: the channels of the curve are the basis functions.
+    let mut eye = vec![0.0; count * count];
+    for i in 0..count {
+        eye[i * count + i] = 1.0;
+    }
+    let spline = BSpline::clamped_uniform(3, eye, count);
+    let mut row = vec![0.0; count];
+    xs.iter()
+        .map(|&x| {
+            spline.eval(x, &mut row);
+            let first = row
+                .iter()
+                .position(|&w| w != 0.0)
+                .unwrap_or(0)
+                .min(count - 4);
+            let mut w = [0.0; 4];
+            w.copy_from_slice(&row[first..first + 4]);
+            (x, first, w)
+        })
+        .collect()
+}
+
+/// Points of a path spline held to clearance targets: three per control configuration, evenly
+/// spaced in progress.
+pub const CURVE_SAMPLES: usize = 289;
+
+/// Where a path spline is held to clearance targets: [`CURVE_SAMPLES`] even progress values, and
+/// within the first and last even step 24 more each, geometrically closer to the end (the final
+/// approach covers centimetres in the last thousandth of progress, where the hand meets the
+/// object).
+pub fn clearance_progress() -> Vec<f64> {
+    let step = 1.0 / (CURVE_SAMPLES - 1) as f64;
+    let mut xs: Vec<f64> = (0..CURVE_SAMPLES).map(|m| m as f64 * step).collect();
+    for k in 1..=24 {
+        let d = step * 0.75f64.powi(k);
+        xs.push(d);
+        xs.push(1.0 - d);
+    }
+    xs.sort_by(f64::total_cmp);
+    xs
+}
+
 /// The Greville abscissae of a clamped uniform cubic B-spline with `count` control points: where
 /// each control point acts most, so control points sampled there reproduce linear functions.
 pub fn greville(count: usize) -> Vec<f64> {

@@ -95,8 +95,8 @@ pub struct PlanIn {
     /// against, or any when none is connected); also the worker whose state `"current"` reads.
     pub worker: Option<String>,
     /// Further obstacles in the robot base frame besides the object and its support (at most
-    /// 32): the trajectory's exact clearance against them is reported; the motion does not yet
-    /// avoid them.
+    /// 32): the humanlike path is moved to keep a margin from them, the object and the support
+    /// (`trajectory.report.avoidance`), and the result's exact clearance is reported.
     #[serde(default)]
     #[schema(max_items = 32)]
     pub obstacles: Vec<crate::geometry::ObstacleSpec>,

@@ -9,10 +9,14 @@ use super::models::{
     group_name, joint_values, loaded_model, region_error,
 };
 use super::{Context, Error, Invalid, Keyword};
+use crate::geometry::avoid::{AvoidOptions, AvoidReport, CurveSample};
 use crate::geometry::{GeometryError, ObstacleSpec, SceneShape, ShapeSpec};
-use crate::grasp::{GraspResult, PathClearance, path_clearance};
+use crate::grasp::{GraspResult, PathClearance, avoid, path_clearance};
 use crate::kinematics::{Data, System, forward_kinematics};
-use crate::motion::{MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint};
+use crate::motion::{
+    MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint, clearance_progress,
+    cubic_basis,
+};
 use crate::store::grasps as grasp_repo;
 use crate::store::library::LibraryError;
 use crate::store::trajectories::{self, TrajectoryDraft};
@@ -90,7 +94,8 @@ pub struct CreateTrajectory {
     pub rate: Option<f64>,
     /// Further obstacles in the robot base frame (boxes, cylinders, spheres, capsules, meshes,
     /// each with a pose; at most 32). The trajectory's exact clearance against them is reported
-    /// (`report.clearance.obstacle`); the motion does not yet avoid them.
+    /// (`report.clearance.obstacle`), after the path was moved to keep a margin from them
+    /// (`report.avoidance`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     #[schema(max_items = 32)]
     pub obstacles: Vec<ObstacleSpec>,
@@ -228,10 +233,55 @@ pub struct TrajectoryReportDto {
     /// The trajectory's exact clearance in its scene: a plan's (or a stored grasp goal's) object
     /// and support plane, and the request's obstacles; every link's collision shape against them
     /// and against the other links, continuous along the path through the points. Absent for a
-    /// configuration goal without obstacles. Reported, not yet acted on: the motion model has no
-    /// term that avoids the object, the table or obstacles (issue 18).
+    /// configuration goal without obstacles. The path was moved away from them first
+    /// (`avoidance`); this check of the result is what `collision_free` reports.
     #[serde(default)]
     pub clearance: Option<PathClearance>,
+    /// How the humanlike path was moved for clearance before it was timed (absent without a
+    /// scene, and in trajectories stored before paths were moved).
+    #[serde(default)]
+    pub avoidance: Option<AvoidanceDto>,
+}
+
+/// The clearance refinement of a path (`geometry::avoid`): its control configurations were
+/// moved, the least amount to first order, until each kept `margin_m` from the object, the
+/// support and obstacles (`self_margin_m` between links), the targets ramping to each end's own
+/// clearance over the last `ramp` of the progress (the grasp's contacts end the motion).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct AvoidanceDto {
+    pub margin_m: f64,
+    pub self_margin_m: f64,
+    pub ramp: f64,
+    /// Rounds run (0: the humanlike path kept every margin as it was), of at most `max_rounds`.
+    pub rounds: usize,
+    pub max_rounds: usize,
+    /// Points of the path below target before and after (of 337: `motion::clearance_progress`).
+    pub below_target_before: usize,
+    pub below_target_after: usize,
+    /// Largest joint displacement from the humanlike path (rad).
+    pub max_displacement_rad: f64,
+    /// Smallest clearance minus target over the control configurations, before and after (m;
+    /// 0 when every target is kept).
+    pub worst_before_m: f64,
+    pub worst_after_m: f64,
+}
+
+impl AvoidanceDto {
+    fn new(a: &AvoidReport) -> Self {
+        let o = AvoidOptions::default();
+        AvoidanceDto {
+            margin_m: o.margin,
+            self_margin_m: o.self_margin,
+            ramp: o.ramp,
+            rounds: a.rounds,
+            max_rounds: o.rounds,
+            below_target_before: a.below_target,
+            below_target_after: a.still_below,
+            max_displacement_rad: a.max_displacement,
+            worst_before_m: a.worst_before,
+            worst_after_m: a.worst_after,
+        }
+    }
 }
 
 /// FK along the points: fingertip and elbow paths (robot base frame).
@@ -326,6 +376,7 @@ fn trajectory_report(
         elbow_paths,
         grasp,
         clearance: None,
+        avoidance: None,
     }
 }
 
@@ -514,16 +565,32 @@ pub async fn compute(
             grasp.clone(),
         );
         tokio::task::spawn_blocking(move || {
-            let traj = l.model.trajectory(&start, &goal, &opts).map_err(|e| {
-                let outside = matches!(e, MotionError::GoalOutsideRegion { .. });
-                let e = region_error(e, l.model.manifolds.len(), "$.start", goal_base);
-                if outside {
-                    Rejected::goal(e)
-                } else {
-                    Rejected::Other(e)
-                }
-            })?;
+            // In a scene, the humanlike path is moved the least amount needed for a clearance
+            // margin before it is timed.
+            let mut avoidance = None;
+            let traj = l
+                .model
+                .trajectory_with(&start, &goal, &opts, |path, xs| {
+                    if let Some(sc) = &scene {
+                        let curve: Vec<CurveSample> = cubic_basis(xs.len(), &clearance_progress())
+                            .into_iter()
+                            .map(|(x, first, w)| CurveSample { x, first, w })
+                            .collect();
+                        avoidance =
+                            Some(avoid(&sc.sys, sc.object.as_ref(), &obstacles, path, &curve));
+                    }
+                })
+                .map_err(|e| {
+                    let outside = matches!(e, MotionError::GoalOutsideRegion { .. });
+                    let e = region_error(e, l.model.manifolds.len(), "$.start", goal_base);
+                    if outside {
+                        Rejected::goal(e)
+                    } else {
+                        Rejected::Other(e)
+                    }
+                })?;
             let mut report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
+            report.avoidance = avoidance.map(|a| AvoidanceDto::new(&a));
             report.clearance = scene.map(|sc| {
                 let points: Vec<f64> = traj
                     .points
