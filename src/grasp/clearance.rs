@@ -114,6 +114,41 @@ pub fn avoid(
     )
 }
 
+/// A configuration's deepest penetration, when it is deeper than the contact tolerance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PostureCollision {
+    pub link: String,
+    /// "object", "support", the obstacle's name or the other link's name.
+    pub other: String,
+    pub category: Category,
+    /// Penetration depth, m (> [`EXACT_PENETRATION_TOLERANCE`]).
+    pub depth_m: f64,
+}
+
+/// Whether configuration `q` (model order) of `sys` collides in the scene of `object` (with its
+/// support plane) and `obstacles`, or with itself: its closest pair, exactly, when that pair is
+/// deeper than the contact tolerance (a hand resting on what it grasped is in contact, not in
+/// collision).
+pub fn posture_collision(
+    sys: &HandArm,
+    object: Option<&Object>,
+    obstacles: &[SceneShape],
+    q: &[f64],
+) -> Option<PostureCollision> {
+    let checker = scene_checker(sys, object, obstacles);
+    let mut data = checker.data();
+    let closest = checker.clearance(&mut data, q).min?;
+    (closest.distance.distance < -EXACT_PENETRATION_TOLERANCE).then(|| {
+        let label = checker.label(closest.pair);
+        PostureCollision {
+            link: label.link,
+            other: label.other,
+            category: label.category,
+            depth_m: -closest.distance.distance,
+        }
+    })
+}
+
 /// The clearance of the path through `points` (row-major, `sys.model.nq()` joint values in
 /// model order per point) at times `times` (s), in the scene of `object` (and its support plane,
 /// when there is an object) and `obstacles`.

@@ -13,7 +13,10 @@ pub mod objects;
 pub mod optimizer;
 pub mod system;
 
-pub use clearance::{ClearanceHit, PathClearance, avoid, path_clearance, scene_checker};
+pub use clearance::{
+    ClearanceHit, PathClearance, PostureCollision, avoid, path_clearance, posture_collision,
+    scene_checker,
+};
 pub use indexes::{Ellipsoids, Goal, TaskDirection, Transmission};
 pub use objects::{Object, ObjectSpec, ShapeSpec, SupportPlane};
 pub use optimizer::{

@@ -244,11 +244,11 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     let t0 = Instant::now();
     let robot = body.grasp.robot.clone();
     let worker = body.worker.as_deref().map(WorkerName::parse).transpose()?;
-    super::trajectories::scene_obstacles(&body.obstacles)?;
+    let obstacles = super::trajectories::scene_obstacles(&body.obstacles)?;
     super::robots::robot_field(ctx, &robot, "$.robot").await?;
     let model_id = resolve_model(ctx, body).await?;
     let (start, read_from) = resolve_start(ctx, body).await?;
-    let model_robot = super::trajectories::check_start(ctx, &model_id, &start).await?;
+    let (model_robot, q_start) = super::trajectories::check_start(ctx, &model_id, &start).await?;
     if model_robot != robot {
         return Err(Error::invalid(
             "$.model",
@@ -282,6 +282,9 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     // their centre (the arm branch and hand posture the demonstrations end on) and keeps inside.
     let regions = super::models::goal_regions(ctx, &model_id).await?;
     let (new_grasp, result, scene) = super::grasps::compute(ctx, &body.grasp, &regions).await?;
+    // (the scene is known once the grasp's object is: a plan from a colliding start is refused
+    // whether or not a grasp is found)
+    super::trajectories::start_clear(&scene.sys, scene.object.as_ref(), &obstacles, &q_start)?;
     let grasp_s = t0.elapsed().as_secs_f64();
     let mut reason = (!result.feasible).then(|| {
         format!(

@@ -10,8 +10,11 @@ use super::models::{
 };
 use super::{Context, Error, Invalid, Keyword};
 use crate::geometry::avoid::{AvoidOptions, AvoidReport, CurveSample};
-use crate::geometry::{GeometryError, ObstacleSpec, SceneShape, ShapeSpec};
-use crate::grasp::{GraspResult, PathClearance, avoid, path_clearance};
+use crate::geometry::{Category, GeometryError, ObstacleSpec, SceneShape, ShapeSpec};
+use crate::grasp::{
+    GraspResult, HandArm, Object, PathClearance, avoid, optimizer::EXACT_PENETRATION_TOLERANCE,
+    path_clearance, posture_collision,
+};
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::motion::{
     MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint, clearance_progress,
@@ -447,12 +450,49 @@ async fn resolve_goal(
 
 /// Checks that `model` is trained and that `start` is a valid configuration for it (names,
 /// finite values, joint limits) before a caller does expensive work; returns the model's robot.
-pub async fn check_start(ctx: &Context, model: &str, start: &JointValues) -> Result<String, Error> {
+pub async fn check_start(
+    ctx: &Context,
+    model: &str,
+    start: &JointValues,
+) -> Result<(String, Vec<f64>), Error> {
     let l = loaded_model(ctx, model, Some("$.model")).await?;
     let system = super::robots::system(ctx, &l.robot).await?;
     let q = joint_values(&system, start, "$.start")?;
     check_limits(&l.model, &l.names, &q, Some(&start.joint_names), "$.start")?;
-    Ok(l.robot.clone())
+    Ok((l.robot.clone(), q))
+}
+
+/// A start configuration (model order) that already collides, with itself, the object, its
+/// support or an obstacle, is a 422 at `$.start` naming the pair: no motion from there is safe.
+/// Contact within the grasp's tolerance (a hand still on what it grasped) is allowed.
+pub(super) fn start_clear(
+    sys: &HandArm,
+    object: Option<&Object>,
+    obstacles: &[SceneShape],
+    start: &[f64],
+) -> Result<(), Error> {
+    match posture_collision(sys, object, obstacles, start) {
+        None => Ok(()),
+        Some(c) => {
+            let other = match c.category {
+                Category::Object => format!("the object '{}'", c.other),
+                Category::Support => "the support plane".to_owned(),
+                Category::Obstacle => format!("obstacle '{}'", c.other),
+                Category::SelfCollision => format!("link '{}'", c.other),
+            };
+            Err(Error::invalid(
+                "$.start",
+                format!(
+                    "the start configuration collides: link '{}' is {:.1} mm inside {other} \
+                     (contact up to {:.1} mm is allowed); start from a configuration clear of the \
+                     scene",
+                    c.link,
+                    1e3 * c.depth_m,
+                    1e3 * EXACT_PENETRATION_TOLERANCE
+                ),
+            ))
+        }
+    }
 }
 
 /// Stored trajectories without their points, newest first, optionally of one model; with how
@@ -551,6 +591,15 @@ pub async fn compute(
         }),
         (None, None) => None,
     };
+    match &scene {
+        Some(sc) => start_clear(&sc.sys, sc.object.as_ref(), &obstacles, &start)?,
+        None => start_clear(
+            &*super::grasps::robot_view(ctx, &l.robot).await?,
+            None,
+            &[],
+            &start,
+        )?,
+    }
     let opts = TrajectoryOptions {
         duration: requested,
         rate,

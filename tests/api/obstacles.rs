@@ -20,7 +20,7 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
         c.robots = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
     })
     .await;
-    let (_, start) = trained(&app, ROBOT).await;
+    let (model, start) = trained(&app, ROBOT).await;
     let plans = || async {
         let v: Value = app.get("/v1/plans").await.json().await.unwrap();
         v["total"].as_i64().unwrap()
@@ -148,4 +148,36 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
     assert_eq!(last(&around), last(&bare));
     let first = |v: &Value| v["trajectory"]["points"][0]["positions"].clone();
     assert_eq!(first(&around), first(&bare));
+
+    // A start that already collides (a 4 cm ball around the thumb tip where the zero start
+    // puts it, by the bare plan's own forward kinematics): no motion from there is safe. A
+    // plan and a trajectory are 422 at `$.start` naming the pair, and nothing is stored.
+    let on_thumb = json!([{"name": "post", "shape": {"type": "sphere", "radius": 0.04},
+                           "position": thumb[0]}]);
+    let count = |path: &'static str| {
+        let app = &app;
+        async move {
+            let v: Value = app.get(path).await.json().await.unwrap();
+            v["total"].as_i64().unwrap()
+        }
+    };
+    let (plans_before, trajectories_before) =
+        (count("/v1/plans").await, count("/v1/trajectories").await);
+    let trajectory = json!({"model": model, "start": zero, "obstacles": on_thumb,
+                            "goal": {"joint_names": bare["trajectory"]["joint_names"],
+                                     "positions": last(&bare)}});
+    for (path, body) in [
+        ("/v1/plans", ball_plan(&zero, on_thumb.clone())),
+        ("/v1/trajectories", trajectory),
+    ] {
+        let problem = assert_problem(app.post_json(path, &body).await, 422, "validation").await;
+        assert_eq!(problem["errors"][0]["path"], "$.start", "{path}: {problem}");
+        let message = problem["errors"][0]["message"].as_str().unwrap();
+        assert!(
+            message.contains("inside obstacle 'post'") && message.contains("start"),
+            "{path}: {message}"
+        );
+    }
+    assert_eq!(count("/v1/plans").await, plans_before);
+    assert_eq!(count("/v1/trajectories").await, trajectories_before);
 }
