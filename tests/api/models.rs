@@ -539,11 +539,7 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
     // a stored grasp as the goal: the trajectory ends exactly at its joint values (from the
     // grasp with the shoulder lifted by 0.5 rad: the study's synthetic starts all put the
     // fingertips 11-14 cm under the grasp's table, a start its scene refuses)
-    let mut up: Vec<f64> = study
-        .joint_names
-        .iter()
-        .map(|n| study.grasp_q[n])
-        .collect();
+    let mut up: Vec<f64> = study.joint_names.iter().map(|n| study.grasp_q[n]).collect();
     assert_eq!(study.joint_names[1], "wam_joint2");
     up[1] -= 0.5;
     let res = app
