@@ -188,7 +188,7 @@ async fn run() -> anyhow::Result<()> {
         let stored = reachgrasp::service::plans::get(&ctx, id).await?;
         let traj = stored.trajectory.clone().unwrap();
         // The same trajectory again (deterministic), as the use case hands it to the store.
-        let draft = reachgrasp::service::trajectories::compute(
+        let (draft, _) = reachgrasp::service::trajectories::compute(
             &ctx,
             &CreateTrajectory {
                 model: model.clone(),

@@ -6,9 +6,12 @@
 //! and a client gets its answer without polling a job. Order of work, so that bad input stores
 //! nothing: the model and the start are checked first, then the grasp is computed, then the
 //! trajectory to it; nothing is stored until then. The grasp, trajectory, execution (when
-//! asked) and plan rows are then written in one transaction ([`crate::service::plans`]). An infeasible grasp, or one outside the
-//! model's certified goal region, is not bad input: the plan is stored with `feasible: false`,
-//! the reason, the grasp, and no trajectory.
+//! asked) and plan rows are then written in one transaction ([`crate::service::plans`]). An
+//! infeasible grasp, or one outside the model's certified goal region, is not bad input: the
+//! plan is stored with `feasible: false`, the reason, the grasp, and no trajectory. A motion
+//! that is not collision-free (exact, continuous check in the grasp's scene) makes the plan
+//! `feasible: false` too, the reason naming the link, what it meets, when and how deep; that
+//! trajectory is kept with the plan for inspection and never queued.
 
 use axum::extract::State;
 use axum::http::StatusCode;
@@ -38,11 +41,13 @@ pub struct PlanDto {
     pub robot: String,
     /// The model the trajectory came from.
     pub model_id: Option<String>,
-    /// A feasible grasp was found and a trajectory to it generated.
+    /// A feasible grasp was found and a collision-free trajectory to it generated.
     pub feasible: bool,
     /// Why not, when `feasible` is false.
     pub reason: Option<String>,
     pub grasp: GraspDto,
+    /// The motion to the grasp; on an infeasible plan, present only when it was generated and
+    /// collides (kept for inspection, never executed).
     pub trajectory: Option<TrajectoryDto>,
     /// The queued execution (`GET /v1/executions/{id}`), when `execute` was asked.
     pub execution_id: Option<String>,
@@ -106,8 +111,8 @@ pub fn plan_dto(p: service::plans::Planned) -> Result<PlanDto, ApiError> {
 
 /// Plan a humanlike motion to a task-specific grasp of an object, and optionally execute it
 /// (201). Synchronous: grasp optimisation, then a certified trajectory from the model (the
-/// robot's default model unless one is named). An unreachable object is a stored plan with
-/// `feasible: false` and the reason; a default model still being trained by first-start
+/// robot's default model unless one is named). An unreachable object, or a motion to the grasp
+/// that collides, is a stored plan with `feasible: false` and the reason; a default model still being trained by first-start
 /// seeding is 503 `not-ready` with the job to watch.
 #[utoipa::path(post, path = "/v1/plans", tag = "plans", request_body = PlanIn,
     responses((status = 201, description = "Created", body = PlanDto),

@@ -8,13 +8,16 @@
 //!
 //! The fingertip pads end the trajectory on the object (the grasp's contacts, at most
 //! [`EXACT_PENETRATION_TOLERANCE`] deep), so a penetration within that tolerance is contact, not
-//! collision; anything deeper, anywhere on the path, is a collision.
+//! collision. In the closing phase (the last [`CLOSING_SHARE`] of the duration) the pads close
+//! on the object and may press into it up to [`CLOSING_PRESS`] (reported as `closing_contact`);
+//! any other pair deeper than the tolerance, anywhere on the path, is a collision.
 
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::avoid::{AvoidOptions, AvoidReport, AvoidScratch, CurveSample, refine};
 use crate::geometry::{
-    Category, CollisionChecker, PathHit, PathOptions, Plane, Polyline, Scene, SceneShape,
+    AllowedContacts, Category, CollisionChecker, Member, PathHit, PathOptions, Plane, Polyline,
+    Scene, SceneShape,
 };
 
 use super::optimizer::EXACT_PENETRATION_TOLERANCE;
@@ -44,6 +47,15 @@ pub struct PathClearance {
     pub tolerance_m: f64,
     /// The check covered the whole path (its step budget did not run out).
     pub complete: bool,
+    /// Time from which the fingertip pads may press into the object (the closing phase: the
+    /// last tenth of the duration, from the trajectory point before it), s.
+    pub closing_from_s: f64,
+    /// How far the pads may press into the object in the closing phase, m.
+    pub closing_press_m: f64,
+    /// Smallest distance of a link to the object during the closing phase, the pads included
+    /// (how far they press: a collision only deeper than `closing_press_m`).
+    #[serde(default)]
+    pub closing_contact: Option<ClearanceHit>,
     /// Smallest distance of any pair, and where.
     pub closest: Option<ClearanceHit>,
     /// Smallest distance of a link to the object.
@@ -149,9 +161,34 @@ pub fn posture_collision(
     })
 }
 
+/// The final share of a trajectory's duration that is its closing phase, where the fingertip
+/// pads may press into the object. Humans close the grip over about the last third of a reach
+/// (peak aperture at 60-70 % of the movement time); the pads are excepted over the last tenth
+/// only, so a pad that reaches the object early is still a collision.
+pub const CLOSING_SHARE: f64 = 0.1;
+
+/// How far the fingertip pads may press into the object in the closing phase (m): a soft pad
+/// gives a few millimetres; deeper is a collision again.
+pub const CLOSING_PRESS: f64 = 5e-3;
+
+/// Contacts allowed in the closing phase: every shape of a link carrying a fingertip (the pad's
+/// rigid body) against the object.
+pub fn closing_contacts(sys: &HandArm) -> AllowedContacts {
+    let geo = &*sys.geometry;
+    let mut acm = AllowedContacts::none();
+    for (k, shape) in geo.shapes().iter().enumerate() {
+        let body = geo.body(shape.frame);
+        if sys.fingers.iter().any(|f| geo.body(f.tip) == body) {
+            acm.allow(Member::Shape(k), Member::Object);
+        }
+    }
+    acm
+}
+
 /// The clearance of the path through `points` (row-major, `sys.model.nq()` joint values in
 /// model order per point) at times `times` (s), in the scene of `object` (and its support plane,
-/// when there is an object) and `obstacles`.
+/// when there is an object) and `obstacles`: every pair throughout, except the fingertip pads
+/// against the object in the closing phase ([`CLOSING_SHARE`], from the last point before it).
 pub fn path_clearance(
     sys: &HandArm,
     object: Option<&Object>,
@@ -166,49 +203,79 @@ pub fn path_clearance(
         "one time per point of nq values"
     );
     assert!(!times.is_empty(), "a path has at least one point");
-    let checker = scene_checker(sys, object, obstacles);
+    // The closing phase starts at the last point at or before its first instant (so the segment
+    // across that instant is judged as closing, and each phase is a polyline of its own points).
+    let (t0, t1) = (times[0], times[times.len() - 1]);
+    let close = times
+        .iter()
+        .rposition(|&t| t <= t1 - CLOSING_SHARE * (t1 - t0))
+        .unwrap_or(0);
+    let opts = PathOptions {
+        tolerance: TOLERANCE,
+        max_steps: MAX_STEPS,
+    };
+    let mut checker = scene_checker(sys, object, obstacles);
     let mut data = checker.data();
-    let report = checker.check_path(
+    let approach = checker.check_path(
         &mut data,
-        &Polyline::new(points, nq),
-        &PathOptions {
-            tolerance: TOLERANCE,
-            max_steps: MAX_STEPS,
-        },
+        &Polyline::new(&points[..(close + 1) * nq], nq),
+        &opts,
     );
+    // the closing phase as it is (for the report: how far the pads press), and as it is judged
+    // (pads on the object allowed)
+    let closing_points = Polyline::new(&points[close * nq..], nq);
+    let pressed = object.map(|_| checker.check_path(&mut data, &closing_points, &opts));
+    checker.set_allowed(&closing_contacts(sys));
+    let closing = checker.check_path(&mut data, &closing_points, &opts);
     // The path parameter counts segments: interpolate the time.
     let time = |s: f64| {
         let k = (s.floor() as usize).min(times.len() - 1);
         let next = (k + 1).min(times.len() - 1);
         times[k] + (s - k as f64) * (times[next] - times[k])
     };
-    let hit = |h: Option<&PathHit>| {
+    let hit = |h: Option<&PathHit>, offset: usize| {
         h.map(|h| {
             let label = checker.label(h.pair);
             ClearanceHit {
                 distance_m: h.distance.distance,
-                time_s: time(h.s),
+                time_s: time(h.s + offset as f64),
                 link: label.link,
                 other: label.other,
             }
         })
     };
-    let closest = hit(report.min.as_ref());
+    // the nearer of the two phases' hits (the approach's on a tie: it comes first)
+    let nearer = |a: Option<&PathHit>, b: Option<&PathHit>| match (hit(a, 0), hit(b, close)) {
+        (Some(a), Some(b)) => Some(if b.distance_m < a.distance_m { b } else { a }),
+        (a, b) => a.or(b),
+    };
+    let category = |c: Category| nearer(approach.category(c), closing.category(c));
+    let closest = nearer(approach.min.as_ref(), closing.min.as_ref());
+    let complete = approach.complete && closing.complete && pressed.is_none_or(|p| p.complete);
+    let closing_contact = pressed.and_then(|p| hit(p.category(Category::Object), close));
     PathClearance {
-        collision_free: report.complete
+        collision_free: complete
             && closest
                 .as_ref()
-                .is_none_or(|c| c.distance_m >= -EXACT_PENETRATION_TOLERANCE),
+                .is_none_or(|c| c.distance_m >= -EXACT_PENETRATION_TOLERANCE)
+            && closing_contact
+                .as_ref()
+                .is_none_or(|c| c.distance_m >= -CLOSING_PRESS),
         contact_tolerance_m: EXACT_PENETRATION_TOLERANCE,
-        tolerance_m: report.tolerance,
-        complete: report.complete,
+        closing_press_m: CLOSING_PRESS,
+        tolerance_m: approach.tolerance,
+        complete,
+        closing_from_s: time(close as f64),
+        closing_contact,
         closest,
-        object: hit(report.category(Category::Object)),
-        support: hit(report.category(Category::Support)),
-        obstacle: hit(report.category(Category::Obstacle)),
-        self_collision: hit(report.category(Category::SelfCollision)),
-        steps: report.steps,
-        exact_queries: report.exact_queries,
+        object: category(Category::Object),
+        support: category(Category::Support),
+        obstacle: category(Category::Obstacle),
+        self_collision: category(Category::SelfCollision),
+        steps: approach.steps + closing.steps + pressed.map_or(0, |p| p.steps),
+        exact_queries: approach.exact_queries
+            + closing.exact_queries
+            + pressed.map_or(0, |p| p.exact_queries),
     }
 }
 
@@ -355,5 +422,78 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The closing phase: a fingertip pad pressing 3 mm into the object at the end of the
+    /// motion is contact (the press reported, the path free), 8 mm is a collision, and the same
+    /// 3 mm reached halfway (before the hand closes) is a collision. The object is placed from
+    /// the distal capsule's end by forward kinematics, so the depth is known in closed form
+    /// (sphere against capsule end: centre distance − radii) and compared with the exact report.
+    #[test]
+    fn fingertip_pads_may_press_only_while_the_hand_closes_and_only_so_far() {
+        let sys = test_system();
+        let nq = sys.model.nq();
+        let model = &*sys.model;
+        let (j2, j4) = (model.q_index("j2").unwrap(), model.q_index("j4").unwrap());
+        let mut grasp = vec![0.0; nq];
+        grasp[j2] = 0.9;
+        grasp[j4] = 1.2;
+        let mut data = Data::new(model);
+        forward_kinematics(model, &mut data, &grasp);
+        let tip = *data.frame(model.frame_id("f0_dist_link").unwrap());
+        let end = tip * Point3::new(0.0, 0.0, 0.036);
+        let axis = tip.rotation * nalgebra::Vector3::z();
+        let ball = |depth: f64| {
+            let r = 0.02;
+            let c = end + axis * (r + 0.008 - depth);
+            Object::new(ObjectSpec {
+                name: "ball".into(),
+                shape: ShapeSpec::Sphere { radius: r },
+                position: [c.x, c.y, c.z],
+                orientation: [1.0, 0.0, 0.0, 0.0],
+                support: None,
+            })
+            .unwrap()
+        };
+        // lifted away by the shoulder, then down onto the ball
+        let lifted = |by: f64| {
+            let mut q = grasp.clone();
+            q[j2] -= by;
+            q
+        };
+        let reach = [lifted(0.4), lifted(0.2), grasp.clone()].concat();
+        let times = [0.0, 0.5, 1.0];
+        for (depth, free) in [(0.003, true), (0.008, false)] {
+            let c = path_clearance(&sys, Some(&ball(depth)), &[], &reach, &times);
+            assert!(c.complete);
+            assert_eq!(c.closing_from_s, 0.5);
+            let pressed = c.closing_contact.clone().expect("the pads meet the ball");
+            assert_eq!(pressed.link, "f0_dist_link");
+            assert!(
+                (pressed.distance_m + depth).abs() <= c.tolerance_m + 1e-6,
+                "{pressed:?} vs {depth}"
+            );
+            assert!((pressed.time_s - 1.0).abs() < 0.05, "{pressed:?}");
+            assert_eq!(c.collision_free, free, "{depth}: {c:?}");
+            // the pad is no collision in the closing phase: what is reported is elsewhere
+            assert!(
+                c.object.as_ref().is_none_or(|o| o.distance_m > -1e-3),
+                "{c:?}"
+            );
+        }
+        // the same 3 mm, reached halfway and left again: before the closing phase
+        let through = [lifted(0.4), grasp.clone(), lifted(0.4)].concat();
+        let c = path_clearance(&sys, Some(&ball(0.003)), &[], &through, &times);
+        assert!(!c.collision_free);
+        let hit = c.closest.clone().unwrap();
+        assert_eq!(
+            (hit.link.as_str(), hit.other.as_str()),
+            ("f0_dist_link", "ball")
+        );
+        assert!(
+            (hit.distance_m + 0.003).abs() <= c.tolerance_m + 1e-6,
+            "{hit:?}"
+        );
+        assert!((hit.time_s - 0.5).abs() < 0.05, "{hit:?}");
     }
 }

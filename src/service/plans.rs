@@ -16,6 +16,7 @@ use super::models::{AutoOr, JointValues};
 use super::trajectories::{CreateTrajectory, GoalIn, Rejected};
 use super::{Context, Error, Keyword};
 use crate::bridge::{ExecutionPayload, Hub, Mode, WorkerName};
+use crate::grasp::PathClearance;
 use crate::motion::ControlParams;
 use crate::store::grasps::{self as grasp_repo, GraspRow, NewGrasp};
 use crate::store::models as model_repo;
@@ -313,7 +314,12 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             obstacles: body.obstacles.clone(),
         };
         match super::trajectories::compute(ctx, &request, Some(scene)).await {
-            Ok(t) => trajectory = Some(t),
+            // A motion that collides is kept with the plan for inspection, but the plan is
+            // infeasible and nothing is queued.
+            Ok((t, clearance)) => {
+                reason = clearance.as_ref().and_then(collision_reason);
+                trajectory = Some(t);
+            }
             // The grasp is the goal: a goal the model cannot certify (outside its goal region
             // or its joint limits) makes the plan infeasible, not the request bad.
             Err(Rejected::Goal(reasons)) => {
@@ -329,7 +335,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     let trajectory_s = t0.elapsed().as_secs_f64() - grasp_s;
 
     let execution = match (body.execute, &trajectory) {
-        (true, Some(_)) => {
+        (true, Some(_)) if reason.is_none() => {
             let mode = body.mode.unwrap_or(Mode::OpenLoop);
             let law = match mode {
                 Mode::OpenLoop => None,
@@ -372,6 +378,46 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         stored,
         reason,
         timings,
+    })
+}
+
+/// Why a plan whose motion is not collision-free is infeasible: which link meets what, where
+/// and how deep (`None`: the motion is collision-free).
+fn collision_reason(c: &PathClearance) -> Option<String> {
+    if c.collision_free {
+        return None;
+    }
+    let pressed = c
+        .closing_contact
+        .as_ref()
+        .filter(|h| h.distance_m < -c.closing_press_m);
+    let inside = c
+        .closest
+        .as_ref()
+        .filter(|h| h.distance_m < -c.contact_tolerance_m);
+    Some(match (inside, pressed) {
+        (None, Some(h)) if c.complete => format!(
+            "no collision-free motion to the grasp: link '{}' presses {:.1} mm into '{}' at t = \
+             {:.2} s while the hand closes (up to {:.1} mm is allowed); the trajectory is kept \
+             for inspection",
+            h.link,
+            -1e3 * h.distance_m,
+            h.other,
+            h.time_s,
+            1e3 * c.closing_press_m
+        ),
+        (Some(h), _) if c.complete => format!(
+            "no collision-free motion to the grasp: link '{}' is {:.1} mm inside '{}' at t = \
+             {:.2} s (contact up to {:.1} mm is allowed); the trajectory is kept for inspection",
+            h.link,
+            -1e3 * h.distance_m,
+            h.other,
+            h.time_s,
+            1e3 * c.contact_tolerance_m
+        ),
+        _ => "the motion's clearance could not be checked along the whole path within the \
+              check's step budget"
+            .to_owned(),
     })
 }
 
@@ -457,7 +503,8 @@ pub struct ExecutionRequest {
 #[derive(Debug, Clone)]
 pub struct PlanRows {
     pub grasp: NewGrasp,
-    /// The motion to the grasp, when the plan is feasible.
+    /// The motion to the grasp, when one was generated (a plan infeasible because it collides
+    /// keeps it for inspection).
     pub trajectory: Option<TrajectoryDraft>,
     /// Queued only with a trajectory.
     pub execution: Option<ExecutionRequest>,

@@ -518,19 +518,19 @@ pub async fn create(
     ctx: &Context,
     body: &CreateTrajectory,
 ) -> Result<trajectories::StoredTrajectory, Error> {
-    let draft = compute(ctx, body, None).await?;
+    let (draft, _) = compute(ctx, body, None).await?;
     Ok(trajectories::insert_trajectory(&ctx.db, &draft.as_new()).await?)
 }
 
 /// Generates one trajectory, not yet stored (shared with `/v1/plans`, which stores it with its
 /// grasp).
 /// With a grasp's `scene` (a plan's, or the stored grasp's when the goal is one), the
-/// trajectory's exact clearance in it is reported.
+/// trajectory's exact clearance in it is reported, and returned beside it.
 pub async fn compute(
     ctx: &Context,
     body: &CreateTrajectory,
     scene: Option<super::grasps::GraspScene>,
-) -> Result<TrajectoryDraft, Rejected> {
+) -> Result<(TrajectoryDraft, Option<PathClearance>), Rejected> {
     let requested = match &body.duration {
         None => None,
         Some(AutoOr::Auto(s)) if Keyword::parse(s) == Some(Keyword::Auto) => None,
@@ -656,15 +656,19 @@ pub async fn compute(
     };
     let request = serde_json::to_string(&body).map_err(Error::internal)?;
     let summary = serde_json::to_string(&report).map_err(Error::internal)?;
-    Ok(TrajectoryDraft {
-        model_id: Some(body.model.clone()),
-        robot: l.robot.clone(),
-        joint_names: l.names.clone(),
-        points: traj.points,
-        start,
-        goal,
-        duration: traj.duration,
-        request,
-        summary,
-    })
+    let clearance = report.clearance.clone();
+    Ok((
+        TrajectoryDraft {
+            model_id: Some(body.model.clone()),
+            robot: l.robot.clone(),
+            joint_names: l.names.clone(),
+            points: traj.points,
+            start,
+            goal,
+            duration: traj.duration,
+            request,
+            summary,
+        },
+        clearance,
+    ))
 }

@@ -79,11 +79,19 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
                             "position": [-1.5, -1.5, 0.5]}]),
     )
     .await;
-    let over = plan(
+    // (the crate over the ball: a stored plan, infeasible, with the colliding motion kept for
+    // inspection and nothing queued though execution was asked)
+    let mut body = ball_plan(
+        &start,
         json!([{"name": "crate", "shape": {"type": "box", "size": [0.3, 0.3, 0.3]},
-                             "position": [0.5, 0.0, 0.15]}]),
-    )
-    .await;
+                "position": [0.5, 0.0, 0.15]}]),
+    );
+    body["execute"] = json!(true);
+    let res = app.post_json("/v1/plans", &body).await;
+    assert_eq!(res.status(), 201);
+    let over: Value = res.json().await.unwrap();
+    assert_eq!(over["feasible"], false, "{over}");
+    assert!(over["execution_id"].is_null(), "{over}");
     let clearance = |v: &Value| v["trajectory"]["report"]["clearance"].clone();
     assert_eq!(bare["trajectory"]["points"], far["trajectory"]["points"]);
     assert!(clearance(&bare)["obstacle"].is_null());
@@ -108,7 +116,14 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
     assert_eq!(hit["other"], "crate");
     assert!(hit["distance_m"].as_f64().unwrap() < -0.01, "{hit}");
     assert_eq!(clearance(&over)["collision_free"], false);
-    assert_eq!(clearance(&over)["closest"]["other"], "crate");
+    let closest = clearance(&over)["closest"].clone();
+    assert_eq!(closest["other"], "crate");
+    let reason = over["reason"].as_str().unwrap();
+    let link = closest["link"].as_str().unwrap();
+    assert!(
+        reason.contains(&format!("link '{link}'")) && reason.contains("'crate'"),
+        "{reason}"
+    );
 
     // A 4 cm ball centred on the thumb's path halfway, between the start (the arm stretched
     // up, all joints zero) and the object: the motion goes around it, its exact continuous

@@ -83,8 +83,9 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
             assert!((v - j["value"].as_f64().unwrap()).abs() < 1e-9, "{j}");
         }
         assert_eq!(points[0]["positions"], start["positions"]);
-        // The exact clearance along the path, in the grasp's scene. Its end is the grasp, so
-        // the object clearance is no larger than the grasp's own exact pad distances there.
+        // The exact clearance along the path, in the grasp's scene. Its end is the grasp, in
+        // the closing phase (where the pads may touch the object, reported as the closing
+        // contact), so that is no larger than the grasp's own exact pad distances there.
         let c = &t["report"]["clearance"];
         assert_eq!(c["complete"], true, "{c}");
         assert!(c["collision_free"].is_boolean(), "{c}");
@@ -98,9 +99,11 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
             .map(|k| k["surface_distance"].as_f64().unwrap())
             .fold(f64::INFINITY, f64::min);
         assert!(
-            c["object"]["distance_m"].as_f64().unwrap() <= pad + 1e-9,
+            c["closing_contact"]["distance_m"].as_f64().unwrap() <= pad + 1e-9,
             "{c} {pad}"
         );
+        let closing = c["closing_from_s"].as_f64().unwrap();
+        assert!((0.85 * duration..=0.9 * duration).contains(&closing), "{c}");
         assert!(c["support"]["distance_m"].is_number(), "{c}");
     } else {
         // A model of 15 demonstrations may not cover the optimiser's grasp; the plan says so.
