@@ -449,7 +449,8 @@ async fn resolve_goal(
 }
 
 /// Checks that `model` is trained and that `start` is a valid configuration for it (names,
-/// finite values, joint limits) before a caller does expensive work; returns the model's robot.
+/// finite values, joint limits) before a caller does expensive work; returns the model's robot
+/// and the start in model order.
 pub async fn check_start(
     ctx: &Context,
     model: &str,
