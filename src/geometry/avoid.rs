@@ -10,7 +10,8 @@
 //! the control configurations that make the sample by the minimum-norm change (`w_r / Σ w²`),
 //! spread over neighbouring control configurations with a Gaussian weight and held inside the
 //! joint limits. Overlapping corrections are averaged, not added. Rounds stop when no sample is
-//! below target or after the round budget (deterministic: no wall clock).
+//! below target, after `patience` rounds without progress, or after the round budget
+//! (deterministic: no wall clock).
 //!
 //! Targets are per category and ramp towards each end from that end's own clearance: the
 //! motion may start in contact (a robot holding what it grasped) and must end in the grasp's
@@ -42,6 +43,9 @@ pub struct AvoidOptions {
     pub spread: f64,
     /// Rounds at most.
     pub rounds: usize,
+    /// Rounds without progress (no fewer points below target, no smaller worst deficit) after
+    /// which the refinement stops early.
+    pub patience: usize,
     /// Largest joint step of a configuration in one round (rad).
     pub max_step: f64,
 }
@@ -55,6 +59,7 @@ impl Default for AvoidOptions {
             buffer: 0.003,
             spread: 3.0,
             rounds: 40,
+            patience: 5,
             max_step: 0.05,
         }
     }
@@ -169,6 +174,7 @@ pub fn refine(
     };
     let given: Vec<f64> = ctrl.to_vec();
     let mut report = AvoidReport::default();
+    let (mut best_below, mut best_worst, mut stalled) = (usize::MAX, f64::NEG_INFINITY, 0);
     for round in 0..=opts.rounds {
         s.corr.fill(0.0);
         s.weight.fill(0.0);
@@ -247,7 +253,14 @@ pub fn refine(
         }
         report.still_below = below;
         report.worst_after = worst.min(0.0);
-        if below == 0 || round == opts.rounds {
+        // (points next to an end in contact often cannot reach their target at all: without
+        // this the budget is spent on them)
+        if below < best_below || worst > best_worst + 1e-5 {
+            (best_below, best_worst, stalled) = (below.min(best_below), worst.max(best_worst), 0);
+        } else {
+            stalled += 1;
+        }
+        if below == 0 || round == opts.rounds || stalled >= opts.patience {
             break;
         }
         report.rounds = round + 1;
