@@ -112,8 +112,8 @@ pub fn plan_dto(p: service::plans::Planned) -> Result<PlanDto, ApiError> {
 /// Plan a humanlike motion to a task-specific grasp of an object, and optionally execute it
 /// (201). Synchronous: grasp optimisation, then a certified trajectory from the model (the
 /// robot's default model unless one is named). An unreachable object, or a motion to the grasp
-/// that collides, is a stored plan with `feasible: false` and the reason; a default model still being trained by first-start
-/// seeding is 503 `not-ready` with the job to watch.
+/// that collides, is a stored plan with `feasible: false` and the reason; a default model still
+/// being trained by first-start seeding is 503 `not-ready` with the job to watch.
 #[utoipa::path(post, path = "/v1/plans", tag = "plans", request_body = PlanIn,
     responses((status = 201, description = "Created", body = PlanDto),
               (status = 409, description = "Conflict with the stored state", body = Problem, content_type = "application/problem+json"),

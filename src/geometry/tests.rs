@@ -737,6 +737,20 @@ fn a_path_through_a_box_is_moved_around_it_as_the_continuous_check_confirms() {
         .collect();
     let opts = avoid::AvoidOptions::default();
     let (lower, upper) = (sys.model.lower_limits(), sys.model.upper_limits());
+    let mut scratch = avoid::AvoidScratch::new(nq, count);
+    let mut refine = |checker: &CollisionChecker, ctrl: &mut [f64]| {
+        let mut data = checker.data();
+        avoid::refine(
+            checker,
+            &mut data,
+            ctrl,
+            &curve,
+            lower,
+            upper,
+            &opts,
+            &mut scratch,
+        )
+    };
     let obstacle_clearance = |checker: &CollisionChecker, ctrl: &[f64]| {
         let mut data = checker.data();
         let rep = checker.check_path(&mut data, &Polyline::new(ctrl, nq), &PathOptions::default());
@@ -752,18 +766,7 @@ fn a_path_through_a_box_is_moved_around_it_as_the_continuous_check_confirms() {
         before < -0.02,
         "the joint line passes through the box: {before}"
     );
-    let mut data = checker.data();
-    let mut scratch = avoid::AvoidScratch::new(nq, count);
-    let rep = avoid::refine(
-        &checker,
-        &mut data,
-        &mut ctrl,
-        &curve,
-        lower,
-        upper,
-        &opts,
-        &mut scratch,
-    );
+    let rep = refine(&checker, &mut ctrl);
     assert!(rep.below_target > 0 && rep.still_below == 0, "{rep:?}");
     let after = obstacle_clearance(&checker, &ctrl);
     assert!(
@@ -782,17 +785,7 @@ fn a_path_through_a_box_is_moved_around_it_as_the_continuous_check_confirms() {
     let checker = boxed(-0.8);
     line(&mut ctrl);
     let given = ctrl.clone();
-    let mut data = checker.data();
-    let rep = avoid::refine(
-        &checker,
-        &mut data,
-        &mut ctrl,
-        &curve,
-        lower,
-        upper,
-        &opts,
-        &mut scratch,
-    );
+    let rep = refine(&checker, &mut ctrl);
     assert_eq!((rep.rounds, rep.below_target), (0, 0), "{rep:?}");
     assert_eq!(ctrl, given);
 }

@@ -263,8 +263,8 @@ pub struct AvoidanceDto {
     pub below_target_after: usize,
     /// Largest joint displacement from the humanlike path (rad).
     pub max_displacement_rad: f64,
-    /// Smallest clearance minus target over the control configurations, before and after (m;
-    /// 0 when every target is kept).
+    /// Smallest clearance minus target over the path points, before and after (m; 0 when every
+    /// target is kept).
     pub worst_before_m: f64,
     pub worst_after_m: f64,
 }
@@ -582,7 +582,9 @@ pub async fn compute(
     };
     check_limits(&l.model, &l.names, &goal, goal_names.as_deref(), goal_base)
         .map_err(Rejected::goal)?;
-    // A goal that is a stored grasp brings its scene (a plan passes the one it just computed).
+    // A goal that is a stored grasp brings its scene (a plan passes the one it just computed,
+    // and has checked its start in it already).
+    let checked = scene.is_some();
     let scene = match (scene, &grasp) {
         (Some(s), _) => Some(s),
         (None, Some(id)) => super::grasps::stored_scene(ctx, id).await?,
@@ -593,6 +595,7 @@ pub async fn compute(
         (None, None) => None,
     };
     match &scene {
+        _ if checked => {}
         Some(sc) => start_clear(&sc.sys, sc.object.as_ref(), &obstacles, &start)?,
         None => start_clear(
             &*super::grasps::robot_view(ctx, &l.robot).await?,
