@@ -206,6 +206,7 @@ async fn run() -> anyhow::Result<()> {
                 obstacles: Vec::new(),
             },
             None,
+            true,
         )
         .await
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;

@@ -63,10 +63,10 @@ pub use error::MotionError;
 pub use fit::{MAX_COEFFICIENTS as MAX_SPLINE_COEFFICIENTS, SplineFit};
 pub use flow::{FlowOptions, FlowPath, integrate_flow};
 pub use model::{
-    Baseline, DEFAULT_PROFILE_RIDGE, DurationModel, HeldOutReport, JointLimits, JointTrajectory,
-    KChoice, MAX_SPLINE_INTERVALS, ManifoldFit, ManifoldModel, MotionModel, PhaseMap,
-    ProfileInputs, ResidualProfile, TrainOptions, TrainReport, Trajectory, TrajectoryOptions,
-    TrajectoryPoint, arc_length_deviation, train,
+    Baseline, DEFAULT_PROFILE_RIDGE, DurationModel, ENTRY_DEPTH, HeldOutReport, JointLimits,
+    JointTrajectory, KChoice, MAX_SPLINE_INTERVALS, ManifoldFit, ManifoldModel, MotionModel,
+    PhaseMap, ProfileInputs, ResidualProfile, TrainOptions, TrainReport, Trajectory,
+    TrajectoryOptions, TrajectoryPoint, WorkspaceEntry, arc_length_deviation, train,
 };
 pub use nf::{Certificate, NavigationFunction};
 pub use pca::{Components, Pca};

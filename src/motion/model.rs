@@ -507,6 +507,9 @@ pub struct TrajectoryOptions {
     /// Output rate (Hz).
     pub rate: f64,
     pub planner: Baseline,
+    /// A start outside a group's workspace enters it along the straight joint line towards the
+    /// goal before the flow takes over ([`WorkspaceEntry`]), instead of being refused.
+    pub enter_workspace: bool,
 }
 
 impl Default for TrajectoryOptions {
@@ -515,8 +518,35 @@ impl Default for TrajectoryOptions {
             duration: None,
             rate: 100.0,
             planner: Baseline::NavigationFunction,
+            enter_workspace: false,
         }
     }
+}
+
+/// How far inside the workspace ball (fraction of its radius) a start from outside enters it
+/// before the flow takes over: a margin, so the flow starts well within what its certificate
+/// covers rather than on its boundary.
+pub const ENTRY_DEPTH: f64 = 0.9;
+
+/// The straight approach of a start outside the model's workspace: the motion follows the joint
+/// line from the start towards the goal until every group's projection is within
+/// [`ENTRY_DEPTH`] of its workspace radius (or halfway between the goal and the boundary when
+/// the goal lies deeper out), and the certified flow runs from there. This segment is not
+/// humanlike and no certificate covers it; it is what lets a robot at a home pose far from the
+/// demonstrations (a PA10 standing upright) reach its grasp at all.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WorkspaceEntry {
+    /// Where the flow starts (full joint vector, model order).
+    pub point: Vec<f64>,
+    /// Fraction of the start-goal joint line the straight segment covers.
+    pub line_fraction: f64,
+    /// Joint-space length of the straight segment (rad).
+    pub joint_distance: f64,
+    /// Share of the path's progress (time on the minimum-jerk clock) it takes.
+    pub progress: f64,
+    /// Per group: the start's PCA distance from the workspace centre, and the radius.
+    pub start_distances: Vec<f64>,
+    pub radii: Vec<f64>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -553,6 +583,39 @@ pub struct Trajectory {
     pub final_errors: Vec<f64>,
     pub flow_steps: Vec<usize>,
     pub certificates: Vec<Certificate>,
+    /// The straight approach into the workspace, when the start lay outside it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub entry: Option<WorkspaceEntry>,
+}
+
+/// Euclidean distance of two vectors of the same length.
+fn distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+impl ManifoldModel {
+    /// The PCA coordinates of a full joint vector's group.
+    fn project(&self, q: &[f64]) -> Vec<f64> {
+        let mut buf = vec![0.0; self.joints.len()];
+        let mut y = vec![0.0; self.pca.d()];
+        gather(q, &self.joints, &mut buf);
+        self.pca.project(&buf, &mut y);
+        y
+    }
+
+    /// A full joint vector's PCA distance from the workspace centre.
+    fn start_distance(&self, q: &[f64]) -> f64 {
+        distance(&self.project(q), &self.nf.center)
+    }
+
+    /// Strictly inside the workspace ball (the flow's certificate holds there).
+    fn inside_workspace(&self, distance: f64) -> bool {
+        distance < self.nf.radius * (1.0 - 1e-9)
+    }
 }
 
 /// Nodes of the untimed back-projected path per group.
@@ -566,6 +629,14 @@ struct GroupPath {
     converged: bool,
     error: f64,
     steps: usize,
+}
+
+/// The untimed path: the groups' flow paths on the shared phase, after the straight entry
+/// segment when there is one.
+struct Route {
+    paths: Vec<GroupPath>,
+    entry: Option<WorkspaceEntry>,
+    start: Vec<f64>,
 }
 
 fn check_vector(field: &'static str, q: &[f64], limits: &JointLimits) -> Result<(), MotionError> {
@@ -1381,31 +1452,10 @@ impl MotionModel {
 
     /// Check `goal` is in every manifold's goal region and `start` strictly inside its workspace.
     pub fn check_regions(&self, start: &[f64], goal: &[f64]) -> Result<(), MotionError> {
+        self.check_goal(goal)?;
         for (gi, m) in self.manifolds.iter().enumerate() {
-            let ng = m.joints.len();
-            let d = m.pca.d();
-            let mut buf = vec![0.0; ng];
-            let mut y = [0.0; MAX_DIM];
-            gather(goal, &m.joints, &mut buf);
-            m.pca.project(&buf, &mut y);
-            let dg = (0..d)
-                .map(|i| (y[i] - m.certificate.goal_center[i]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            if dg > m.certificate.goal_radius {
-                return Err(MotionError::GoalOutsideRegion {
-                    group: gi,
-                    distance: dg,
-                    radius: m.certificate.goal_radius,
-                });
-            }
-            gather(start, &m.joints, &mut buf);
-            m.pca.project(&buf, &mut y);
-            let ds = (0..d)
-                .map(|i| (y[i] - m.nf.center[i]).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            if ds >= m.nf.radius * (1.0 - 1e-9) {
+            let ds = m.start_distance(start);
+            if !m.inside_workspace(ds) {
                 return Err(MotionError::StartOutsideWorkspace {
                     group: gi,
                     distance: ds,
@@ -1416,17 +1466,138 @@ impl MotionModel {
         Ok(())
     }
 
+    /// Check `goal` is in every manifold's certified goal region.
+    fn check_goal(&self, goal: &[f64]) -> Result<(), MotionError> {
+        for (gi, m) in self.manifolds.iter().enumerate() {
+            let y = m.project(goal);
+            let dg = distance(&y, &m.certificate.goal_center);
+            if dg > m.certificate.goal_radius {
+                return Err(MotionError::GoalOutsideRegion {
+                    group: gi,
+                    distance: dg,
+                    radius: m.certificate.goal_radius,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Where the joint line from `start` to `goal` (whose goal is checked) enters every
+    /// group's workspace, as its fraction `s` of the line and the groups' start distances;
+    /// `None` when the start is inside already. On the line the projection moves on a straight
+    /// line too (PCA is affine), so per group the entry is the smaller root of
+    /// `|a + s b|² = r²` (`a` the start's offset from the centre, `b` the goal's minus the
+    /// start's projection), and past it the line stays inside (a ball is convex).
+    fn workspace_entry_fraction(&self, start: &[f64], goal: &[f64]) -> Option<(f64, Vec<f64>)> {
+        let mut distances = Vec::with_capacity(self.manifolds.len());
+        let mut fraction: f64 = 0.0;
+        for m in &self.manifolds {
+            let (ys, yg) = (m.project(start), m.project(goal));
+            let ds = distance(&ys, &m.nf.center);
+            distances.push(ds);
+            if m.inside_workspace(ds) {
+                continue;
+            }
+            let big = m.nf.radius;
+            let dg = distance(&yg, &m.nf.center);
+            let r = if dg < ENTRY_DEPTH * big {
+                ENTRY_DEPTH * big
+            } else {
+                0.5 * (dg + big)
+            };
+            let (mut aa, mut ab, mut bb) = (0.0, 0.0, 0.0);
+            for i in 0..ys.len() {
+                let a = ys[i] - m.nf.center[i];
+                let b = yg[i] - ys[i];
+                aa += a * a;
+                ab += a * b;
+                bb += b * b;
+            }
+            let disc = (ab * ab - bb * (aa - r * r)).max(0.0);
+            let s = if bb > 0.0 {
+                ((-ab - disc.sqrt()) / bb).clamp(0.0, 1.0)
+            } else {
+                1.0
+            };
+            fraction = fraction.max(s);
+        }
+        (fraction > 0.0).then_some((fraction, distances))
+    }
+
+    /// The untimed route from `start` to `goal`: both checked, the straight entry into the
+    /// workspace when asked for and needed, and the groups' paths from where it ends.
+    fn route(
+        &self,
+        start: &[f64],
+        goal: &[f64],
+        opts: &TrajectoryOptions,
+    ) -> Result<Route, MotionError> {
+        check_vector("start", start, &self.limits)?;
+        check_vector("goal", goal, &self.limits)?;
+        let planner = opts.planner;
+        let mut entry = None;
+        let mut flow_start = start;
+        let entered: Vec<f64>;
+        if planner == Baseline::NavigationFunction && !opts.enter_workspace {
+            self.check_regions(start, goal)?;
+        } else if planner == Baseline::NavigationFunction {
+            self.check_goal(goal)?;
+            if let Some((s, start_distances)) = self.workspace_entry_fraction(start, goal) {
+                entered = start
+                    .iter()
+                    .zip(goal)
+                    .map(|(a, b)| a + s * (b - a))
+                    .collect();
+                flow_start = &entered;
+                entry = Some(WorkspaceEntry {
+                    point: entered.clone(),
+                    line_fraction: s,
+                    joint_distance: distance(start, &entered),
+                    progress: 0.0,
+                    start_distances,
+                    radii: self.manifolds.iter().map(|m| m.nf.radius).collect(),
+                });
+            }
+        }
+        let paths = self.group_paths(flow_start, goal, planner)?;
+        if let Some(e) = &mut entry {
+            e.progress = self.entry_progress(&paths, e);
+        }
+        Ok(Route {
+            paths,
+            entry,
+            start: start.to_vec(),
+        })
+    }
+
+    /// The entry segment's share of the progress: its share of the path's joint-space length,
+    /// so the clock neither rushes the line nor crawls along the flow.
+    fn entry_progress(&self, paths: &[GroupPath], e: &WorkspaceEntry) -> f64 {
+        let n = self.n_joints;
+        let mut scratch = vec![0.0; 3 * n];
+        let (mut prev, mut row) = (e.point.clone(), vec![0.0; n]);
+        let mut flow_length = 0.0;
+        for k in 1..=64 {
+            self.composite_at(paths, k as f64 / 64.0, &mut row, &mut scratch);
+            flow_length += distance(&prev, &row);
+            prev.copy_from_slice(&row);
+        }
+        let total = e.joint_distance + flow_length;
+        if total > 0.0 {
+            e.joint_distance / total
+        } else {
+            0.0
+        }
+    }
+
+    /// The flow paths of every group from `start` (inside the workspace, or not checked for
+    /// baselines) to `goal`.
     fn group_paths(
         &self,
         start: &[f64],
         goal: &[f64],
         planner: Baseline,
     ) -> Result<Vec<GroupPath>, MotionError> {
-        check_vector("start", start, &self.limits)?;
-        check_vector("goal", goal, &self.limits)?;
-        if planner == Baseline::NavigationFunction {
-            self.check_regions(start, goal)?;
-        }
         let mut out = Vec::with_capacity(self.manifolds.len());
         let mut flow = FlowPath::default();
         let mut ypath = Vec::new();
@@ -1467,15 +1638,33 @@ impl MotionModel {
         goal: &[f64],
         opts: &TrajectoryOptions,
     ) -> Result<Vec<f64>, MotionError> {
-        let paths = self.group_paths(start, goal, opts.planner)?;
+        let route = self.route(start, goal, opts)?;
         let n = self.n_joints;
         let samples = 200;
         let mut out = vec![0.0; samples * n];
         let mut scratch = vec![0.0; 3 * n];
         for (s, row) in out.chunks_exact_mut(n).enumerate() {
-            self.composite_at(&paths, s as f64 / (samples - 1) as f64, row, &mut scratch);
+            self.route_at(&route, s as f64 / (samples - 1) as f64, row, &mut scratch);
         }
         Ok(out)
+    }
+
+    /// The untimed path at progress `x`: on the entry line first, then the flow paths.
+    fn route_at(&self, route: &Route, x: f64, out: &mut [f64], scratch: &mut [f64]) {
+        match &route.entry {
+            Some(e) if x < e.progress => {
+                let s = x / e.progress;
+                for (o, (a, b)) in out.iter_mut().zip(route.start.iter().zip(&e.point)) {
+                    *o = a + s * (b - a);
+                }
+            }
+            Some(e) if e.progress < 1.0 => {
+                let x = ((x - e.progress) / (1.0 - e.progress)).clamp(0.0, 1.0);
+                self.composite_at(&route.paths, x, out, scratch);
+            }
+            Some(_) => self.composite_at(&route.paths, 1.0, out, scratch),
+            None => self.composite_at(&route.paths, x, out, scratch),
+        }
     }
 
     /// The untimed path at shared progress `x`: each group's spline at its phase.
@@ -1543,7 +1732,7 @@ impl MotionModel {
                 reason: "must be in (0, 10000] Hz".into(),
             });
         }
-        let paths = self.group_paths(start, goal, opts.planner)?;
+        let route = self.route(start, goal, opts)?;
         let n = self.n_joints;
         let learned = self.learned_duration(start, goal);
         let requested = opts.duration.unwrap_or(learned);
@@ -1556,7 +1745,7 @@ impl MotionModel {
         let mut excess = 0.0f64;
         for (k, &x) in xs.iter().enumerate() {
             let row = &mut samples[k * n..(k + 1) * n];
-            self.composite_at(&paths, x, row, &mut scratch);
+            self.route_at(&route, x, row, &mut scratch);
             for j in 0..n {
                 excess = excess
                     .max(self.limits.lower[j] - row[j])
@@ -1671,14 +1860,15 @@ impl MotionModel {
             max_acceleration_ratio: max_a,
             max_jerk_ratio: max_j,
             max_position_excess: excess.max(0.0),
-            converged: paths.iter().all(|g| g.converged),
-            final_errors: paths.iter().map(|g| g.error).collect(),
-            flow_steps: paths.iter().map(|g| g.steps).collect(),
+            converged: route.paths.iter().all(|g| g.converged),
+            final_errors: route.paths.iter().map(|g| g.error).collect(),
+            flow_steps: route.paths.iter().map(|g| g.steps).collect(),
             certificates: self
                 .manifolds
                 .iter()
                 .map(|m| m.certificate.clone())
                 .collect(),
+            entry: route.entry,
         })
     }
 }

@@ -821,3 +821,109 @@ fn timed_mapped_reaches_keep_every_limit_by_finite_differences() {
         "no path met a position limit: the test would not see a dead stop"
     );
 }
+
+/// A start outside the workspace is refused by default; with `enter_workspace` the motion
+/// follows the straight start-goal joint line to where the model's own region check (a second
+/// method beside the entry's closed-form root) first accepts it, and the flow runs from there.
+#[test]
+fn a_start_outside_the_workspace_enters_it_along_the_joint_line() {
+    let data = small_study(4);
+    let (model, _) = train(&data.demos, &data.limits, &options(&data, None)).unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let ys: Vec<Vec<f64>> = model
+        .manifolds
+        .iter()
+        .enumerate()
+        .map(|(g, m)| {
+            let mut y = m.nf.center.clone();
+            if g == 0 {
+                y[0] += 1.3 * m.nf.radius;
+            }
+            y
+        })
+        .collect();
+    let gs: Vec<Vec<f64>> = model
+        .manifolds
+        .iter()
+        .map(|m| m.certificate.goal_center.clone())
+        .collect();
+    let start = joint_vector(&model, &ys, &mut rng, 0.0);
+    let goal = joint_vector(&model, &gs, &mut rng, 0.0);
+    for (j, q) in start.iter().enumerate() {
+        assert!(
+            (model.limits.lower[j]..=model.limits.upper[j]).contains(q),
+            "the test's start leaves the limits at joint {j}"
+        );
+    }
+    assert!(matches!(
+        model.trajectory(&start, &goal, &TrajectoryOptions::default()),
+        Err(MotionError::StartOutsideWorkspace { group: 0, .. })
+    ));
+    let opts = TrajectoryOptions {
+        rate: 1000.0,
+        enter_workspace: true,
+        ..TrajectoryOptions::default()
+    };
+    let traj = model.trajectory(&start, &goal, &opts).unwrap();
+    assert!(traj.converged);
+    let e = traj.entry.clone().expect("an entry segment");
+    let on_line = |s: f64| -> Vec<f64> {
+        start
+            .iter()
+            .zip(&goal)
+            .map(|(a, b)| a + s * (b - a))
+            .collect()
+    };
+    // the entry point is on the line at its fraction, and there the line crosses into the
+    // workspace shrunk to ENTRY_DEPTH of its radius (as the region check of a shrunk copy sees it)
+    let at = on_line(e.line_fraction);
+    for (a, b) in at.iter().zip(&e.point) {
+        assert!((a - b).abs() < 1e-12);
+    }
+    model.check_regions(&e.point, &goal).unwrap();
+    let mut shrunk = model.clone();
+    for m in &mut shrunk.manifolds {
+        m.nf.radius *= ENTRY_DEPTH;
+    }
+    shrunk
+        .check_regions(&on_line(e.line_fraction + 1e-6), &goal)
+        .unwrap();
+    assert!(matches!(
+        shrunk.check_regions(&on_line(e.line_fraction - 1e-6), &goal),
+        Err(MotionError::StartOutsideWorkspace { group: 0, .. })
+    ));
+    let length: f64 = start
+        .iter()
+        .zip(&e.point)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!((length - e.joint_distance).abs() < 1e-12);
+    assert!(e.progress > 0.0 && e.progress < 1.0);
+    assert_eq!(e.start_distances.len(), model.manifolds.len());
+    assert!(e.start_distances[0] > e.radii[0]);
+    // exact ends; the first half of the segment lies on the line (a B-spline over collinear
+    // control points), away from where it bends into the flow
+    let n = model.n_joints;
+    assert_eq!(traj.points[0].positions, start);
+    assert_eq!(traj.points.last().unwrap().positions, goal);
+    let dir: Vec<f64> = goal.iter().zip(&start).map(|(g, s)| g - s).collect();
+    let dd: f64 = dir.iter().map(|d| d * d).sum();
+    let mut checked = 0;
+    for p in &traj.points {
+        let off: Vec<f64> = (0..n).map(|j| p.positions[j] - start[j]).collect();
+        if off.iter().map(|o| o * o).sum::<f64>().sqrt() > 0.5 * e.joint_distance {
+            break;
+        }
+        let s = off.iter().zip(&dir).map(|(o, d)| o * d).sum::<f64>() / dd;
+        let miss = (0..n)
+            .map(|j| (off[j] - s * dir[j]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(miss < 1e-9, "{miss} off the line at t = {}", p.t);
+        checked += 1;
+    }
+    assert!(checked > 20, "{checked} points on the segment");
+    let (v, a, j) = finite_difference_use(&traj, &model.limits);
+    assert!(v <= 1.0 && a <= 1.0 && j <= 1.0, "{v} {a} {j}");
+}

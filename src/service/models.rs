@@ -404,7 +404,7 @@ pub fn region_error(e: MotionError, groups: usize, start: &str, goal: &str) -> E
         } => Error::invalid(
             start,
             format!(
-                "the start is outside the model's workspace ({} joints: {distance:.4} from its centre, radius {radius:.4})",
+                "the start is outside the model's workspace ({} joints: {distance:.4} from its centre, radius {radius:.4}), where the closed-loop law is certified; an open-loop motion enters it along the straight joint line first",
                 group_name(groups, group)
             ),
         ),

@@ -313,7 +313,10 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             rate: body.rate,
             obstacles: body.obstacles.clone(),
         };
-        match super::trajectories::compute(ctx, &request, Some(scene)).await {
+        // The closed-loop law is certified inside the workspace only: a start outside it is
+        // entered along a straight line by the open-loop trajectory, which that law cannot run.
+        let closed_loop = body.execute && body.mode == Some(Mode::ClosedLoop);
+        match super::trajectories::compute(ctx, &request, Some(scene), !closed_loop).await {
             // A motion that collides is kept with the plan for inspection, but the plan is
             // infeasible and nothing is queued.
             Ok((t, clearance)) => {

@@ -17,8 +17,8 @@ use crate::grasp::{
 };
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::motion::{
-    MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint, clearance_progress,
-    cubic_basis,
+    MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint, WorkspaceEntry,
+    clearance_progress, cubic_basis,
 };
 use crate::store::grasps as grasp_repo;
 use crate::store::library::LibraryError;
@@ -244,6 +244,80 @@ pub struct TrajectoryReportDto {
     /// scene, and in trajectories stored before paths were moved).
     #[serde(default)]
     pub avoidance: Option<AvoidanceDto>,
+    /// The straight approach of a start outside the model's workspace (absent when the start
+    /// is inside it, and in trajectories stored before starts outside were planned).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub workspace_entry: Option<WorkspaceEntryDto>,
+}
+
+/// A start outside the model's workspace (the region its demonstrations span, where its
+/// convergence certificates hold) enters it along the straight joint line towards the goal:
+/// for `joint_distance_rad`, the first `progress` of the clock, until every group is
+/// `motion::ENTRY_DEPTH` of its radius inside (or halfway between the goal and the boundary
+/// when the goal lies deeper out); the certified humanlike flow runs from `point` on. That
+/// first segment is neither humanlike nor covered by the certificates; it is checked for
+/// clearance like the rest. Not in the paper, whose flow is only defined inside the workspace.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct WorkspaceEntryDto {
+    /// Where the flow starts, in the trajectory's `joint_names` order.
+    pub point: Vec<f64>,
+    /// Fraction of the straight start-goal joint line the segment covers.
+    pub line_fraction: f64,
+    pub joint_distance_rad: f64,
+    /// Share of the duration's progress (on the minimum-jerk clock) spent on the segment.
+    pub progress: f64,
+    pub groups: Vec<EntryGroupDto>,
+    pub note: String,
+}
+
+/// One joint group's workspace as the start saw it.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct EntryGroupDto {
+    pub group: String,
+    /// The start's distance from the workspace centre (PCA coordinates) and the radius.
+    pub start_distance: f64,
+    pub radius: f64,
+}
+
+impl WorkspaceEntryDto {
+    fn new(e: &WorkspaceEntry, groups: usize) -> Self {
+        let outside: Vec<String> = e
+            .start_distances
+            .iter()
+            .zip(&e.radii)
+            .enumerate()
+            .filter(|(_, (d, r))| d >= r)
+            .map(|(g, (d, r))| {
+                format!(
+                    "{} joints {d:.3} from its centre, radius {r:.3}",
+                    group_name(groups, g)
+                )
+            })
+            .collect();
+        WorkspaceEntryDto {
+            point: e.point.clone(),
+            line_fraction: e.line_fraction,
+            joint_distance_rad: e.joint_distance,
+            progress: e.progress,
+            groups: e
+                .start_distances
+                .iter()
+                .zip(&e.radii)
+                .enumerate()
+                .map(|(g, (&start_distance, &radius))| EntryGroupDto {
+                    group: group_name(groups, g),
+                    start_distance,
+                    radius,
+                })
+                .collect(),
+            note: format!(
+                "the start is outside the model's workspace ({}): the motion first follows the straight joint line towards the goal for {:.3} rad (the first {:.0} % of its progress), which is not humanlike and not covered by the certificates; the certified flow runs from there",
+                outside.join("; "),
+                e.joint_distance,
+                100.0 * e.progress
+            ),
+        }
+    }
 }
 
 /// The clearance refinement of a path (`geometry::avoid`): its control configurations were
@@ -380,6 +454,7 @@ fn trajectory_report(
         grasp,
         clearance: None,
         avoidance: None,
+        workspace_entry: t.entry.as_ref().map(|e| WorkspaceEntryDto::new(e, ng)),
     }
 }
 
@@ -519,7 +594,7 @@ pub async fn create(
     ctx: &Context,
     body: &CreateTrajectory,
 ) -> Result<trajectories::StoredTrajectory, Error> {
-    let (draft, _) = compute(ctx, body, None).await?;
+    let (draft, _) = compute(ctx, body, None, true).await?;
     Ok(trajectories::insert_trajectory(&ctx.db, &draft.as_new()).await?)
 }
 
@@ -527,10 +602,15 @@ pub async fn create(
 /// grasp).
 /// With a grasp's `scene` (a plan's, or the stored grasp's when the goal is one), the
 /// trajectory's exact clearance in it is reported, and returned beside it.
+///
+/// `enter_workspace`: a start outside the model's workspace enters it along the joint line
+/// (`WorkspaceEntryDto`) instead of being a 422; off for a motion a worker will run under the
+/// closed-loop law, which has no such segment and is certified inside the workspace only.
 pub async fn compute(
     ctx: &Context,
     body: &CreateTrajectory,
     scene: Option<super::grasps::GraspScene>,
+    enter_workspace: bool,
 ) -> Result<(TrajectoryDraft, Option<PathClearance>), Rejected> {
     let requested = match &body.duration {
         None => None,
@@ -607,6 +687,7 @@ pub async fn compute(
     let opts = TrajectoryOptions {
         duration: requested,
         rate,
+        enter_workspace,
         ..TrajectoryOptions::default()
     };
     let (traj, report) = {

@@ -535,6 +535,43 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
     );
     assert!(short["report"]["max_velocity_ratio"].as_f64().unwrap() <= 1.0);
     assert!(short["report"]["max_acceleration_ratio"].as_f64().unwrap() <= 1.0);
+    assert!(short["report"]["workspace_entry"].is_null());
+
+    // The upright zero configuration lies outside this study's workspace: the motion enters
+    // it along the straight joint line (reported, with the distances that made it), then the
+    // certified flow runs to the exact goal.
+    let zero = vec![0.0; start.len()];
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": id, "start": named(&study.joint_names, &zero),
+                    "goal": named(&study.joint_names, &goal), "rate": 50}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let far: Value = res.json().await.unwrap();
+    let entry = &far["report"]["workspace_entry"];
+    let arm = &entry["groups"][0];
+    assert!(
+        arm["start_distance"].as_f64().unwrap() > arm["radius"].as_f64().unwrap(),
+        "{entry}"
+    );
+    let fraction = entry["line_fraction"].as_f64().unwrap();
+    assert!(fraction > 0.0 && fraction < 1.0, "{entry}");
+    for (j, v) in entry["point"].as_array().unwrap().iter().enumerate() {
+        assert!(
+            (v.as_f64().unwrap() - fraction * goal[j]).abs() < 1e-12,
+            "{entry}"
+        );
+    }
+    assert!(
+        entry["note"].as_str().unwrap().contains("not humanlike"),
+        "{entry}"
+    );
+    let p = far["points"].as_array().unwrap();
+    assert_eq!(p[0]["positions"], json!(zero));
+    assert_eq!(p[p.len() - 1]["positions"], json!(goal));
+    assert_eq!(far["report"]["converged"], true);
 
     // a stored grasp as the goal: the trajectory ends exactly at its joint values (from the
     // grasp with the shoulder lifted by 0.5 rad: the study's synthetic starts all put the
@@ -574,7 +611,7 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
         .json()
         .await
         .unwrap();
-    assert_eq!(list["total"], 3);
+    assert_eq!(list["total"], 4);
     assert_problem(app.get("/v1/trajectories/nope").await, 404, "not-found").await;
     assert_problem(app.get("/v1/models/nope").await, 404, "not-found").await;
     assert_problem(app.get("/v1/models/nope/params").await, 404, "not-found").await;

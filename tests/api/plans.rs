@@ -146,6 +146,37 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
         assert_eq!(e["state"], "queued", "{e}");
     }
 
+    // With the base turned 2 rad the start is outside this small study's workspace (3.46 from
+    // its centre, radius 2.55, when written): an open-loop plan enters the workspace along the
+    // joint line first (reported); a closed-loop execution is refused at the start, its law
+    // being certified inside the workspace only.
+    if plan["feasible"] == true {
+        let mut turned = zeros(&robot["joint_names"]);
+        turned["positions"][0] = json!(2.0);
+        let res = app.post_json("/v1/plans", &ball_plan(&turned)).await;
+        assert_eq!(res.status(), 201);
+        let p: Value = res.json().await.unwrap();
+        let entry = &p["trajectory"]["report"]["workspace_entry"];
+        assert!(
+            entry["line_fraction"].as_f64().unwrap() > 0.0,
+            "{}",
+            p["reason"]
+        );
+        assert_eq!(
+            p["trajectory"]["points"][0]["positions"],
+            turned["positions"]
+        );
+        let before = count(&app, "/v1/plans").await;
+        let mut body = ball_plan(&turned);
+        body["execute"] = json!(true);
+        body["mode"] = json!("closed_loop");
+        let e = assert_problem(app.post_json("/v1/plans", &body).await, 422, "validation").await;
+        assert_eq!(e["errors"][0]["path"], "$.start", "{e}");
+        let message = e["errors"][0]["message"].as_str().unwrap();
+        assert!(message.contains("closed-loop law"), "{e}");
+        assert_eq!(count(&app, "/v1/plans").await, before);
+    }
+
     // Bad input: 4xx naming the field, nothing stored.
     let plans = count(&app, "/v1/plans").await;
     let trajectories = count(&app, "/v1/trajectories").await;
