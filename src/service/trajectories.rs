@@ -281,16 +281,24 @@ pub struct EntryGroupDto {
 
 impl WorkspaceEntryDto {
     fn new(e: &WorkspaceEntry, groups: usize) -> Self {
-        let outside: Vec<String> = e
+        let per_group: Vec<EntryGroupDto> = e
             .start_distances
             .iter()
             .zip(&e.radii)
             .enumerate()
-            .filter(|(_, (d, r))| d >= r)
-            .map(|(g, (d, r))| {
+            .map(|(g, (&start_distance, &radius))| EntryGroupDto {
+                group: group_name(groups, g),
+                start_distance,
+                radius,
+            })
+            .collect();
+        let outside: Vec<String> = per_group
+            .iter()
+            .filter(|g| g.start_distance >= g.radius)
+            .map(|g| {
                 format!(
-                    "{} joints {d:.3} from its centre, radius {r:.3}",
-                    group_name(groups, g)
+                    "{} joints {:.3} from its centre, radius {:.3}",
+                    g.group, g.start_distance, g.radius
                 )
             })
             .collect();
@@ -299,17 +307,7 @@ impl WorkspaceEntryDto {
             line_fraction: e.line_fraction,
             joint_distance_rad: e.joint_distance,
             progress: e.progress,
-            groups: e
-                .start_distances
-                .iter()
-                .zip(&e.radii)
-                .enumerate()
-                .map(|(g, (&start_distance, &radius))| EntryGroupDto {
-                    group: group_name(groups, g),
-                    start_distance,
-                    radius,
-                })
-                .collect(),
+            groups: per_group,
             note: format!(
                 "the start is outside the model's workspace ({}): the motion first follows the straight joint line towards the goal for {:.3} rad (the first {:.0} % of its progress), which is not humanlike and not covered by the certificates; the certified flow runs from there",
                 outside.join("; "),
