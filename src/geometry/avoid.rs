@@ -43,9 +43,12 @@ pub struct AvoidOptions {
     pub spread: f64,
     /// Rounds at most.
     pub rounds: usize,
-    /// Rounds without progress (no fewer points below target, no smaller worst deficit) after
-    /// which the refinement stops early.
+    /// Rounds without progress (no fewer points below target, and the deficit summed over every
+    /// pair below target not `min_progress` smaller than its best) after which the refinement
+    /// stops early.
     pub patience: usize,
+    /// The summed deficit's decrease that counts as progress (m).
+    pub min_progress: f64,
     /// Largest joint step of a configuration in one round (rad).
     pub max_step: f64,
 }
@@ -60,6 +63,7 @@ impl Default for AvoidOptions {
             spread: 3.0,
             rounds: 40,
             patience: 5,
+            min_progress: 1e-3,
             max_step: 0.05,
         }
     }
@@ -174,12 +178,13 @@ pub fn refine(
     };
     let given: Vec<f64> = ctrl.to_vec();
     let mut report = AvoidReport::default();
-    let (mut best_below, mut best_worst, mut stalled) = (usize::MAX, f64::NEG_INFINITY, 0);
+    let (mut best_below, mut best_deficit, mut stalled) = (usize::MAX, f64::INFINITY, 0);
     for round in 0..=opts.rounds {
         s.corr.fill(0.0);
         s.weight.fill(0.0);
         let mut below = 0;
         let mut worst = f64::INFINITY;
+        let mut deficit = 0.0;
         for cs in curve.iter().filter(|c| c.x > 0.0 && c.x < 1.0) {
             point(ctrl, nq, cs, &mut s.q);
             s.hits.clear();
@@ -211,6 +216,7 @@ pub fn refine(
                 }
                 movable = true;
                 worst = worst.min(d.distance - t);
+                deficit += (t - d.distance).max(0.0);
                 let f = (t - d.distance) / g2;
                 for (c, g) in s.step.iter_mut().zip(&s.grad) {
                     *c += f * g;
@@ -254,9 +260,13 @@ pub fn refine(
         report.still_below = below;
         report.worst_after = worst.min(0.0);
         // (points next to an end in contact often cannot reach their target at all: without
-        // this the budget is spent on them)
-        if below < best_below || worst > best_worst + 1e-5 {
-            (best_below, best_worst, stalled) = (below.min(best_below), worst.max(best_worst), 0);
+        // this the budget is spent on them). Progress is summed over every pair below target,
+        // not read off the worst one: a worst pair that hardly moves stopped the rounds while a
+        // thumb pad was still being lifted out of the ball (6.8 mm deep at 22 rounds, 3.9 mm at
+        // 40). A relative threshold (2 %) stopped sooner and lost more plans than it saved.
+        if below < best_below || deficit < best_deficit - opts.min_progress {
+            (best_below, best_deficit, stalled) =
+                (below.min(best_below), deficit.min(best_deficit), 0);
         } else {
             stalled += 1;
         }
