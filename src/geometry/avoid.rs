@@ -69,6 +69,42 @@ impl Default for AvoidOptions {
     }
 }
 
+/// The early stop of [`refine`]: a round makes progress when fewer points are below target
+/// than ever before, or the deficit summed over every pair below target is `min_progress`
+/// below its best; `patience` rounds in a row without progress stop the rounds.
+#[derive(Debug, Clone, Copy)]
+struct Progress {
+    best_below: usize,
+    best_deficit: f64,
+    idle: usize,
+    min_progress: f64,
+    patience: usize,
+}
+
+impl Progress {
+    fn new(opts: &AvoidOptions) -> Self {
+        Progress {
+            best_below: usize::MAX,
+            best_deficit: f64::INFINITY,
+            idle: 0,
+            min_progress: opts.min_progress,
+            patience: opts.patience,
+        }
+    }
+
+    /// Records a round; true when the rounds should stop for want of progress.
+    fn stalled(&mut self, below: usize, deficit: f64) -> bool {
+        if below < self.best_below || deficit < self.best_deficit - self.min_progress {
+            self.best_below = self.best_below.min(below);
+            self.best_deficit = self.best_deficit.min(deficit);
+            self.idle = 0;
+        } else {
+            self.idle += 1;
+        }
+        self.idle >= self.patience
+    }
+}
+
 /// What [`refine`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct AvoidReport {
@@ -178,7 +214,7 @@ pub fn refine(
     };
     let given: Vec<f64> = ctrl.to_vec();
     let mut report = AvoidReport::default();
-    let (mut best_below, mut best_deficit, mut stalled) = (usize::MAX, f64::INFINITY, 0);
+    let mut progress = Progress::new(opts);
     for round in 0..=opts.rounds {
         s.corr.fill(0.0);
         s.weight.fill(0.0);
@@ -264,13 +300,8 @@ pub fn refine(
         // not read off the worst one: a worst pair that hardly moves stopped the rounds while a
         // thumb pad was still being lifted out of the ball (6.8 mm deep at 22 rounds, 3.9 mm at
         // 40). A relative threshold (2 %) stopped sooner and lost more plans than it saved.
-        if below < best_below || deficit < best_deficit - opts.min_progress {
-            (best_below, best_deficit, stalled) =
-                (below.min(best_below), deficit.min(best_deficit), 0);
-        } else {
-            stalled += 1;
-        }
-        if below == 0 || round == opts.rounds || stalled >= opts.patience {
+        let stalled = progress.stalled(below, deficit);
+        if below == 0 || round == opts.rounds || stalled {
             break;
         }
         report.rounds = round + 1;
@@ -311,4 +342,40 @@ pub fn refine(
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
     report
+}
+
+#[cfg(test)]
+mod progress_tests {
+    use super::*;
+
+    /// Rounds until the stop, for a sequence of (points below target, summed deficit).
+    fn stops_after(rounds: &[(usize, f64)]) -> Option<usize> {
+        let mut p = Progress::new(&AvoidOptions::default());
+        rounds
+            .iter()
+            .position(|&(below, deficit)| p.stalled(below, deficit))
+    }
+
+    #[test]
+    fn a_summed_deficit_falling_by_a_millimetre_a_round_keeps_the_rounds_going() {
+        // the same points stay below target (their worst pair need not move at all) while the
+        // deficit summed over them falls 2 mm a round: 30 rounds, no stop
+        let rounds: Vec<(usize, f64)> = (0..30).map(|r| (27, 0.2 - 0.002 * r as f64)).collect();
+        assert_eq!(stops_after(&rounds), None);
+    }
+
+    #[test]
+    fn rounds_that_gain_less_than_a_millimetre_stop_after_the_patience() {
+        // a first round sets the best; then 0.1 mm a round: the fifth such round stops
+        let rounds: Vec<(usize, f64)> = (0..30).map(|r| (27, 0.2 - 0.0001 * r as f64)).collect();
+        assert_eq!(stops_after(&rounds), Some(5));
+        // an oscillating deficit is no progress either, however large its swings
+        let swings: Vec<(usize, f64)> = (0..30)
+            .map(|r| (27, if r % 2 == 0 { 0.2 } else { 0.25 }))
+            .collect();
+        assert_eq!(stops_after(&swings), Some(5));
+        // fewer points below target is progress even with a larger deficit
+        let fewer: Vec<(usize, f64)> = (0..30).map(|r| (30 - r.min(29), 0.3)).collect();
+        assert_eq!(stops_after(&fewer), None);
+    }
 }
