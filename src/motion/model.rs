@@ -1536,29 +1536,29 @@ impl MotionModel {
         check_vector("goal", goal, &self.limits)?;
         let planner = opts.planner;
         let mut entry = None;
-        let mut flow_start = start;
-        let entered: Vec<f64>;
         if planner == Baseline::NavigationFunction && !opts.enter_workspace {
             self.check_regions(start, goal)?;
         } else if planner == Baseline::NavigationFunction {
             self.check_goal(goal)?;
-            if let Some((s, start_distances)) = self.workspace_entry_fraction(start, goal) {
-                entered = start
-                    .iter()
-                    .zip(goal)
-                    .map(|(a, b)| a + s * (b - a))
-                    .collect();
-                flow_start = &entered;
-                entry = Some(WorkspaceEntry {
-                    point: entered.clone(),
-                    line_fraction: s,
-                    joint_distance: distance(start, &entered),
-                    progress: 0.0,
-                    start_distances,
-                    radii: self.manifolds.iter().map(|m| m.nf.radius).collect(),
+            entry = self
+                .workspace_entry_fraction(start, goal)
+                .map(|(s, start_distances)| {
+                    let point: Vec<f64> = start
+                        .iter()
+                        .zip(goal)
+                        .map(|(a, b)| a + s * (b - a))
+                        .collect();
+                    WorkspaceEntry {
+                        joint_distance: distance(start, &point),
+                        point,
+                        line_fraction: s,
+                        progress: 0.0,
+                        start_distances,
+                        radii: self.manifolds.iter().map(|m| m.nf.radius).collect(),
+                    }
                 });
-            }
         }
+        let flow_start = entry.as_ref().map_or(start, |e| e.point.as_slice());
         let paths = self.group_paths(flow_start, goal, planner)?;
         if let Some(e) = &mut entry {
             e.progress = self.entry_progress(&paths, e);
