@@ -1017,12 +1017,7 @@ fn workspace_ball(ys: &[Vec<f64>], train_idx: &[usize], d: usize) -> (Vec<f64>, 
     let mut rho: f64 = 0.0;
     for &di in train_idx {
         for p in ys[di].chunks_exact(d) {
-            rho = rho.max(
-                (0..d)
-                    .map(|i| (p[i] - center[i]).powi(2))
-                    .sum::<f64>()
-                    .sqrt(),
-            );
+            rho = rho.max(distance(p, &center));
         }
     }
     (center, rho.max(1e-9))
@@ -1072,16 +1067,9 @@ fn goal_region(
     let mut goal_spread: f64 = 0.0;
     for &di in train_idx {
         let f = ys[di].len() / d - 1;
-        let dist = (0..d)
-            .map(|i| (ys[di][f * d + i] - goal_center[i]).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        goal_spread = goal_spread.max(dist);
+        goal_spread = goal_spread.max(distance(&ys[di][f * d..(f + 1) * d], &goal_center));
     }
-    let offset = (0..d)
-        .map(|i| (goal_center[i] - center[i]).powi(2))
-        .sum::<f64>()
-        .sqrt();
+    let offset = distance(&goal_center, center);
     let goal_radius = (margin * goal_spread)
         .max(0.05 * rho)
         .min(0.95 * radius - offset)
@@ -1152,12 +1140,7 @@ fn duration_model(demos: &[JointTrajectory], train_idx: &[usize], n: usize) -> D
         let t = dm.times[dm.frames() - 1] - dm.times[0];
         let a = dm.frame(0, n);
         let b = dm.frame(dm.frames() - 1, n);
-        let dist = a
-            .iter()
-            .zip(b)
-            .map(|(x, y)| (x - y).powi(2))
-            .sum::<f64>()
-            .sqrt();
+        let dist = distance(a, b);
         sx += dist;
         sy += t;
         sxx += dist * dist;
@@ -1683,13 +1666,7 @@ impl MotionModel {
 
     /// Learned duration for a start-goal pair.
     pub fn learned_duration(&self, start: &[f64], goal: &[f64]) -> f64 {
-        let d = start
-            .iter()
-            .zip(goal)
-            .map(|(a, b)| (a - b).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        self.duration.eval(d)
+        self.duration.eval(distance(start, goal))
     }
 
     /// Generate a timed humanlike trajectory from `start` to `goal` (full joint vectors in the
