@@ -529,19 +529,18 @@ pub fn time_optimal_duration(path: &Path, limits: &RateLimits<'_>, stages: usize
             .max(lo.max(-x / (2.0 * h)));
         let next = (x + 2.0 * u * h).clamp(0.0, k[s + 1]);
         let v = x.sqrt() + next.sqrt();
-        total += if v > 0.0 {
-            2.0 * h / v
+        // A stage the discretisation forces (nearly) to a stop, e.g. a sharp turn: crossing it
+        // at the tiny speed the controllable sets leave (`2h / v`, up to millions of seconds
+        // for a speed squared of 1e-18) is slower than stopping and restarting in it at the
+        // largest acceleration admissible at rest, `2√(h/ū)`: the faster of the two.
+        let cruise = if v > 0.0 { 2.0 * h / v } else { f64::INFINITY };
+        let (_, at_rest) = interval(s, 0.0);
+        let restart = if at_rest > 0.0 {
+            2.0 * (h / at_rest).sqrt()
         } else {
-            // Entered and left at rest (a stage the discretisation forces to a stop, e.g. a sharp
-            // turn just before the end): accelerating and braking at the largest acceleration
-            // admissible at rest, `2√(h/ū)`, not an infinite time.
-            let (_, at_rest) = interval(s, 0.0);
-            if at_rest > 0.0 {
-                2.0 * (h / at_rest).sqrt()
-            } else {
-                f64::INFINITY
-            }
+            f64::INFINITY
         };
+        total += cruise.min(restart);
         x = next;
     }
     total
@@ -704,6 +703,69 @@ mod tests {
         let straight = 1.2 / 2.0 + 2.0 / 5.0;
         assert!(coarse.is_finite() && fine.is_finite(), "{coarse} {fine}");
         assert!(coarse > straight && fine > straight, "{coarse} {fine}");
+        assert!((coarse - fine).abs() < 0.05 * fine, "{coarse} vs {fine}");
+    }
+
+    /// A path that stops at a corner (each leg a smoothstep, zero path speed where they meet,
+    /// as a pre-grasp approach has): the time-optimal motion stops there, so the duration is
+    /// two rest-to-rest legs, `2·2√(d/ā)` when `d ≤ v̄²/ā`.
+    #[test]
+    fn a_path_that_stops_at_a_corner_takes_two_rest_to_rest_legs() {
+        let smooth = |t: f64| t * t * (3.0 - 2.0 * t);
+        let d = 0.3;
+        let samples: Vec<f64> = greville(PATH_CONTROL_POINTS)
+            .iter()
+            .flat_map(|&x| {
+                if x <= 0.5 {
+                    [d * smooth(x / 0.5), 0.0]
+                } else {
+                    [d, d * smooth((x - 0.5) / 0.5)]
+                }
+            })
+            .collect();
+        let path = Path::new(samples, 2);
+        let (v, a, j) = ([2.0, 2.0], [5.0, 5.0], [1000.0, 1000.0]);
+        let limits = RateLimits {
+            velocity: &v,
+            acceleration: &a,
+            jerk: &j,
+        };
+        let legs = 2.0 * 2.0 * (d / a[0]).sqrt();
+        for stages in [400, 4000] {
+            let t = time_optimal_duration(&path, &limits, stages);
+            // the spline through the samples rounds the corner a little: never slower than
+            // stopping there, and not much faster
+            assert!(t <= legs * 1.02 && t >= 0.85 * legs, "{stages} stages: {t} vs {legs}");
+        }
+    }
+
+    /// A service path with a pre-grasp approach phase whose arm and hand move in together: it
+    /// nearly stops at the pre-grasp and the controllable sets leave a speed squared of about
+    /// 1e-18 in the stages there. Crossing them at that speed reported 3.8 million seconds; the
+    /// bound must stay finite, converge with the stages and lie within the dilated clock the
+    /// same path was timed with (5.77 s at these limits).
+    #[test]
+    fn a_recorded_approach_path_has_a_bounded_time_optimal_duration() {
+        let d: serde_json::Value =
+            serde_json::from_str(include_str!("testdata/approach_corner_path.json")).unwrap();
+        let nums = |k: &str| -> Vec<f64> {
+            d[k].as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect()
+        };
+        let (v, a) = (nums("velocity"), nums("acceleration"));
+        let j = vec![150.0; v.len()];
+        let path = Path::new(nums("samples"), v.len());
+        let limits = RateLimits {
+            velocity: &v,
+            acceleration: &a,
+            jerk: &j,
+        };
+        let coarse = time_optimal_duration(&path, &limits, 400);
+        let fine = time_optimal_duration(&path, &limits, 4000);
+        assert!(coarse < 5.77 && fine < 5.77, "{coarse} {fine}");
         assert!((coarse - fine).abs() < 0.05 * fine, "{coarse} vs {fine}");
     }
 }
