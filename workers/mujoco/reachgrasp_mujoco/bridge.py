@@ -250,7 +250,10 @@ class Worker:
             "execution_id": eid,
             "outcome": final,
             "reason": final_reason,
-            "positions": [float(x) for x in run.sim.q()],
+            # Where the robot is now (after a reset, back at the start): the service takes these
+            # as the measured state a next plan is checked against; where the motion ended is
+            # in the report.
+            "positions": [float(x) for x in self.q],
             # Ignored by today's service; the trial's verdict and numbers (README: protocol).
             "physics": report,
         })
