@@ -204,6 +204,7 @@ async fn run() -> anyhow::Result<()> {
                 duration: None,
                 rate: None,
                 obstacles: Vec::new(),
+                approach_standoff: None,
             },
             None,
             true,

@@ -4,15 +4,18 @@
 //! - [`indexes`]: manipulability, transmission ratios, TC/GC, grasp matrix, hand-object
 //!   Jacobian, Q_DC and Q_AGP (eq. 12-21).
 //! - [`clearance`]: the exact clearance of a trajectory in a grasp's scene.
+//! - [`approach`]: the pre-grasp standoff and the approach phase of a plan's path.
 //! - [`optimizer`]: the constrained problem of eq. 22-29 solved through [`crate::optim`],
 //!   multi-start, best feasible result with every term and residual.
 
+pub mod approach;
 pub mod clearance;
 pub mod indexes;
 pub mod objects;
 pub mod optimizer;
 pub mod system;
 
+pub use approach::{ApproachOptions, PreGrasp, pre_grasp, shape_path};
 pub use clearance::{
     ClearanceHit, PathClearance, PostureCollision, avoid, path_clearance, posture_collision,
     scene_checker,

@@ -101,6 +101,11 @@ pub struct PlanIn {
     #[serde(default)]
     #[schema(max_items = 32)]
     pub obstacles: Vec<crate::geometry::ObstacleSpec>,
+    /// Pre-grasp standoff, m, in [0, 0.25] (default 0: none; 0.06 is a typical value): the path
+    /// then ends at the palm this far back along the approach direction with the hand opened,
+    /// then moves in and closes (`trajectory.report.approach`).
+    #[schema(minimum = 0, maximum = 0.25)]
+    pub approach_standoff: Option<f64>,
 }
 
 /// The flat wire form of [`PlanIn`]: every field of [`GraspIn`] and the plan's own, so that
@@ -129,6 +134,7 @@ struct PlanWire {
     worker: Option<String>,
     #[serde(default)]
     obstacles: Vec<crate::geometry::ObstacleSpec>,
+    approach_standoff: Option<f64>,
 }
 
 impl From<PlanWire> for PlanIn {
@@ -154,6 +160,7 @@ impl From<PlanWire> for PlanIn {
             mode: w.mode,
             worker: w.worker,
             obstacles: w.obstacles,
+            approach_standoff: w.approach_standoff,
         }
     }
 }
@@ -246,6 +253,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     let robot = body.grasp.robot.clone();
     let worker = body.worker.as_deref().map(WorkerName::parse).transpose()?;
     let obstacles = super::trajectories::scene_obstacles(&body.obstacles)?;
+    super::trajectories::approach_standoff(body.approach_standoff, "$.approach_standoff")?;
     super::robots::robot_field(ctx, &robot, "$.robot").await?;
     let model_id = resolve_model(ctx, body).await?;
     let (start, read_from) = resolve_start(ctx, body).await?;
@@ -312,6 +320,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             duration: body.duration.clone(),
             rate: body.rate,
             obstacles: body.obstacles.clone(),
+            approach_standoff: body.approach_standoff,
         };
         // The closed-loop law is certified inside the workspace only: a start outside it is
         // entered along a straight line by the open-loop trajectory, which that law cannot run.

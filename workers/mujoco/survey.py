@@ -2,7 +2,7 @@
 
   survey.py grasps --http URL     grasp trial at each grasp's exact joint values:
                                    seeded objects x six systems x default tasks
-  survey.py plans  --http URL --token T
+  survey.py plans  --http URL --token T [--approach-standoff M]
                                    the same matrix as plans executed on MuJoCo workers
                                    (trajectory, then the trial), one worker per system
   survey.py fig5   --http URL     Q_DC-optimal grasp vs random feasible grasps (same object)
@@ -127,6 +127,8 @@ def cmd_plans(a):
                 for tname, task in TASKS.items():
                     body = {"robot": robot, "object_id": oid, "task_directions": task, "start": start,
                             "execute": True, "worker": f"survey-{robot}"}
+                    if a.approach_standoff is not None:
+                        body["approach_standoff"] = a.approach_standoff
                     p = svc.post_json("/v1/plans", body)
                     row = {"robot": robot, "object": oname, "task": tname, "plan": p["id"], "feasible": p["feasible"]}
                     if p["feasible"] and p.get("execution_id"):
@@ -287,6 +289,8 @@ def main():
     ap.add_argument("--height", type=float, default=0.05)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--approach-standoff", type=float, default=None,
+                    help="plans: the pre-grasp standoff (m) to ask for (default: the service's)")
     a = ap.parse_args()
     a.ws = a.http.replace("http://", "ws://").replace("https://", "wss://") + "/v1/bridges/connect"
     {"grasps": cmd_grasps, "plans": cmd_plans, "fig5": cmd_fig5, "pushes": cmd_pushes, "rtf": cmd_rtf}[a.cmd](a)
