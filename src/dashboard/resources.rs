@@ -391,6 +391,92 @@ pub async fn trajectories(State(state): State<AppState>, Query(q): Query<PageQue
     Ok(html::ok("Trajectories", "/ui/trajectories", &body))
 }
 
+/// What a lab checks before it runs a trajectory, from its stored report: timing against the
+/// learned duration and the limits, the exact clearance (closest pair, per kind), what the
+/// avoidance moved, and the approach and workspace-entry segments with their notes. Empty
+/// for a summary that is not a trajectory report.
+fn report_facts(summary: &str) -> String {
+    use crate::grasp::ClearanceHit;
+    use crate::service::trajectories::TrajectoryReportDto;
+    let Ok(r) = serde_json::from_str::<TrajectoryReportDto>(summary) else {
+        return String::new();
+    };
+    let hit = |h: &Option<ClearanceHit>| {
+        h.as_ref().map_or("–".to_owned(), |h| {
+            format!(
+                "{} mm: {} – {} at {} s",
+                num(1e3 * h.distance_m, 1),
+                esc(&h.link),
+                esc(&h.other),
+                num(h.time_s, 2)
+            )
+        })
+    };
+    let mut items = vec![
+        (
+            "duration",
+            format!(
+                "{} s (learned {} s; velocity and acceleration alone allow {} s)",
+                num(r.duration, 2),
+                num(r.learned_duration, 2),
+                r.time_optimal_duration.map_or("–".into(), |t| num(t, 2))
+            ),
+        ),
+        (
+            "limit use",
+            format!(
+                "velocity {}, acceleration {}, jerk {}",
+                num(r.max_velocity_ratio, 2),
+                num(r.max_acceleration_ratio, 2),
+                r.max_jerk_ratio.map_or("–".into(), |j| num(j, 2))
+            ),
+        ),
+    ];
+    if let Some(c) = &r.clearance {
+        items.push((
+            "collision-free",
+            format!(
+                "{} (exact, URDF collision shapes; contact up to {} mm{})",
+                if c.collision_free {
+                    "yes"
+                } else {
+                    "<strong>no</strong>"
+                },
+                num(1e3 * c.contact_tolerance_m, 1),
+                if c.complete { "" } else { "; check incomplete" }
+            ),
+        ));
+        items.push(("closest", hit(&c.closest)));
+        items.push(("object", hit(&c.object)));
+        items.push(("support", hit(&c.support)));
+        if c.obstacle.is_some() {
+            items.push(("obstacles", hit(&c.obstacle)));
+        }
+        items.push(("between links", hit(&c.self_collision)));
+        items.push(("closing press", hit(&c.closing_contact)));
+    }
+    if let Some(a) = &r.avoidance {
+        items.push((
+            "avoidance",
+            format!(
+                "{} of {} rounds, points below target {} → {}, moved at most {} rad",
+                a.rounds,
+                a.max_rounds,
+                a.below_target_before,
+                a.below_target_after,
+                num(a.max_displacement_rad, 3)
+            ),
+        ));
+    }
+    if let Some(a) = &r.approach {
+        items.push(("approach", esc(&a.note)));
+    }
+    if let Some(e) = &r.workspace_entry {
+        items.push(("workspace entry", esc(&e.note)));
+    }
+    format!("<h2>Timing and clearance</h2>{}", facts(&items))
+}
+
 pub async fn trajectory(State(state): State<AppState>, Path(id): Path<String>) -> Page {
     let Some(t) = trajectory_repo::get_trajectory(&state.db, &id).await? else {
         return Ok(html::not_found(
@@ -401,7 +487,7 @@ pub async fn trajectory(State(state): State<AppState>, Path(id): Path<String>) -
         ));
     };
     let body = format!(
-        "{}{}{}<h2>Summary</h2><pre>{}</pre>",
+        "{}{}{}{}<h2>Summary</h2><pre>{}</pre>",
         facts(&[
             ("robot", link(&format!("/ui/robots/{}", t.robot), &t.robot)),
             (
@@ -422,6 +508,7 @@ pub async fn trajectory(State(state): State<AppState>, Path(id): Path<String>) -
             false,
             ""
         ),
+        report_facts(&t.summary),
         execute_form(&state, &t.robot, &id),
         esc(&pretty(&t.summary)),
     );

@@ -1,5 +1,6 @@
 //! Black-box API tests: the real service on an ephemeral port with a temporary database.
 
+mod approach;
 mod bridges;
 mod concurrency;
 mod demonstrations;
