@@ -735,7 +735,10 @@ mod tests {
             let t = time_optimal_duration(&path, &limits, stages);
             // the spline through the samples rounds the corner a little: never slower than
             // stopping there, and not much faster
-            assert!(t <= legs * 1.02 && t >= 0.85 * legs, "{stages} stages: {t} vs {legs}");
+            assert!(
+                t <= legs * 1.02 && t >= 0.85 * legs,
+                "{stages} stages: {t} vs {legs}"
+            );
         }
     }
 
