@@ -35,11 +35,15 @@ pub const DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS: u64 = 600;
 /// Default bridge heartbeat interval (ms).
 pub const DEFAULT_BRIDGE_HEARTBEAT_MS: u64 = 1000;
 
+/// The help section of the flags only the HTTP service reads: every sub-command accepts them
+/// (they are global), and its own flags come first in its `--help`.
+const SERVICE_OPTIONS: &str = "Service options (serve)";
+
 /// Service configuration.
 #[derive(Debug, Clone, clap::Args)]
 pub struct Config {
     /// Address to listen on (`0.0.0.0:8080` in the container; port 0 picks a free port).
-    #[arg(long, env = "REACHGRASP_BIND", default_value = DEFAULT_BIND, global = true)]
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BIND", default_value = DEFAULT_BIND, global = true)]
     pub bind: SocketAddr,
 
     /// SQLite database file; the file and its folder are created if missing.
@@ -60,30 +64,30 @@ pub struct Config {
     pub log_json: bool,
 
     /// Largest accepted request body in bytes (larger bodies get 413).
-    #[arg(long, env = "REACHGRASP_BODY_LIMIT", default_value_t = DEFAULT_BODY_LIMIT, global = true)]
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BODY_LIMIT", default_value_t = DEFAULT_BODY_LIMIT, global = true)]
     pub body_limit: usize,
 
     /// Milliseconds a request body may stall (no bytes arriving) before the request is
     /// answered with 408; a declared `Content-Length` over the body limit is 413 at once.
-    #[arg(long, env = "REACHGRASP_BODY_IDLE_TIMEOUT_MS", default_value_t = DEFAULT_BODY_IDLE_TIMEOUT_MS,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BODY_IDLE_TIMEOUT_MS", default_value_t = DEFAULT_BODY_IDLE_TIMEOUT_MS,
           value_parser = clap::value_parser!(u64).range(1..), global = true)]
     pub body_idle_timeout_ms: u64,
 
     /// Seconds a request may take before it is answered with 503 (jobs are not affected).
-    #[arg(long, env = "REACHGRASP_REQUEST_TIMEOUT", default_value_t = DEFAULT_REQUEST_TIMEOUT_SECS,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_REQUEST_TIMEOUT", default_value_t = DEFAULT_REQUEST_TIMEOUT_SECS,
           value_parser = clap::value_parser!(u64).range(1..), global = true)]
     pub request_timeout_secs: u64,
 
     /// Retention: keep at most this many plans (each with its grasp, trajectory and finished
     /// execution), trajectories no plan owns, and finished executions no plan owns, the newest
     /// of each; 0 keeps all. Nothing a queued or running execution needs is ever deleted.
-    #[arg(long, env = "REACHGRASP_RETENTION_MAX_COUNT", default_value_t = DEFAULT_RETENTION_MAX_COUNT,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_RETENTION_MAX_COUNT", default_value_t = DEFAULT_RETENTION_MAX_COUNT,
           global = true)]
     pub retention_max_count: u64,
 
     /// Retention: delete plans, trajectories and finished executions older than this many
     /// hours (as for the count); 0 (default) keeps them whatever their age.
-    #[arg(
+    #[arg(help_heading = SERVICE_OPTIONS,
         long,
         env = "REACHGRASP_RETENTION_MAX_AGE_HOURS",
         default_value_t = 0,
@@ -93,28 +97,28 @@ pub struct Config {
 
     /// Seconds between two maintenance runs: the retention sweep, then a WAL checkpoint
     /// (`PRAGMA wal_checkpoint(TRUNCATE)`).
-    #[arg(long, env = "REACHGRASP_MAINTENANCE_INTERVAL", default_value_t = DEFAULT_MAINTENANCE_INTERVAL_SECS,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_MAINTENANCE_INTERVAL", default_value_t = DEFAULT_MAINTENANCE_INTERVAL_SECS,
           value_parser = clap::value_parser!(u64).range(1..), global = true)]
     pub maintenance_interval_secs: u64,
 
     /// Largest size of the database file in bytes (`PRAGMA max_page_count`); a write beyond it
     /// is refused with 507 and changes nothing, as on a full disk. Default: no cap.
-    #[arg(long, env = "REACHGRASP_DB_MAX_BYTES", global = true)]
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_DB_MAX_BYTES", global = true)]
     pub db_max_bytes: Option<u64>,
 
     /// Jobs running at once; further jobs wait queued. Default: the number of CPUs.
-    #[arg(long, env = "REACHGRASP_JOB_CONCURRENCY", global = true,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_JOB_CONCURRENCY", global = true,
           value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub job_concurrency: Option<u64>,
 
     /// Seconds to wait at shutdown for in-flight requests and jobs before exiting.
-    #[arg(long, env = "REACHGRASP_SHUTDOWN_GRACE", default_value_t = DEFAULT_SHUTDOWN_GRACE_SECS,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_SHUTDOWN_GRACE", default_value_t = DEFAULT_SHUTDOWN_GRACE_SECS,
           global = true)]
     pub shutdown_grace_secs: u64,
 
     /// Token bridge workers present (`Authorization: Bearer <token>`) on
     /// `/v1/bridges/connect`. When unset, a random token is generated at start and logged once.
-    #[arg(
+    #[arg(help_heading = SERVICE_OPTIONS,
         long,
         env = "REACHGRASP_BRIDGE_TOKEN",
         global = true,
@@ -124,19 +128,19 @@ pub struct Config {
 
     /// Seconds a queued execution waits while no compatible worker is connected before it
     /// fails with `no worker` (0: wait forever).
-    #[arg(long, env = "REACHGRASP_BRIDGE_QUEUE_TIMEOUT", default_value_t = DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BRIDGE_QUEUE_TIMEOUT", default_value_t = DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS,
           global = true)]
     pub bridge_queue_timeout_secs: u64,
 
     /// Milliseconds between worker heartbeats (told to workers in `welcome`); a worker silent
     /// for 5 intervals is disconnected.
-    #[arg(long, env = "REACHGRASP_BRIDGE_HEARTBEAT_MS", default_value_t = DEFAULT_BRIDGE_HEARTBEAT_MS,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BRIDGE_HEARTBEAT_MS", default_value_t = DEFAULT_BRIDGE_HEARTBEAT_MS,
           value_parser = clap::value_parser!(u64).range(10..=60_000), global = true)]
     pub bridge_heartbeat_ms: u64,
 
     /// Skip first-start seeding (generating the default synthetic study, mapping it for every
     /// bundled system and training each system's default model when one is missing).
-    #[arg(long, env = "REACHGRASP_NO_SEED", global = true,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_NO_SEED", global = true,
           value_parser = clap::builder::BoolishValueParser::new())]
     pub no_seed: bool,
 

@@ -71,11 +71,12 @@ enum Command {
         /// Seeded object name (`ball`, `bottle`, `kitchen_timer`, `pencil`, `sunglasses`).
         #[arg(long)]
         object: Option<String>,
-        /// Task direction `x,y,z` (world frame).
+        /// Task direction `x,y,z` or `x y z` (world frame); write `--direction=-1,0,0` when the
+        /// first is negative.
         #[arg(
             long,
             value_delimiter = ',',
-            num_args = 3,
+            num_args = 1..=3,
             allow_negative_numbers = true
         )]
         direction: Option<Vec<f64>>,
@@ -221,7 +222,19 @@ struct SynthArgs {
     summary: bool,
 }
 
-fn main() -> anyhow::Result<()> {
+/// A failure is one line on stderr (its causes joined by `: `) and exit status 1, not a
+/// debug dump: the user's mistakes (a missing file, a bad flag value) read as messages.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("reachgrasp: error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command.unwrap_or(Command::Serve) {
         Command::Serve => serve(cli.config),
@@ -252,6 +265,10 @@ fn main() -> anyhow::Result<()> {
                 Some(path) => serde_json::from_str(&std::fs::read_to_string(&path)?)?,
                 None => {
                     let dirs = match direction {
+                        Some(d) if d.len() != 3 => anyhow::bail!(
+                            "--direction needs three numbers `x,y,z` (or `x y z`), got {}",
+                            d.len()
+                        ),
                         Some(d) => {
                             serde_json::json!([{ "direction": d, "kind": kind, "goal": goal }])
                         }

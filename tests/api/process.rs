@@ -138,3 +138,50 @@ async fn sigterm_stops_gracefully_and_records_the_running_job_as_interrupted() {
     );
     second.child.kill().await.unwrap();
 }
+
+/// The CLI's grasp: `--direction x,y,z` (as its help documents) and `x y z` give the same
+/// request; a user's mistake is one line on stderr and exit status 1, with no debug dump.
+#[tokio::test]
+async fn the_grasp_cli_takes_a_comma_separated_direction_and_reports_mistakes_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("cli.db");
+    let robots = Path::new(env!("CARGO_MANIFEST_DIR")).join("robots");
+    let grasp = |direction: &[&str]| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_reachgrasp"));
+        c.arg("grasp")
+            .args(["--robot", "wam_t42", "--object", "ball", "--kind", "force"])
+            .arg("--direction")
+            .args(direction)
+            .arg("--db")
+            .arg(&db)
+            .arg("--robots")
+            .arg(&robots)
+            .args(["--log", "error"])
+            .env_remove("RUST_BACKTRACE")
+            .env_remove("RUST_LIB_BACKTRACE");
+        async move { c.output().await.unwrap() }
+    };
+    let comma = grasp(&["0,0,1"]).await;
+    assert!(comma.status.success(), "{comma:?}");
+    let spaced = grasp(&["0", "0", "1"]).await;
+    assert!(spaced.status.success(), "{spaced:?}");
+    // the same grasp (deterministic), apart from how long it took
+    let timeless = |out: &[u8]| {
+        let mut v: Value = serde_json::from_slice(out).unwrap();
+        v["time_s"] = Value::Null;
+        v["solver"]["time_s"] = Value::Null;
+        v
+    };
+    let (a, b) = (timeless(&comma.stdout), timeless(&spaced.stdout));
+    assert_eq!(a, b);
+    assert_eq!(a["feasible"], true, "{a}");
+
+    let short = grasp(&["0,0"]).await;
+    assert_eq!(short.status.code(), Some(1));
+    let err = String::from_utf8(short.stderr).unwrap();
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with("reachgrasp: error: --direction needs three numbers"),
+        "{err}"
+    );
+}
