@@ -76,9 +76,16 @@ async fn a_plan_with_a_standoff_passes_a_pre_grasp_behind_its_grasp() {
         .await
         .unwrap();
     let wrist = robot["wrist_frame"].as_str().unwrap().to_owned();
+    let tips: Vec<String> = robot["fingers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["tip_frame"].as_str().unwrap().to_owned())
+        .collect();
     let names = traj["joint_names"].clone();
-    let fk = |q: Value| {
-        let body = json!({"joint_names": names, "positions": q, "frames": [wrist]});
+    // position and orientation of each of `frames` at `q`, by the service's FK
+    let fk = |q: Value, frames: Vec<String>| {
+        let body = json!({"joint_names": names, "positions": q, "frames": frames});
         let app = &app;
         async move {
             let v: Value = app
@@ -87,16 +94,22 @@ async fn a_plan_with_a_standoff_passes_a_pre_grasp_behind_its_grasp() {
                 .json()
                 .await
                 .unwrap();
-            let f = &v["frames"][0];
-            let get = |k: &str, n: usize| -> Vec<f64> {
+            let get = |f: &Value, k: &str, n: usize| -> Vec<f64> {
                 (0..n).map(|i| f[k][i].as_f64().unwrap()).collect()
             };
-            (get("position", 3), get("orientation", 4))
+            v["frames"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|f| (get(f, "position", 3), get(f, "orientation", 4)))
+                .collect::<Vec<_>>()
         }
     };
     let points = traj["points"].as_array().unwrap();
-    let (at_grasp, turn_grasp) = fk(points.last().unwrap()["positions"].clone()).await;
-    let (at_pre, turn_pre) = fk(approach["pre_grasp"].clone()).await;
+    let grasp_q = points.last().unwrap()["positions"].clone();
+    let pre_q = approach["pre_grasp"].clone();
+    let (at_grasp, turn_grasp) = fk(grasp_q.clone(), vec![wrist.clone()]).await.remove(0);
+    let (at_pre, turn_pre) = fk(pre_q.clone(), vec![wrist]).await.remove(0);
     let dir: Vec<f64> = (0..3)
         .map(|k| approach["direction"][k].as_f64().unwrap())
         .collect();
@@ -114,33 +127,15 @@ async fn a_plan_with_a_standoff_passes_a_pre_grasp_behind_its_grasp() {
         "{turn_grasp:?} {turn_pre:?}"
     );
     // the hand is open wider there: its fingertips spread further apart than at the grasp
-    let tips: Vec<String> = robot["fingers"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|f| f["tip_frame"].as_str().unwrap().to_owned())
-        .collect();
     let spread = |q: Value| {
-        let body = json!({"joint_names": names, "positions": q, "frames": tips});
-        let app = &app;
+        let frames = fk(q, tips.clone());
         async move {
-            let v: Value = app
-                .post_json(&format!("/v1/robots/{ROBOT}/fk"), &body)
-                .await
-                .json()
-                .await
-                .unwrap();
-            let p: Vec<Vec<f64>> = v["frames"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|f| (0..3).map(|k| f["position"][k].as_f64().unwrap()).collect())
-                .collect();
+            let p = frames.await;
             let mut s = 0.0;
             for a in 0..p.len() {
                 for b in a + 1..p.len() {
                     s += (0..3)
-                        .map(|k| (p[a][k] - p[b][k]).powi(2))
+                        .map(|k| (p[a].0[k] - p[b].0[k]).powi(2))
                         .sum::<f64>()
                         .sqrt();
                 }
@@ -148,10 +143,7 @@ async fn a_plan_with_a_standoff_passes_a_pre_grasp_behind_its_grasp() {
             s
         }
     };
-    let (open, closed) = (
-        spread(approach["pre_grasp"].clone()).await,
-        spread(points.last().unwrap()["positions"].clone()).await,
-    );
+    let (open, closed) = (spread(pre_q).await, spread(grasp_q).await);
     assert!(open > closed, "{open} vs {closed}");
 
     // The trajectory's dashboard page shows the verdict and the approach.
