@@ -72,7 +72,8 @@ const SUPPORT_SLACK: f64 = 1e-4;
 pub struct PreGrasp {
     /// Full joint vector (model order).
     pub q: Vec<f64>,
-    /// Palm displacement from the grasp (m) and its unit direction (robot base frame).
+    /// Palm displacement from the grasp along `direction` (m), and that unit direction (robot
+    /// base frame).
     pub standoff_m: f64,
     pub direction: [f64; 3],
     /// Fraction of the way each hand joint opened towards its open limit.
