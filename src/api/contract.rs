@@ -288,6 +288,43 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
             }
         }
     }
+    flatten_plan(schemas);
+}
+
+/// A plan body is a grasp body and the plan's own fields at one level, and the server refuses
+/// any other field (a typo such as `"exectue"` is a 422, not a plan that silently does not
+/// execute). `allOf` cannot state that: each branch's `additionalProperties: false` would refuse
+/// the other branch's fields. So the two are merged into one object schema, the grasp body's
+/// `oneOf` (object or object id) kept.
+fn flatten_plan(schemas: &mut serde_json::Map<String, Value>) {
+    let Some(grasp) = schemas.get("GraspIn").cloned() else {
+        return;
+    };
+    let Some(plan) = schemas.get_mut("PlanIn") else {
+        return;
+    };
+    let own = plan.pointer("/allOf/1").cloned().unwrap_or(Value::Null);
+    let mut properties = grasp["properties"].as_object().cloned().unwrap_or_default();
+    if let Some(o) = own["properties"].as_object() {
+        properties.extend(o.clone());
+    }
+    let required: Vec<Value> = [&grasp["required"], &own["required"]]
+        .into_iter()
+        .filter_map(Value::as_array)
+        .flatten()
+        .cloned()
+        .collect();
+    let mut merged = json!({
+        "type": "object",
+        "description": plan.get("description").cloned().unwrap_or(Value::Null),
+        "properties": properties,
+        "required": required,
+        "additionalProperties": false,
+    });
+    if let Some(one_of) = grasp.get("oneOf") {
+        merged["oneOf"] = one_of.clone();
+    }
+    *plan = merged;
 }
 
 fn complete_operation(path: &str, method: &str, op: &mut Value) {

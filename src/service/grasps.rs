@@ -58,6 +58,7 @@ pub struct ObjectIn {
 
 /// A task direction (world frame; normalised by the service).
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct TaskDirectionIn {
     #[schema(min_items = 3, max_items = 3)]
     pub direction: [f64; 3],
@@ -67,12 +68,14 @@ pub struct TaskDirectionIn {
 
 /// The object of a grasp request: a stored object's id, or an inline description.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct GraspIn {
     /// Robot (arm-hand system) id: a bundled system such as `wam_ihy`, or the id of one registered
     /// with `POST /v1/robots`.
     #[schema(min_length = 1)]
     pub robot: String,
-    /// Id of a stored object (give this or `object`).
+    /// Id of a stored object, or the name of a seeded one (`ball`, `bottle`, `kitchen_timer`,
+    /// `pencil`, `sunglasses`); give this or `object`.
     pub object_id: Option<String>,
     /// Inline object (give this or `object_id`).
     pub object: Option<ObjectIn>,
@@ -99,6 +102,7 @@ pub struct GraspIn {
 
 /// A batch: the same robot and task settings over many objects or placements.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct GraspBatchIn {
     /// Robot id (bundled or registered), as in `POST /v1/grasps`.
     #[schema(min_length = 1)]
@@ -122,6 +126,7 @@ pub struct GraspBatchIn {
 
 /// One batch item.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct BatchItemIn {
     pub object_id: Option<String>,
     pub object: Option<ObjectIn>,
@@ -479,12 +484,24 @@ async fn resolve_object(
 ) -> Result<(Option<String>, Object), Error> {
     match (id, inline) {
         (Some(id), None) => {
-            let row = repo::get_object(&ctx.db, id).await?.ok_or_else(|| {
-                Error::invalid(
-                    format!("{prefix}object_id"),
-                    format!("unknown object '{id}'"),
-                )
-            })?;
+            // an id, or a seeded object's name
+            let row = match repo::get_object(&ctx.db, id).await? {
+                Some(row) => row,
+                None => match repo::get_seeded_object(&ctx.db, id).await? {
+                    Some(row) => row,
+                    None => {
+                        let names = repo::seeded_object_names(&ctx.db).await?;
+                        return Err(Error::invalid(
+                            format!("{prefix}object_id"),
+                            format!(
+                                "unknown object '{id}': give an id from GET /v1/objects or a \
+                                 seeded object's name ({})",
+                                names.join(", ")
+                            ),
+                        ));
+                    }
+                },
+            };
             let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(Error::internal)?;
             let obj = Object::new(spec).map_err(Error::internal)?;
             Ok((Some(row.id), obj))

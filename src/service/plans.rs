@@ -112,6 +112,7 @@ pub struct PlanIn {
 /// each is deserialized (and reported) at its own path. `a_plan_reads_every_grasp_field` keeps
 /// it in step with [`GraspIn`].
 #[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 struct PlanWire {
     robot: String,
     object_id: Option<String>,

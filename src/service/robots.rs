@@ -367,14 +367,26 @@ pub async fn system(ctx: &Context, id: &str) -> Result<Arc<System>, Error> {
 /// The system of a robot named in a request body: an unknown id is bad input at `field`.
 pub async fn robot_field(ctx: &Context, id: &str, field: &str) -> Result<Arc<System>, Error> {
     match ctx.robots.system(id).await {
-        Err(LibraryError::UnknownRobot(_)) => Err(unknown_robot(field, id)),
+        Err(LibraryError::UnknownRobot(_)) => {
+            let known: Vec<String> = repo::list(&ctx.db)
+                .await?
+                .into_iter()
+                .map(|r| r.id)
+                .collect();
+            Err(unknown_robot(field, id, &known))
+        }
         other => Ok(other?),
     }
 }
 
-/// The one "unknown robot" field error.
-pub fn unknown_robot(field: &str, id: &str) -> Error {
-    Error::invalid(field, format!("unknown robot '{id}'"))
+/// The one "unknown robot" field error, naming the robots there are.
+pub fn unknown_robot(field: &str, id: &str, known: &[String]) -> Error {
+    let known = if known.is_empty() {
+        "none is registered yet".to_owned()
+    } else {
+        format!("known robots: {}", known.join(", "))
+    };
+    Error::invalid(field, format!("unknown robot '{id}' ({known})"))
 }
 
 // ------------------------------------------------------------------------------------ library

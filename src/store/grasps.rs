@@ -89,6 +89,28 @@ pub async fn get_object(pool: &SqlitePool, id: &str) -> Result<Option<ObjectRow>
         .await
 }
 
+/// A seeded object by its name (`ball`, `bottle`, ...), so requests may name one instead of
+/// giving its id.
+pub async fn get_seeded_object(
+    pool: &SqlitePool,
+    name: &str,
+) -> Result<Option<ObjectRow>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT id, name, spec, seeded, created_at FROM objects WHERE seeded = 1 AND name = ? \
+         ORDER BY created_at, id LIMIT 1",
+    )
+    .bind(name)
+    .fetch_optional(pool)
+    .await
+}
+
+/// Names of the seeded objects, for error messages.
+pub async fn seeded_object_names(pool: &SqlitePool) -> Result<Vec<String>, sqlx::Error> {
+    sqlx::query_scalar("SELECT name FROM objects WHERE seeded = 1 ORDER BY name")
+        .fetch_all(pool)
+        .await
+}
+
 /// Deletes an object; returns whether it existed.
 pub async fn delete_object(pool: &SqlitePool, id: &str) -> Result<bool, sqlx::Error> {
     let r = sqlx::query("DELETE FROM objects WHERE id = ?")

@@ -351,3 +351,92 @@ async fn a_registered_robot_can_grasp_and_is_then_held_by_its_grasps() {
         .await;
     assert_eq!(res.status(), 202);
 }
+
+/// A lab's typos are named, not ignored: an unknown field in a plan or grasp body (`"exectue":
+/// true` used to plan without executing) is a 422 at that field, and no plan is stored; an
+/// unknown robot or object lists what there is; a seeded object may be named instead of its id.
+#[tokio::test]
+async fn typos_are_named_and_seeded_objects_go_by_name() {
+    let app = app().await;
+    let count = |path: &'static str| {
+        let app = &app;
+        async move {
+            let v: Value = app.get(path).await.json().await.unwrap();
+            v["total"].as_i64().unwrap()
+        }
+    };
+    let force = json!([{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]);
+    let plans = count("/v1/plans").await;
+    for (path, body, field) in [
+        (
+            "/v1/plans",
+            json!({"robot": "wam_t42", "object_id": "ball", "start": "current", "exectue": true,
+                   "task_directions": force}),
+            "$.exectue",
+        ),
+        (
+            "/v1/grasps",
+            json!({"robot": "wam_t42", "object_id": "ball", "starts": 1,
+                   "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize", "weight": 2}]}),
+            "$.task_directions[0].weight",
+        ),
+        (
+            "/v1/grasps",
+            json!({"robot": "wam_t42", "object_id": "ball", "start": 1}),
+            "$.start",
+        ),
+    ] {
+        let p = assert_problem(app.post_json(path, &body).await, 422, "validation").await;
+        assert_eq!(p["errors"][0]["path"], field, "{p}");
+        assert!(
+            p["errors"][0]["message"]
+                .as_str()
+                .unwrap()
+                .contains("unknown field"),
+            "{p}"
+        );
+    }
+    let p = assert_problem(
+        app.post_json(
+            "/v1/grasps",
+            &json!({"robot": "wam_t4", "object_id": "ball"}),
+        )
+        .await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(p["errors"][0]["path"], "$.robot");
+    assert!(p["detail"].as_str().unwrap().contains("wam_t42"), "{p}");
+    let p = assert_problem(
+        app.post_json(
+            "/v1/grasps",
+            &json!({"robot": "wam_t42", "object_id": "balll"}),
+        )
+        .await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(p["errors"][0]["path"], "$.object_id");
+    assert!(
+        p["detail"].as_str().unwrap().contains("kitchen_timer"),
+        "{p}"
+    );
+    assert_eq!(count("/v1/plans").await, plans);
+
+    // the seeded ball by name is the seeded ball by id
+    let res = app
+        .post_json(
+            "/v1/grasps",
+            &json!({"robot": "wam_t42", "object_id": "ball", "starts": 1, "task_directions": force}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let g: Value = res.json().await.unwrap();
+    assert_eq!(
+        g["object_id"],
+        seeded_id(&app, "ball").await.as_str(),
+        "{g}"
+    );
+}
