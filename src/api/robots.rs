@@ -35,11 +35,12 @@ pub fn router() -> OpenApiRouter<AppState> {
 
 use crate::service::robots::{self as service, inf_to_none};
 pub use crate::service::robots::{
-    FkRequest, FkResponse, FramePose, JacobianRequest, JacobianResponse, ManipulabilityRequest,
-    ManipulabilityResponse, TaskRows, TransmissionDto,
+    DefaultModelDto, IkBatchFile, IkBatchReport, IkBatchStats, IkRequest, IkResponse,
+    MAX_IK_BUDGET_MS, SeedDto,
 };
 pub use crate::service::robots::{
-    IkBatchFile, IkBatchReport, IkBatchStats, IkRequest, IkResponse, MAX_IK_BUDGET_MS, SeedDto,
+    FkRequest, FkResponse, FramePose, JacobianRequest, JacobianResponse, ManipulabilityRequest,
+    ManipulabilityResponse, TaskRows, TransmissionDto,
 };
 
 // ------------------------------------------------------------------------------------ DTOs
@@ -54,6 +55,8 @@ pub struct RobotSummary {
     /// Independent joints, the order of every joint vector of this robot.
     pub joint_names: Vec<String>,
     pub fingers: Vec<String>,
+    /// The model plans use when they name none, or why there is none yet.
+    pub default_model: DefaultModelDto,
     pub created_at: String,
     pub updated_at: String,
 }
@@ -126,6 +129,8 @@ pub struct RobotDetail {
     /// The descriptor as registered.
     #[schema(value_type = Object)]
     pub descriptor: serde_json::Value,
+    /// The model plans use when they name none, or why there is none yet.
+    pub default_model: DefaultModelDto,
     pub created_at: String,
     pub updated_at: String,
 }
@@ -199,19 +204,20 @@ fn decode_meshes(
     Ok(out)
 }
 
-fn summary(row: &RobotRow, s: &System) -> RobotSummary {
+fn summary(row: &RobotRow, s: &System, default_model: DefaultModelDto) -> RobotSummary {
     RobotSummary {
         id: row.id.clone(),
         name: row.name.clone(),
         bundled: row.bundled,
         joint_names: s.model.joint_names().to_vec(),
         fingers: s.fingers.iter().map(|f| f.name.clone()).collect(),
+        default_model,
         created_at: row.created_at.clone(),
         updated_at: row.updated_at.clone(),
     }
 }
 
-fn detail(row: &RobotRow, s: &System) -> RobotDetail {
+fn detail(row: &RobotRow, s: &System, default_model: DefaultModelDto) -> RobotDetail {
     let m = &s.model;
     let qn = |k: usize| m.joint_names()[k].clone();
     let joints = m
@@ -290,6 +296,7 @@ fn detail(row: &RobotRow, s: &System) -> RobotDetail {
         shoulder_frame: m.frame_name(s.shoulder_frame).into(),
         wrist_frame: m.frame_name(s.wrist_frame).into(),
         descriptor: serde_json::from_str(&row.descriptor).unwrap_or(serde_json::Value::Null),
+        default_model,
         created_at: row.created_at.clone(),
         updated_at: row.updated_at.clone(),
     }
@@ -301,11 +308,11 @@ fn detail(row: &RobotRow, s: &System) -> RobotDetail {
 #[utoipa::path(get, path = "/v1/robots", tag = "robots",
     responses((status = 200, description = "All systems, bundled first", body = RobotList)))]
 async fn list_robots(State(state): State<AppState>) -> Result<Json<RobotList>, ApiError> {
-    let items = service::list(&state)
-        .await?
-        .iter()
-        .map(|(row, s)| summary(row, s))
-        .collect();
+    let mut items = Vec::new();
+    for (row, s) in service::list(&state).await? {
+        let default_model = service::default_model(&state, &row.id).await?;
+        items.push(summary(&row, &s, default_model));
+    }
     Ok(Json(RobotList { items }))
 }
 
@@ -321,7 +328,8 @@ async fn get_robot(
     Path(id): Path<String>,
 ) -> Result<Json<RobotDetail>, ApiError> {
     let (row, s) = service::get(&state, &id).await?;
-    Ok(Json(detail(&row, &s)))
+    let default_model = service::default_model(&state, &id).await?;
+    Ok(Json(detail(&row, &s, default_model)))
 }
 
 /// The system as one URDF (arm, mount joint `hand_mount_joint`, hand).
@@ -365,10 +373,11 @@ async fn create_robot(
     let meshes = decode_meshes(&body.meshes)?;
     let (row, s) = service::register(&state, desc, arm, hand, meshes).await?;
     let id = row.id.clone();
+    let default_model = service::default_model(&state, &id).await?;
     Ok(super::created(
         StatusCode::CREATED,
         format!("/v1/robots/{id}"),
-        detail(&row, &s),
+        detail(&row, &s, default_model),
     ))
 }
 

@@ -364,6 +364,38 @@ pub async fn system(ctx: &Context, id: &str) -> Result<Arc<System>, Error> {
     Ok(ctx.robots.system(id).await?)
 }
 
+/// Whether a plan may leave out `model` for this robot now, and which model it would use.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct DefaultModelDto {
+    /// `trained`: plans without `model` use `id`; `seeding`: first-start seeding is training it
+    /// (watch `job_id`; plans answer 503 `not-ready` meanwhile); `none`: train one
+    /// (`POST /v1/models`) or name one in each plan.
+    pub state: DefaultModelState,
+    pub id: Option<String>,
+    pub job_id: Option<String>,
+}
+
+/// Whether a robot's default model is trained, being trained by first-start seeding, or missing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum DefaultModelState {
+    Trained,
+    Seeding,
+    None,
+}
+
+/// The robot's default model as a plan would resolve it.
+pub async fn default_model(ctx: &Context, robot: &str) -> Result<DefaultModelDto, Error> {
+    let (state, id, job_id) = match crate::store::models::default_model_for(&ctx.db, robot).await? {
+        Some(row) => (DefaultModelState::Trained, Some(row.id), None),
+        None => match ctx.seed.pending_job(robot) {
+            Some(job) => (DefaultModelState::Seeding, None, Some(job.to_string())),
+            None => (DefaultModelState::None, None, None),
+        },
+    };
+    Ok(DefaultModelDto { state, id, job_id })
+}
+
 /// The system of a robot named in a request body: an unknown id is bad input at `field`.
 pub async fn robot_field(ctx: &Context, id: &str, field: &str) -> Result<Arc<System>, Error> {
     match ctx.robots.system(id).await {

@@ -1,6 +1,7 @@
 //! The approach phase of a plan (issue 18, item 3): a pre-grasp standoff along the approach
 //! direction with the hand opened, checked against the service's own forward kinematics, and
-//! its request field validated with nothing stored.
+//! its request field validated with nothing stored; and a robot's default-model state, which
+//! says whether a plan may leave out `model`.
 
 use serde_json::{Value, json};
 
@@ -15,7 +16,22 @@ async fn a_plan_with_a_standoff_passes_a_pre_grasp_behind_its_grasp() {
         c.robots = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
     })
     .await;
-    let (_, start) = trained(&app, ROBOT).await;
+    // A robot says whether plans may leave out `model`: not before a model is trained (this
+    // app does no first-start seeding), and then with the model they will use.
+    let default_model = || async {
+        let v: Value = app
+            .get(&format!("/v1/robots/{ROBOT}"))
+            .await
+            .json()
+            .await
+            .unwrap();
+        v["default_model"].clone()
+    };
+    assert_eq!(default_model().await["state"], "none");
+    let (model, start) = trained(&app, ROBOT).await;
+    let after = default_model().await;
+    assert_eq!(after["state"], "trained", "{after}");
+    assert_eq!(after["id"], model.as_str(), "{after}");
     let body = |standoff: Value| {
         json!({"robot": ROBOT, "object_id": BALL, "start": start, "approach_standoff": standoff,
                "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]})
