@@ -10,6 +10,7 @@ use crate::grasp::{GraspResult, ObjectSpec, ShapeSpec};
 use crate::jobs::JobRecord;
 use crate::service::Context as AppState;
 use crate::service::grasps::GraspSettings;
+use crate::service::robots::DefaultModelState;
 use crate::store::demonstrations::{self as demo_repo, DemonstrationFilter};
 use crate::store::grasps as grasp_repo;
 use crate::store::jobs::JobFilter;
@@ -249,10 +250,19 @@ pub async fn robots(State(state): State<AppState>) -> Page {
     let mut cards = String::new();
     for r in &rows {
         let s = state.robots.system(&r.id).await?;
+        // whether a plan can use this robot without naming a model yet
+        let model = match crate::service::robots::default_model(&state, &r.id)
+            .await?
+            .state
+        {
+            DefaultModelState::Trained => "model trained",
+            DefaultModelState::Seeding => "model being trained (first start)",
+            DefaultModelState::None => "no model yet",
+        };
         cards.push_str(&format!(
             "<a class=\"thumb\" href=\"/ui/robots/{id}\"><img loading=\"lazy\" \
              src=\"/v1/robots/{id}/plot.svg\" alt=\"{id} posture\" width=\"400\" height=\"300\">\
-             <span><b>{id}</b> · {} joints · {} fingers{}</span></a>",
+             <span><b>{id}</b> · {} joints · {} fingers{} · {model}</span></a>",
             s.model.nq(),
             s.fingers.len(),
             if r.bundled { " · bundled" } else { "" },

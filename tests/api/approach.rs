@@ -27,11 +27,17 @@ async fn a_plan_with_a_standoff_passes_a_pre_grasp_behind_its_grasp() {
             .unwrap();
         v["default_model"].clone()
     };
+    let robots_page = || async { app.get("/ui/robots").await.text().await.unwrap() };
     assert_eq!(default_model().await["state"], "none");
+    assert!(!robots_page().await.contains("model trained"));
     let (model, start) = trained(&app, ROBOT).await;
     let after = default_model().await;
     assert_eq!(after["state"], "trained", "{after}");
     assert_eq!(after["id"], model.as_str(), "{after}");
+    // the dashboard's robot cards say the same
+    let page = robots_page().await;
+    assert!(page.contains(&format!("<b>{ROBOT}</b>")) && page.contains("model trained"));
+    assert!(page.contains("no model yet"));
     let body = |standoff: Value| {
         json!({"robot": ROBOT, "object_id": BALL, "start": start, "approach_standoff": standoff,
                "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]})
