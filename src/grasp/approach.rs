@@ -16,7 +16,7 @@
 //! joint line to the grasp with the hand still open, and the hand closes last. Not in the
 //! paper, whose flow ends at the grasp configuration itself.
 
-use nalgebra::{Point3, Translation3, Vector3};
+use nalgebra::{Translation3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -98,13 +98,14 @@ pub fn pre_grasp(
     let model = &*sys.model;
     let checker = scene_checker(sys, object, obstacles);
     let mut data = checker.data();
-    let at_goal = checker.clearance(&mut data, goal);
+    // only the support's distance at the grasp is needed (the pre-grasp may not come closer)
+    let at_goal = checker.category_clearance(&mut data, goal, &[Category::Support]);
     let kin = data.kinematics();
     let palm = *kin.frame(sys.palm);
     let tips: Vector3<f64> = sys
         .fingers
         .iter()
-        .map(|f| (kin.frame(f.tip) * Point3::from(f.tip_offset)).coords)
+        .map(|f| f.contact_point(kin).coords)
         .sum::<Vector3<f64>>()
         / sys.fingers.len().max(1) as f64;
     let approach = (tips - palm.translation.vector)
@@ -245,10 +246,9 @@ fn open_targets(
         sys.fingers
             .iter()
             .map(|f| {
-                let tip = kin.frame(f.tip);
                 (
-                    (tip * Point3::from(f.tip_offset)).coords,
-                    tip.rotation * f.pad_normal,
+                    f.contact_point(kin).coords,
+                    kin.frame(f.tip).rotation * f.pad_normal,
                 )
             })
             .collect()
@@ -357,7 +357,7 @@ mod tests {
         let centre = sys
             .fingers
             .iter()
-            .map(|f| (data.frame(f.tip) * Point3::from(f.tip_offset)).coords)
+            .map(|f| f.contact_point(&data).coords)
             .sum::<Vector3<f64>>()
             / 2.0;
         (goal, centre, *data.frame(sys.palm))

@@ -764,7 +764,7 @@ impl<'a> Eval<'a> {
             &mut self.palm_j,
         );
         for (i, f) in self.sys.fingers.iter().enumerate() {
-            self.tip_p[i] = self.data.frame(f.tip) * Point3::from(f.tip_offset);
+            self.tip_p[i] = f.contact_point(&self.data);
             self.tip_z[i] = self.data.frame(f.tip).rotation * f.pad_normal;
             self.tip_q[i] = self.req.object.query(&self.tip_p[i]);
             let h = 1e-5;
@@ -1337,7 +1337,7 @@ fn contact_points(sys: &HandArm, obj: &Object, data: &Data) -> Vec<(Point3<f64>,
     sys.fingers
         .iter()
         .map(|f| {
-            let p = data.frame(f.tip) * Point3::from(f.tip_offset);
+            let p = f.contact_point(data);
             let q = obj.query(&p);
             (q.point, q)
         })
@@ -1358,7 +1358,7 @@ fn hand_gc(
     let mut ggt = Matrix6::<f64>::zeros();
     gj.fill(0.0);
     for f in &sys.fingers {
-        let p = data.frame(f.tip) * Point3::from(f.tip_offset);
+        let p = f.contact_point(data);
         let q = req.object.query(&p);
         let c = q.point;
         let local = data.frame(f.tip).inverse_transform_point(&c);
@@ -1463,10 +1463,7 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
     let tips: Vec<Vector3<f64>> = sys
         .fingers
         .iter()
-        .map(|f| {
-            palm.inverse_transform_point(&(data.frame(f.tip) * Point3::from(f.tip_offset)))
-                .coords
-        })
+        .map(|f| palm.inverse_transform_point(&f.contact_point(data)).coords)
         .collect();
     let centroid_local = tips.iter().sum::<Vector3<f64>>() / tips.len() as f64;
     let approach_local = centroid_local

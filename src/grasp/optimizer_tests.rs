@@ -1005,7 +1005,7 @@ fn the_reach_ball_contains_every_sampled_fingertip() {
                 .collect();
             forward_kinematics(model, &mut data, &q);
             for f in &sys.fingers {
-                let p = data.frame(f.tip) * Point3::from(f.tip_offset);
+                let p = f.contact_point(&data);
                 let d = (p - c).norm() + f.radius;
                 assert!(d <= r + 1e-9, "{name}: {d} > {r}");
                 farthest = farthest.max(d);

@@ -30,6 +30,13 @@ pub struct Finger {
     pub pad_normal: Vector3<f64>,
 }
 
+impl Finger {
+    /// The contact-sphere centre in the world, at the posture `data` holds.
+    pub fn contact_point(&self, data: &Data) -> Point3<f64> {
+        data.frame(self.tip) * Point3::from(self.tip_offset)
+    }
+}
+
 /// A joint value as an affine function of one independent coordinate:
 /// `multiplier · q[q_index] + offset` (mimic joints included).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -256,11 +263,7 @@ fn pair_gap(h: &HandArm, spheres: &[LinkSphere], data: &Data, p: LinkPair) -> f6
         LinkPair::Links(a, b) => (a, at(&spheres[b]), spheres[b].radius),
         LinkPair::Tip(a, f) => {
             let fi = &h.fingers[f];
-            (
-                a,
-                data.frame(fi.tip) * Point3::from(fi.tip_offset),
-                fi.radius,
-            )
+            (a, fi.contact_point(data), fi.radius)
         }
     };
     (at(&spheres[a]) - c).norm() - spheres[a].radius - r
@@ -330,7 +333,7 @@ impl HandArm {
         let mut centre: Option<Point3<f64>> = None;
         let mut radius: f64 = 0.0;
         for (chain, finger) in self.finger_chains().iter().zip(&self.fingers) {
-            let tip = data.frame(finger.tip) * Point3::from(finger.tip_offset);
+            let tip = finger.contact_point(&data);
             // Moving frames, tip side first.
             let mut moving = Vec::new();
             for &f in chain {
@@ -430,7 +433,7 @@ impl HandArm {
                 for (f, body) in self.fingers.iter().zip(&tip_body) {
                     if body.contains(&c.frame) {
                         let world = data.frame(c.frame) * Point3::from(center);
-                        let tip = data.frame(f.tip) * Point3::from(f.tip_offset);
+                        let tip = f.contact_point(&data);
                         if (world - tip).norm() < f.radius + radius {
                             continue 'sphere;
                         }
