@@ -42,13 +42,9 @@ async fn a_plan_with_a_standoff_passes_a_pre_grasp_behind_its_grasp() {
         json!({"robot": ROBOT, "object_id": BALL, "start": start, "approach_standoff": standoff,
                "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]})
     };
-    let plans = || async {
-        let v: Value = app.get("/v1/plans").await.json().await.unwrap();
-        v["total"].as_i64().unwrap()
-    };
 
     // Out of range or not a number: 422 at the field, nothing stored.
-    let before = plans().await;
+    let before = app.total("/v1/plans").await;
     for bad in [json!(-0.01), json!(0.3), json!("far")] {
         let problem = assert_problem(
             app.post_json("/v1/plans", &body(bad)).await,
@@ -61,7 +57,7 @@ async fn a_plan_with_a_standoff_passes_a_pre_grasp_behind_its_grasp() {
             "{problem}"
         );
     }
-    assert_eq!(plans().await, before);
+    assert_eq!(app.total("/v1/plans").await, before);
 
     // Without a standoff there is no approach phase.
     let direct: Value = app

@@ -358,15 +358,8 @@ async fn a_registered_robot_can_grasp_and_is_then_held_by_its_grasps() {
 #[tokio::test]
 async fn typos_are_named_and_seeded_objects_go_by_name() {
     let app = app().await;
-    let count = |path: &'static str| {
-        let app = &app;
-        async move {
-            let v: Value = app.get(path).await.json().await.unwrap();
-            v["total"].as_i64().unwrap()
-        }
-    };
     let force = json!([{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]);
-    let plans = count("/v1/plans").await;
+    let plans = app.total("/v1/plans").await;
     for (path, body, field) in [
         (
             "/v1/plans",
@@ -423,7 +416,7 @@ async fn typos_are_named_and_seeded_objects_go_by_name() {
         p["detail"].as_str().unwrap().contains("kitchen_timer"),
         "{p}"
     );
-    assert_eq!(count("/v1/plans").await, plans);
+    assert_eq!(app.total("/v1/plans").await, plans);
 
     // the seeded ball by name is the seeded ball by id
     let res = app

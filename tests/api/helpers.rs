@@ -74,6 +74,12 @@ impl TestApp {
             .expect("request")
     }
 
+    /// The `total` of a list (`GET path`): how many rows match, whatever the page.
+    pub async fn total(&self, path: &str) -> i64 {
+        let v: Value = self.get(path).await.json().await.expect("list");
+        v["total"].as_i64().expect("total")
+    }
+
     pub async fn post_json(&self, path: &str, body: &Value) -> reqwest::Response {
         self.client
             .post(self.url(path))

@@ -337,11 +337,6 @@ fn named(names: &[String], q: &[f64]) -> Value {
     json!({"joint_names": names, "positions": q})
 }
 
-async fn trajectory_count(app: &TestApp) -> i64 {
-    let v: Value = app.get("/v1/trajectories").await.json().await.unwrap();
-    v["total"].as_i64().unwrap()
-}
-
 #[tokio::test]
 async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() {
     let app = app().await;
@@ -886,7 +881,7 @@ async fn bad_trajectory_and_control_requests_are_refused_and_nothing_is_stored()
         .await
         .unwrap();
     assert_eq!(res.status(), 400);
-    assert_eq!(trajectory_count(&app).await, 0);
+    assert_eq!(app.total("/v1/trajectories").await, 0);
 
     // control: unknown model, bad names, a goal outside the goal region
     let body = json!({"q": named(names, &start), "goal": named(names, &goal)});

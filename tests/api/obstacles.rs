@@ -21,13 +21,9 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
     })
     .await;
     let (model, start) = trained(&app, ROBOT).await;
-    let plans = || async {
-        let v: Value = app.get("/v1/plans").await.json().await.unwrap();
-        v["total"].as_i64().unwrap()
-    };
 
     // Bad obstacles: 422 at the field, nothing stored.
-    let before = plans().await;
+    let before = app.total("/v1/plans").await;
     let sphere = |r: Value| json!({"name": "s", "shape": {"type": "sphere", "radius": r}, "position": [1, 1, 1]});
     for (obstacles, path) in [
         (json!([sphere(json!(-0.1))]), "$.obstacles[0].shape.radius"),
@@ -55,7 +51,7 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
         .await;
         assert_eq!(body["errors"][0]["path"], path, "{body}");
     }
-    assert_eq!(plans().await, before);
+    assert_eq!(app.total("/v1/plans").await, before);
 
     // The same plan without obstacles, with one far away, and with a crate over the ball. The
     // plan is deterministic, so the trajectory is the same each time: a far obstacle changes
@@ -169,15 +165,10 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
     // plan and a trajectory are 422 at `$.start` naming the pair, and nothing is stored.
     let on_thumb = json!([{"name": "post", "shape": {"type": "sphere", "radius": 0.04},
                            "position": thumb[0]}]);
-    let count = |path: &'static str| {
-        let app = &app;
-        async move {
-            let v: Value = app.get(path).await.json().await.unwrap();
-            v["total"].as_i64().unwrap()
-        }
-    };
-    let (plans_before, trajectories_before) =
-        (count("/v1/plans").await, count("/v1/trajectories").await);
+    let (plans_before, trajectories_before) = (
+        app.total("/v1/plans").await,
+        app.total("/v1/trajectories").await,
+    );
     let trajectory = json!({"model": model, "start": zero, "obstacles": on_thumb,
                             "goal": {"joint_names": bare["trajectory"]["joint_names"],
                                      "positions": last(&bare)}});
@@ -193,6 +184,6 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
             "{path}: {message}"
         );
     }
-    assert_eq!(count("/v1/plans").await, plans_before);
-    assert_eq!(count("/v1/trajectories").await, trajectories_before);
+    assert_eq!(app.total("/v1/plans").await, plans_before);
+    assert_eq!(app.total("/v1/trajectories").await, trajectories_before);
 }

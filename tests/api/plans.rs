@@ -15,11 +15,6 @@ async fn app() -> TestApp {
     .await
 }
 
-async fn count(app: &TestApp, path: &str) -> i64 {
-    let v: Value = app.get(path).await.json().await.unwrap();
-    v["total"].as_i64().unwrap()
-}
-
 fn zeros(names: &Value) -> Value {
     let n = names.as_array().unwrap().len();
     json!({"joint_names": names, "positions": vec![0.0; n]})
@@ -114,7 +109,7 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
     assert_eq!(fetched["id"], plan["id"]);
     assert_eq!(fetched["grasp"]["id"], plan["grasp"]["id"]);
     assert_eq!(fetched["trajectory"]["id"], plan["trajectory"]["id"]);
-    assert_eq!(count(&app, "/v1/plans").await, 1);
+    assert_eq!(app.total("/v1/plans").await, 1);
 
     // An object out of reach: a stored plan with feasible false and the reason, no trajectory.
     let far = json!({"robot": ROBOT, "start": start,
@@ -127,7 +122,7 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
     assert_eq!(p["feasible"], false);
     assert!(p["trajectory"].is_null());
     assert!(!p["reason"].as_str().unwrap().is_empty());
-    assert_eq!(count(&app, "/v1/plans").await, 2);
+    assert_eq!(app.total("/v1/plans").await, 2);
 
     // Execution asked with no worker connected: the plan is stored, the execution waits queued.
     if plan["feasible"] == true {
@@ -166,7 +161,7 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
             p["trajectory"]["points"][0]["positions"],
             turned["positions"]
         );
-        let before = count(&app, "/v1/plans").await;
+        let before = app.total("/v1/plans").await;
         let mut body = ball_plan(&turned);
         body["execute"] = json!(true);
         body["mode"] = json!("closed_loop");
@@ -174,12 +169,12 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
         assert_eq!(e["errors"][0]["path"], "$.start", "{e}");
         let message = e["errors"][0]["message"].as_str().unwrap();
         assert!(message.contains("closed-loop law"), "{e}");
-        assert_eq!(count(&app, "/v1/plans").await, before);
+        assert_eq!(app.total("/v1/plans").await, before);
     }
 
     // Bad input: 4xx naming the field, nothing stored.
-    let plans = count(&app, "/v1/plans").await;
-    let trajectories = count(&app, "/v1/trajectories").await;
+    let plans = app.total("/v1/plans").await;
+    let trajectories = app.total("/v1/trajectories").await;
     let mut cases: Vec<(Value, &str)> = Vec::new();
     let mut b = ball_plan(&start);
     b["robot"] = json!("no_such_robot");
@@ -219,7 +214,7 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
             .unwrap_or_default();
         assert!(paths.contains(&path), "{path} not in {problem}");
     }
-    assert_eq!(count(&app, "/v1/plans").await, plans);
-    assert_eq!(count(&app, "/v1/trajectories").await, trajectories);
+    assert_eq!(app.total("/v1/plans").await, plans);
+    assert_eq!(app.total("/v1/trajectories").await, trajectories);
     assert_problem(app.get("/v1/plans/nope").await, 404, "not-found").await;
 }

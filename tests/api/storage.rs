@@ -47,11 +47,6 @@ async fn status_of(app: &TestApp, path: &str) -> u16 {
     app.get(path).await.status().as_u16()
 }
 
-async fn total(app: &TestApp, path: &str) -> i64 {
-    let v: Value = app.get(path).await.json().await.unwrap();
-    v["total"].as_i64().unwrap()
-}
-
 async fn delete(app: &TestApp, path: &str) -> reqwest::Response {
     app.client.delete(app.url(path)).send().await.unwrap()
 }
@@ -69,7 +64,7 @@ async fn deleting_a_plan_deletes_what_it_owns_once_its_execution_has_finished() 
     let grasp = plan["grasp"]["id"].as_str().unwrap();
     let trajectory = plan["trajectory"]["id"].as_str().unwrap();
     let execution = plan["execution_id"].as_str().unwrap();
-    let plans_before = total(&app, "/v1/plans").await;
+    let plans_before = app.total("/v1/plans").await;
 
     // No worker: the execution waits queued, so neither the plan nor its trajectory can go.
     let p = assert_problem(
@@ -121,7 +116,7 @@ async fn deleting_a_plan_deletes_what_it_owns_once_its_execution_has_finished() 
         status_of(&app, &format!("/v1/executions/{execution}")).await,
         404
     );
-    assert_eq!(total(&app, "/v1/plans").await, plans_before - 1);
+    assert_eq!(app.total("/v1/plans").await, plans_before - 1);
     assert_problem(
         delete(&app, &format!("/v1/plans/{id}")).await,
         404,
@@ -161,7 +156,7 @@ async fn deleting_a_plan_deletes_what_it_owns_once_its_execution_has_finished() 
         "not-found",
     )
     .await;
-    assert_eq!(total(&app, "/v1/plans").await, plans_before - 1);
+    assert_eq!(app.total("/v1/plans").await, plans_before - 1);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -194,7 +189,7 @@ async fn retention_keeps_the_newest_plans_and_never_what_a_queued_execution_need
     // Maintenance runs every second: wait (bounded) for the sweep.
     let mut plans = i64::MAX;
     for _ in 0..100 {
-        plans = total(&app, "/v1/plans").await;
+        plans = app.total("/v1/plans").await;
         if plans <= 3 {
             break;
         }
@@ -220,7 +215,7 @@ async fn retention_keeps_the_newest_plans_and_never_what_a_queued_execution_need
         200
     );
     // What the expired plans owned went with them: only the kept plans' trajectories remain.
-    assert_eq!(total(&app, "/v1/trajectories").await, 3);
+    assert_eq!(app.total("/v1/trajectories").await, 3);
 }
 
 /// A mesh object of `k` stacked tetrahedra-free boxes: a closed box mesh with `k` rings, so the
