@@ -17,11 +17,15 @@ use crate::store;
 use crate::store::library::{self, RobotLibrary};
 
 /// Installs the global tracing subscriber (text or JSON lines on stdout). Call once.
-pub fn init_tracing(config: &Config) -> anyhow::Result<()> {
-    let filter = tracing_subscriber::EnvFilter::try_new(&config.log)
-        .with_context(|| format!("invalid log filter {:?} (REACHGRASP_LOG)", config.log))?;
-    let builder = tracing_subscriber::fmt().with_env_filter(filter);
-    let result = if config.log_json {
+pub fn init_tracing(log: &str, json: bool) -> anyhow::Result<()> {
+    use std::io::IsTerminal;
+    let filter = tracing_subscriber::EnvFilter::try_new(log)
+        .with_context(|| format!("invalid log filter {log:?} (--log, REACHGRASP_LOG)"))?;
+    // Colour codes only for a person at a terminal: a log file or a pipe gets plain text.
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(std::io::stdout().is_terminal());
+    let result = if json {
         builder.json().flatten_event(true).try_init()
     } else {
         builder.try_init()

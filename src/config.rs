@@ -1,7 +1,9 @@
 //! Typed configuration, layered: built-in defaults < environment (`REACHGRASP_*`) < flags.
 //!
-//! The same struct is parsed by the CLI (every field is a global flag with an environment
-//! variable) and built in code by tests ([`Config::default`] equals the documented defaults).
+//! The same struct is parsed by the CLI (`reachgrasp [serve] --flags`, each flag with an
+//! environment variable) and built in code by tests ([`Config::default`] equals the documented
+//! defaults). The offline sub-commands take only what they read: [`Sources`] (where robots are
+//! found) and, for the bridge worker, [`Logging`].
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -35,54 +37,77 @@ pub const DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS: u64 = 600;
 /// Default bridge heartbeat interval (ms).
 pub const DEFAULT_BRIDGE_HEARTBEAT_MS: u64 = 1000;
 
-/// The help section of the flags only the HTTP service reads: every sub-command accepts them
-/// (they are global), and its own flags come first in its `--help`.
-const SERVICE_OPTIONS: &str = "Service options (serve)";
+/// The help section of the flags only the HTTP service reads.
+const SERVICE_OPTIONS: &str = "Service options";
+
+const DB_HELP: &str = "SQLite database file; the file and its folder are created if missing";
+/// The `--robots` help, shared by the service and the offline sub-commands.
+pub const ROBOTS_HELP: &str =
+    "Folder of robot descriptions (`arms/`, `hands/`, `systems/`); may be empty or missing";
+const LOG_HELP: &str =
+    "Log filter in `tracing` EnvFilter syntax, e.g. `info` or `reachgrasp=debug,tower_http=info`";
+const LOG_JSON_HELP: &str = "Log one JSON object per line instead of human-readable text";
+
+/// Where an offline sub-command finds robots: the bundled descriptions and the service's
+/// database (robots registered over the API).
+#[derive(Debug, Clone, clap::Args)]
+pub struct Sources {
+    #[arg(long, env = "REACHGRASP_DB", default_value = DEFAULT_DB, help = DB_HELP)]
+    pub db: PathBuf,
+    #[arg(long, env = "REACHGRASP_ROBOTS", default_value = DEFAULT_ROBOTS, help = ROBOTS_HELP)]
+    pub robots: PathBuf,
+}
+
+/// Log options of a long-running sub-command (the bridge worker).
+#[derive(Debug, Clone, clap::Args)]
+pub struct Logging {
+    #[arg(long, env = "REACHGRASP_LOG", default_value = DEFAULT_LOG, help = LOG_HELP)]
+    pub log: String,
+    #[arg(long, env = "REACHGRASP_LOG_JSON", help = LOG_JSON_HELP,
+          value_parser = clap::builder::BoolishValueParser::new())]
+    pub log_json: bool,
+}
 
 /// Service configuration.
 #[derive(Debug, Clone, clap::Args)]
 pub struct Config {
     /// Address to listen on (`0.0.0.0:8080` in the container; port 0 picks a free port).
-    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BIND", default_value = DEFAULT_BIND, global = true)]
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BIND", default_value = DEFAULT_BIND)]
     pub bind: SocketAddr,
 
-    /// SQLite database file; the file and its folder are created if missing.
-    #[arg(long, env = "REACHGRASP_DB", default_value = DEFAULT_DB, global = true)]
+    #[arg(long, env = "REACHGRASP_DB", default_value = DEFAULT_DB, help = DB_HELP)]
     pub db: PathBuf,
 
-    /// Folder of robot descriptions (`arms/`, `hands/`, `systems/`); may be empty or missing.
-    #[arg(long, env = "REACHGRASP_ROBOTS", default_value = DEFAULT_ROBOTS, global = true)]
+    #[arg(long, env = "REACHGRASP_ROBOTS", default_value = DEFAULT_ROBOTS, help = ROBOTS_HELP)]
     pub robots: PathBuf,
 
-    /// Log filter in `tracing` EnvFilter syntax, e.g. `info` or `reachgrasp=debug,tower_http=info`.
-    #[arg(long, env = "REACHGRASP_LOG", default_value = DEFAULT_LOG, global = true)]
+    #[arg(long, env = "REACHGRASP_LOG", default_value = DEFAULT_LOG, help = LOG_HELP)]
     pub log: String,
 
-    /// Log one JSON object per line instead of human-readable text.
-    #[arg(long, env = "REACHGRASP_LOG_JSON", global = true,
+    #[arg(long, env = "REACHGRASP_LOG_JSON", help = LOG_JSON_HELP,
           value_parser = clap::builder::BoolishValueParser::new())]
     pub log_json: bool,
 
     /// Largest accepted request body in bytes (larger bodies get 413).
-    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BODY_LIMIT", default_value_t = DEFAULT_BODY_LIMIT, global = true)]
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BODY_LIMIT", default_value_t = DEFAULT_BODY_LIMIT)]
     pub body_limit: usize,
 
     /// Milliseconds a request body may stall (no bytes arriving) before the request is
     /// answered with 408; a declared `Content-Length` over the body limit is 413 at once.
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BODY_IDLE_TIMEOUT_MS", default_value_t = DEFAULT_BODY_IDLE_TIMEOUT_MS,
-          value_parser = clap::value_parser!(u64).range(1..), global = true)]
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub body_idle_timeout_ms: u64,
 
     /// Seconds a request may take before it is answered with 503 (jobs are not affected).
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_REQUEST_TIMEOUT", default_value_t = DEFAULT_REQUEST_TIMEOUT_SECS,
-          value_parser = clap::value_parser!(u64).range(1..), global = true)]
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub request_timeout_secs: u64,
 
     /// Retention: keep at most this many plans (each with its grasp, trajectory and finished
     /// execution), trajectories no plan owns, and finished executions no plan owns, the newest
     /// of each; 0 keeps all. Nothing a queued or running execution needs is ever deleted.
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_RETENTION_MAX_COUNT", default_value_t = DEFAULT_RETENTION_MAX_COUNT,
-          global = true)]
+          )]
     pub retention_max_count: u64,
 
     /// Retention: delete plans, trajectories and finished executions older than this many
@@ -91,29 +116,28 @@ pub struct Config {
         long,
         env = "REACHGRASP_RETENTION_MAX_AGE_HOURS",
         default_value_t = 0,
-        global = true
     )]
     pub retention_max_age_hours: u64,
 
     /// Seconds between two maintenance runs: the retention sweep, then a WAL checkpoint
     /// (`PRAGMA wal_checkpoint(TRUNCATE)`).
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_MAINTENANCE_INTERVAL", default_value_t = DEFAULT_MAINTENANCE_INTERVAL_SECS,
-          value_parser = clap::value_parser!(u64).range(1..), global = true)]
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub maintenance_interval_secs: u64,
 
     /// Largest size of the database file in bytes (`PRAGMA max_page_count`); a write beyond it
     /// is refused with 507 and changes nothing, as on a full disk. Default: no cap.
-    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_DB_MAX_BYTES", global = true)]
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_DB_MAX_BYTES")]
     pub db_max_bytes: Option<u64>,
 
     /// Jobs running at once; further jobs wait queued. Default: the number of CPUs.
-    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_JOB_CONCURRENCY", global = true,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_JOB_CONCURRENCY",
           value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub job_concurrency: Option<u64>,
 
     /// Seconds to wait at shutdown for in-flight requests and jobs before exiting.
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_SHUTDOWN_GRACE", default_value_t = DEFAULT_SHUTDOWN_GRACE_SECS,
-          global = true)]
+          )]
     pub shutdown_grace_secs: u64,
 
     /// Token bridge workers present (`Authorization: Bearer <token>`) on
@@ -121,7 +145,6 @@ pub struct Config {
     #[arg(help_heading = SERVICE_OPTIONS,
         long,
         env = "REACHGRASP_BRIDGE_TOKEN",
-        global = true,
         hide_env_values = true
     )]
     pub bridge_token: Option<String>,
@@ -129,24 +152,24 @@ pub struct Config {
     /// Seconds a queued execution waits while no compatible worker is connected before it
     /// fails with `no worker` (0: wait forever).
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BRIDGE_QUEUE_TIMEOUT", default_value_t = DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS,
-          global = true)]
+          )]
     pub bridge_queue_timeout_secs: u64,
 
     /// Milliseconds between worker heartbeats (told to workers in `welcome`); a worker silent
     /// for 5 intervals is disconnected.
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_BRIDGE_HEARTBEAT_MS", default_value_t = DEFAULT_BRIDGE_HEARTBEAT_MS,
-          value_parser = clap::value_parser!(u64).range(10..=60_000), global = true)]
+          value_parser = clap::value_parser!(u64).range(10..=60_000))]
     pub bridge_heartbeat_ms: u64,
 
     /// Skip first-start seeding (generating the default synthetic study, mapping it for every
     /// bundled system and training each system's default model when one is missing).
-    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_NO_SEED", global = true,
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_NO_SEED",
           value_parser = clap::builder::BoolishValueParser::new())]
     pub no_seed: bool,
 
     /// TEST ONLY: expose `POST /v1/_test/jobs/sleep` (a job that only sleeps). Never enable in a
     /// deployment.
-    #[arg(long, env = "REACHGRASP_TEST_JOBS", hide = true, global = true,
+    #[arg(long, env = "REACHGRASP_TEST_JOBS", hide = true,
           value_parser = clap::builder::BoolishValueParser::new())]
     pub test_jobs: bool,
 }

@@ -4,13 +4,16 @@
 
 use clap::{Parser, Subcommand};
 use reachgrasp::app::{App, init_tracing, shutdown_signal};
-use reachgrasp::config::Config;
+use reachgrasp::config::{Config, DEFAULT_ROBOTS, Logging, ROBOTS_HELP, Sources};
 
 #[derive(Debug, Parser)]
 #[command(
     name = "reachgrasp",
     version,
-    about = "Humanlike reach-and-grasp planning service"
+    about = "Humanlike reach-and-grasp planning service",
+    // The service's flags belong to the service: `reachgrasp --bind ...` (serve by default) or
+    // `reachgrasp serve --bind ...`; each other sub-command lists only what it reads.
+    args_conflicts_with_subcommands = true
 )]
 struct Cli {
     #[command(flatten)]
@@ -25,13 +28,17 @@ enum Command {
     #[command(
         after_help = "Example:\n  REACHGRASP_BIND=0.0.0.0:8080 REACHGRASP_BRIDGE_TOKEN=lab-token reachgrasp serve"
     )]
-    Serve,
+    Serve(Box<Config>),
     /// Print the OpenAPI 3.1 document as JSON on stdout.
     #[command(after_help = "Example:\n  reachgrasp openapi > openapi/openapi.json")]
     Openapi,
     /// Solve a batch of pose IK targets and print solutions and statistics as JSON.
-    #[command(after_help = "Example:\n  reachgrasp ik --robot wam_ihy --targets targets.json")]
+    #[command(
+        after_help = "Example:\n  reachgrasp ik --robot wam_ihy --targets examples/ik-targets.json"
+    )]
     Ik {
+        #[command(flatten)]
+        sources: Sources,
         /// A robot id (bundled or registered) or a system descriptor file.
         #[arg(long)]
         robot: String,
@@ -58,9 +65,11 @@ enum Command {
     /// file holding an array is a batch: a progress bar on stderr, an array of results.
     #[command(
         after_help = "Examples:\n  reachgrasp grasp --robot wam_ihy --object ball --direction 0,0,1 --kind force\n  \
-        reachgrasp grasp --request grasps.json > results.json"
+        reachgrasp grasp --request examples/grasp-ball.json > results.json"
     )]
     Grasp {
+        #[arg(long, env = "REACHGRASP_ROBOTS", default_value = DEFAULT_ROBOTS, help = ROBOTS_HELP)]
+        robots: std::path::PathBuf,
         /// JSON request file: the `POST /v1/grasps` body, or an array of them (a batch); the
         /// flags below build one instead.
         #[arg(long)]
@@ -92,7 +101,7 @@ enum Command {
         /// Most starts in all while none is feasible (default 32).
         #[arg(long)]
         max_starts: Option<usize>,
-        /// Seed.
+        /// Seed of the multi-start search: the same seed, the same grasp.
         #[arg(long)]
         seed: Option<u64>,
     },
@@ -101,7 +110,8 @@ enum Command {
     /// trajectory and per-frame metrics).
     #[command(
         after_help = "Example:\n  reachgrasp synth --subjects 1 --positions 1 --trials 2 > demos.json\n  \
-        reachgrasp map --robot wam_ihy --demo demos.json --rate 30 --weights 1,1e-4,0.01 > mapped.json"
+        reachgrasp map --robot wam_ihy --demo demos.json --rate 30 --weights 1,1e-4,0.01 > mapped.json\n  \
+        reachgrasp map --robot wam_ihy --demo examples/demonstration.json > mapped.json"
     )]
     Map(MapArgs),
     /// Plan a humanlike motion to a task-specific grasp offline (the computation of
@@ -112,6 +122,8 @@ enum Command {
         after_help = "Example:\n  reachgrasp plan --request examples/plan-bottle.json > plan.json"
     )]
     Plan {
+        #[command(flatten)]
+        sources: Sources,
         /// JSON request file (the `POST /v1/plans` body; `execute` queues the execution in the
         /// database, run by the service once a worker connects).
         #[arg(long)]
@@ -121,6 +133,8 @@ enum Command {
 
 #[derive(Debug, clap::Args)]
 struct MapArgs {
+    #[command(flatten)]
+    sources: Sources,
     /// A robot id (bundled or registered) or a system descriptor file.
     #[arg(long)]
     robot: String,
@@ -145,6 +159,10 @@ struct MapArgs {
 
 #[derive(Debug, clap::Args)]
 struct BridgeArgs {
+    #[command(flatten)]
+    sources: Sources,
+    #[command(flatten)]
+    logging: Logging,
     /// Drive a simulated robot (integrates commands under the joint velocity and acceleration
     /// limits at the control rate).
     #[arg(long)]
@@ -196,13 +214,16 @@ struct BridgeArgs {
 
 #[derive(Debug, clap::Args)]
 struct SynthArgs {
+    /// Seed of the study (anthropometry, trials, sensor noise): the same seed, the same study.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Subjects.
     #[arg(long, default_value_t = 5)]
     subjects: usize,
     /// Object positions (1 to 5).
     #[arg(long, default_value_t = 5)]
     positions: usize,
+    /// Trials per subject and position.
     #[arg(long, default_value_t = 10)]
     trials: usize,
     /// Comma-separated objects: ball, bottle, kitchen_timer, pencil, sunglasses (default all).
@@ -222,22 +243,72 @@ struct SynthArgs {
     summary: bool,
 }
 
-/// A failure is one line on stderr (its causes joined by `: `) and exit status 1, not a
-/// debug dump: the user's mistakes (a missing file, a bad flag value) read as messages.
+/// A failure is one line on stderr (its causes joined by `: `), not a debug dump: the user's
+/// mistakes (a bad flag, a missing file, an invalid request) read as messages and exit with
+/// status 2, as clap's usage errors do; 1 is left for a failure of the program itself.
 fn main() -> std::process::ExitCode {
-    match run() {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) if !e.use_stderr() => {
+            // --help and --version: clap prints them (with colour at a terminal only).
+            let _ = e.print();
+            return std::process::ExitCode::SUCCESS;
+        }
+        Err(e) => {
+            eprintln!("reachgrasp: error: {}", usage_line(&e));
+            return std::process::ExitCode::from(2);
+        }
+    };
+    match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        // `reachgrasp synth | head`: the reader has what it wanted; nothing went wrong.
+        Err(e)
+            if e.chain().any(|c| {
+                c.downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) =>
+        {
+            std::process::ExitCode::SUCCESS
+        }
         Err(e) => {
             eprintln!("reachgrasp: error: {e:#}");
-            std::process::ExitCode::FAILURE
+            let internal = e.chain().any(|c| {
+                matches!(
+                    c.downcast_ref::<reachgrasp::service::Error>(),
+                    Some(reachgrasp::service::Error::Internal(_))
+                )
+            });
+            std::process::ExitCode::from(if internal { 1 } else { 2 })
         }
     }
 }
 
-fn run() -> anyhow::Result<()> {
-    let cli = Cli::parse();
-    match cli.command.unwrap_or(Command::Serve) {
-        Command::Serve => serve(cli.config),
+/// Clap's usage error as one line: its message, then where to read more.
+fn usage_line(e: &clap::Error) -> String {
+    let text = e.to_string();
+    let message = text
+        .lines()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("invalid arguments")
+        .trim_start_matches("error: ");
+    let help = if let Some(sub) = std::env::args().nth(1).filter(|a| !a.starts_with('-')) {
+        format!("reachgrasp {sub} --help")
+    } else {
+        "reachgrasp --help".to_owned()
+    };
+    format!("{message} (see `{help}`)")
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        None => serve(cli.config),
+        Some(command) => run_command(command),
+    }
+}
+
+fn run_command(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Serve(config) => serve(*config),
         Command::Openapi => {
             println!(
                 "{}",
@@ -245,12 +316,17 @@ fn run() -> anyhow::Result<()> {
             );
             Ok(())
         }
-        Command::Ik { robot, targets } => ik(&cli.config, &robot, &targets),
+        Command::Ik {
+            sources,
+            robot,
+            targets,
+        } => ik(&sources, &robot, &targets),
         Command::Synth(args) => synth(args),
-        Command::Map(args) => map(&cli.config, args),
-        Command::Plan { request } => plan(cli.config, &request),
-        Command::Bridge(args) => bridge(&cli.config, args),
+        Command::Map(args) => map(args),
+        Command::Plan { sources, request } => plan(sources, &request),
+        Command::Bridge(args) => bridge(args),
         Command::Grasp {
+            robots,
             request,
             robot,
             object,
@@ -284,7 +360,7 @@ fn run() -> anyhow::Result<()> {
                     })
                 }
             };
-            grasp(&cli.config, body)
+            grasp(&robots, body)
         }
     }
 }
@@ -326,7 +402,7 @@ fn progress_bar(len: usize, what: &str) -> anyhow::Result<indicatif::ProgressBar
     Ok(bar)
 }
 
-fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
+fn grasp(robots: &std::path::Path, body: serde_json::Value) -> anyhow::Result<()> {
     use reachgrasp::service::grasps::{GraspIn, offline as grasp_offline};
     let out = match body {
         serde_json::Value::Array(items) => {
@@ -335,7 +411,7 @@ fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
             for (i, item) in items.into_iter().enumerate() {
                 let body: GraspIn = serde_json::from_value(item)
                     .map_err(|e| anyhow::anyhow!("request {i}: {e}"))?;
-                let r = grasp_offline(&config.robots, &body)
+                let r = grasp_offline(robots, &body)
                     .map_err(|e| failure(e).context(format!("request {i}")))?;
                 results.push(r);
                 bar.inc(1);
@@ -345,27 +421,32 @@ fn grasp(config: &Config, body: serde_json::Value) -> anyhow::Result<()> {
         }
         one => {
             let body: GraspIn = serde_json::from_value(one)?;
-            serde_json::to_string_pretty(&grasp_offline(&config.robots, &body).map_err(failure)?)?
+            serde_json::to_string_pretty(&grasp_offline(robots, &body).map_err(failure)?)?
         }
     };
     println!("{out}");
     Ok(())
 }
 
-fn plan(mut config: Config, request: &std::path::Path) -> anyhow::Result<()> {
+fn plan(sources: Sources, request: &std::path::Path) -> anyhow::Result<()> {
     use anyhow::Context;
     let text = std::fs::read_to_string(request)
         .with_context(|| format!("cannot read {}", request.display()))?;
     let body: reachgrasp::service::plans::PlanIn = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a plan request", request.display()))?;
     anyhow::ensure!(
-        config.db.is_file(),
+        sources.db.is_file(),
         "no database at {} (--db): start the service once so it trains the default models",
-        config.db.display()
+        sources.db.display()
     );
     // Offline: no listener is served and no seeding starts; the service's own code plans.
-    config.bind = "127.0.0.1:0".parse()?;
-    config.no_seed = true;
+    let config = Config {
+        bind: "127.0.0.1:0".parse()?,
+        no_seed: true,
+        db: sources.db,
+        robots: sources.robots,
+        ..Config::default()
+    };
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -435,7 +516,7 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
+fn map(args: MapArgs) -> anyhow::Result<()> {
     use anyhow::Context;
     use reachgrasp::human::{DemonstrationInput, ingest};
     use reachgrasp::service::mappings::{
@@ -463,8 +544,11 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
         ..RegistrationIn::default()
     };
     let params = parse_params(&weights, &registration, args.rate).map_err(failure)?;
-    let system =
-        reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, &args.robot)?;
+    let system = reachgrasp::store::library::resolve_for_cli(
+        &args.sources.robots,
+        &args.sources.db,
+        &args.robot,
+    )?;
     let text = std::fs::read_to_string(&args.demo)
         .with_context(|| format!("cannot read {}", args.demo.display()))?;
     let value: serde_json::Value = serde_json::from_str(&text)
@@ -515,10 +599,10 @@ fn map(config: &Config, args: MapArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn bridge(config: &Config, args: BridgeArgs) -> anyhow::Result<()> {
+fn bridge(args: BridgeArgs) -> anyhow::Result<()> {
     use reachgrasp::bridge::sim::{Perturbation, RunOptions};
     use reachgrasp::bridge::worker::{WorkerOptions, run_worker};
-    init_tracing(config)?;
+    init_tracing(&args.logging.log, args.logging.log_json)?;
     anyhow::ensure!(
         args.sim,
         "only the simulated robot driver is built in: pass --sim"
@@ -531,8 +615,11 @@ fn bridge(config: &Config, args: BridgeArgs) -> anyhow::Result<()> {
         args.max_acceleration > 0.0 && args.max_acceleration.is_finite(),
         "--max-acceleration must be positive"
     );
-    let system =
-        reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, &args.robot)?;
+    let system = reachgrasp::store::library::resolve_for_cli(
+        &args.sources.robots,
+        &args.sources.db,
+        &args.robot,
+    )?;
     let name = args.name.unwrap_or_else(|| format!("sim-{}", args.robot));
     let mut opts = WorkerOptions::for_system(
         args.url,
@@ -571,7 +658,7 @@ fn bridge(config: &Config, args: BridgeArgs) -> anyhow::Result<()> {
 }
 
 fn serve(config: Config) -> anyhow::Result<()> {
-    init_tracing(&config)?;
+    init_tracing(&config.log, config.log_json)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()?;
@@ -581,10 +668,10 @@ fn serve(config: Config) -> anyhow::Result<()> {
     })
 }
 
-fn ik(config: &Config, robot: &str, targets: &std::path::Path) -> anyhow::Result<()> {
+fn ik(sources: &Sources, robot: &str, targets: &std::path::Path) -> anyhow::Result<()> {
     use anyhow::Context;
     use reachgrasp::service::robots;
-    let system = reachgrasp::store::library::resolve_for_cli(&config.robots, &config.db, robot)?;
+    let system = reachgrasp::store::library::resolve_for_cli(&sources.robots, &sources.db, robot)?;
     let text = std::fs::read_to_string(targets)
         .with_context(|| format!("cannot read {}", targets.display()))?;
     let file: robots::IkBatchFile = serde_json::from_str(&text)

@@ -32,7 +32,7 @@ pub async fn spawn_app_with(tweak: impl FnOnce(&mut Config)) -> TestApp {
                 log: "debug".into(),
                 ..Config::default()
             };
-            reachgrasp::app::init_tracing(&config).expect("tracing");
+            reachgrasp::app::init_tracing(&config.log, config.log_json).expect("tracing");
         }
     });
     let dir = tempfile::tempdir().expect("temp dir");

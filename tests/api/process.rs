@@ -140,11 +140,9 @@ async fn sigterm_stops_gracefully_and_records_the_running_job_as_interrupted() {
 }
 
 /// The CLI's grasp: `--direction x,y,z` (as its help documents) and `x y z` give the same
-/// request; a user's mistake is one line on stderr and exit status 1, with no debug dump.
+/// request; a user's mistake is one line on stderr and exit status 2, with no debug dump.
 #[tokio::test]
 async fn the_grasp_cli_takes_a_comma_separated_direction_and_reports_mistakes_in_one_line() {
-    let dir = tempfile::tempdir().unwrap();
-    let db = dir.path().join("cli.db");
     let robots = Path::new(env!("CARGO_MANIFEST_DIR")).join("robots");
     let grasp = |direction: &[&str]| {
         let mut c = Command::new(env!("CARGO_BIN_EXE_reachgrasp"));
@@ -152,11 +150,8 @@ async fn the_grasp_cli_takes_a_comma_separated_direction_and_reports_mistakes_in
             .args(["--robot", "wam_t42", "--object", "ball", "--kind", "force"])
             .arg("--direction")
             .args(direction)
-            .arg("--db")
-            .arg(&db)
             .arg("--robots")
             .arg(&robots)
-            .args(["--log", "error"])
             .env_remove("RUST_BACKTRACE")
             .env_remove("RUST_LIB_BACKTRACE");
         async move { c.output().await.unwrap() }
@@ -177,11 +172,199 @@ async fn the_grasp_cli_takes_a_comma_separated_direction_and_reports_mistakes_in
     assert_eq!(a["feasible"], true, "{a}");
 
     let short = grasp(&["0,0"]).await;
-    assert_eq!(short.status.code(), Some(1));
+    assert_eq!(short.status.code(), Some(2));
     let err = String::from_utf8(short.stderr).unwrap();
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(
         err.starts_with("reachgrasp: error: --direction needs three numbers"),
         "{err}"
     );
+}
+
+fn cli(args: &[&str]) -> std::process::Command {
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_reachgrasp"));
+    c.current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(args)
+        .env_remove("RUST_BACKTRACE")
+        .env_remove("RUST_LIB_BACKTRACE");
+    c
+}
+
+/// The option lines of a `--help` text: `(flag, description)`. Clap puts a long description on
+/// the line below its flag.
+fn options(help: &str) -> Vec<(String, String)> {
+    let lines: Vec<&str> = help.lines().map(str::trim).collect();
+    let mut out = Vec::new();
+    for (i, l) in lines.iter().enumerate() {
+        if !l.starts_with('-') {
+            continue;
+        }
+        // "-h, --help  Print help": the flag ends at the first run of two spaces
+        let (flag, text) = match l.split_once("  ") {
+            Some((flag, text)) => (flag.trim(), text.trim()),
+            None => {
+                let below = lines.get(i + 1).filter(|n| !n.starts_with('-'));
+                (*l, below.copied().unwrap_or(""))
+            }
+        };
+        out.push((flag.to_owned(), text.to_owned()));
+    }
+    out
+}
+
+/// Each sub-command's help lists only what it reads (no service flag outside `serve`), and
+/// every flag says what it is (more than its default).
+#[test]
+fn every_sub_command_lists_only_its_own_flags_each_described() {
+    let service_only = [
+        "--bind",
+        "--body-limit",
+        "--bridge-token",
+        "--no-seed",
+        "--retention-max-count",
+    ];
+    for sub in [
+        "serve", "openapi", "ik", "bridge", "synth", "grasp", "map", "plan",
+    ] {
+        let out = cli(&[sub, "--help"]).output().unwrap();
+        assert!(out.status.success(), "{sub} --help: {out:?}");
+        let help = String::from_utf8(out.stdout).unwrap();
+        let opts = options(&help);
+        assert!(
+            opts.iter().any(|(f, _)| f.contains("--help")),
+            "{sub}: {help}"
+        );
+        for (flag, text) in &opts {
+            let said = text.split(" [").next().unwrap_or("").trim();
+            assert!(
+                !said.is_empty(),
+                "{sub}: `{flag}` has no description:\n{help}"
+            );
+        }
+        for f in service_only {
+            let listed = opts.iter().any(|(flag, _)| flag.starts_with(f));
+            assert_eq!(listed, sub == "serve", "{sub} --help and {f}:\n{help}");
+        }
+        assert!(!help.contains('\u{1b}'), "{sub}: colour codes into a pipe");
+    }
+    // `reachgrasp` alone serves: the top-level help has the service's flags
+    let top = String::from_utf8(cli(&["--help"]).output().unwrap().stdout).unwrap();
+    assert!(top.contains("--bind"), "{top}");
+    // and a service flag after another sub-command is a mistake, not silently ignored
+    let wrong = cli(&["synth", "--bind", "127.0.0.1:0"]).output().unwrap();
+    assert_eq!(wrong.status.code(), Some(2));
+    let err = String::from_utf8(wrong.stderr).unwrap();
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains("'--bind'") && err.contains("reachgrasp synth --help"),
+        "{err}"
+    );
+    assert!(!err.contains('\u{1b}'), "{err:?}");
+}
+
+/// The example file each reading sub-command's help names runs as it stands.
+#[test]
+fn the_example_files_the_help_names_run() {
+    for (sub, example) in [
+        ("ik", "examples/ik-targets.json"),
+        ("grasp", "examples/grasp-ball.json"),
+        ("map", "examples/demonstration.json"),
+        ("plan", "examples/plan-bottle.json"),
+    ] {
+        let help = String::from_utf8(cli(&[sub, "--help"]).output().unwrap().stdout).unwrap();
+        assert!(
+            help.contains(example),
+            "{sub} --help names {example}:\n{help}"
+        );
+    }
+    let ik = cli(&[
+        "ik",
+        "--robot",
+        "wam_ihy",
+        "--targets",
+        "examples/ik-targets.json",
+    ])
+    .output()
+    .unwrap();
+    assert!(ik.status.success(), "{ik:?}");
+    let ik: Value = serde_json::from_slice(&ik.stdout).unwrap();
+    let solved = ik["solutions"].as_array().unwrap();
+    assert_eq!(solved.len(), 3);
+    assert!(solved.iter().all(|s| s["success"] == true), "{ik}");
+
+    let grasp = cli(&["grasp", "--request", "examples/grasp-ball.json"])
+        .output()
+        .unwrap();
+    assert!(grasp.status.success(), "{grasp:?}");
+    let grasps: Value = serde_json::from_slice(&grasp.stdout).unwrap();
+    assert_eq!(grasps.as_array().unwrap().len(), 2);
+    assert!(
+        grasps
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|g| g["feasible"] == true),
+        "{grasps}"
+    );
+
+    let map = cli(&[
+        "map",
+        "--robot",
+        "wam_ihy",
+        "--demo",
+        "examples/demonstration.json",
+        "--rate",
+        "30",
+    ])
+    .output()
+    .unwrap();
+    assert!(map.status.success(), "{map:?}");
+    let map: Value = serde_json::from_slice(&map.stdout).unwrap();
+    assert_eq!(map["summary"]["demonstrations"], 1, "{map}");
+
+    // `plan` needs a database with trained models; without one it says so in one line
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("none.db");
+    let plan = cli(&["plan", "--request", "examples/plan-bottle.json", "--db"])
+        .arg(&db)
+        .output()
+        .unwrap();
+    assert_eq!(plan.status.code(), Some(2), "{plan:?}");
+    let err = String::from_utf8(plan.stderr).unwrap();
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("no database at"), "{err}");
+}
+
+/// Text logs into a pipe (a file, `docker logs`, a journal) carry no colour codes.
+#[tokio::test]
+async fn text_logs_into_a_pipe_have_no_colour_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
+        .args(["--bind", "127.0.0.1:0", "--no-seed", "--log", "info"])
+        .arg("--db")
+        .arg(dir.path().join("t.db"))
+        .arg("--robots")
+        .arg(dir.path().join("no-robots"))
+        .env_remove("REACHGRASP_LOG_JSON")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .kill_on_drop(true)
+        .spawn()
+        .unwrap();
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let mut seen = Vec::new();
+    let listening = tokio::time::timeout(Duration::from_secs(30), async {
+        while let Some(line) = lines.next_line().await.unwrap() {
+            let done = line.contains("listening");
+            seen.push(line);
+            if done {
+                return;
+            }
+        }
+        panic!("exited before listening");
+    })
+    .await;
+    assert!(listening.is_ok(), "no `listening` line in 30 s: {seen:?}");
+    assert!(seen.iter().all(|l| !l.contains('\u{1b}')), "{seen:?}");
+    child.kill().await.unwrap();
 }
