@@ -1,4 +1,5 @@
-//! `GET /healthz` (the process answers) and `GET /readyz` (the database answers).
+//! `GET /healthz` (the process answers), `GET /readyz` (the database answers) and
+//! `GET /v1/status` (seeding progress, default models, jobs, workers).
 
 use std::time::Duration;
 
@@ -9,6 +10,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::{ApiError, AppState, Json, Problem};
+use crate::service::status::StatusDto;
 
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
 pub struct Health {
@@ -22,6 +24,15 @@ pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(healthz))
         .routes(routes!(readyz))
+        .routes(routes!(status))
+}
+
+/// The service at a glance: first-start seeding's progress, each robot's default model (trained
+/// since when, being seeded, or missing), jobs by state and connected bridge workers.
+#[utoipa::path(get, path = "/v1/status", tag = "health",
+    responses((status = 200, description = "The service's state", body = StatusDto)))]
+async fn status(State(state): State<AppState>) -> Result<Json<StatusDto>, ApiError> {
+    Ok(Json(crate::service::status::status(&state).await?))
 }
 
 /// Liveness: the process is up and serving requests.

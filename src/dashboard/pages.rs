@@ -234,15 +234,83 @@ pub async fn home(State(state): State<AppState>) -> Page {
     })
     .collect::<String>();
     let body = format!(
-        "<section class=\"cards\">{cards}</section>\
+        "{}<section class=\"cards\">{cards}</section>\
          <section class=\"forms\">{}{}{}</section>\
          <section><h2>Recent jobs</h2>{}</section>",
+        status_section(&crate::service::status::status(&state).await?),
         synthetic_form(),
         map_form(&state, "").await?,
         grasp_form(&state, None).await?,
         jobs_table(&jobs),
     );
     Ok(html::ok("Overview", "/", &body))
+}
+
+/// The overview's first lines: is first-start seeding still preparing models (with a live bar
+/// per robot), and which robot can plan without naming a model, since when.
+fn status_section(st: &crate::service::status::StatusDto) -> String {
+    use crate::service::status::SeedingState;
+    let seeding = match st.seeding.state {
+        SeedingState::Running => format!(
+            "First-start seeding is preparing the default models: {} of {} bundled robots \
+             ready. Plans for the others answer 503 until their model is trained.",
+            st.seeding.trained, st.seeding.bundled
+        ),
+        SeedingState::Done => format!(
+            "Every bundled robot ({}) has a default model.",
+            st.seeding.bundled
+        ),
+        SeedingState::Disabled => format!(
+            "First-start seeding is off (--no-seed): {} of {} bundled robots have a default \
+             model; train one with POST /v1/models.",
+            st.seeding.trained, st.seeding.bundled
+        ),
+        SeedingState::Incomplete => format!(
+            "Seeding ended with {} of {} bundled robots ready: see the failed jobs below.",
+            st.seeding.trained, st.seeding.bundled
+        ),
+    };
+    let mut rows = String::new();
+    for r in &st.robots {
+        let model = &r.default_model;
+        let cell = match model.state {
+            DefaultModelState::Trained => format!(
+                "<a href=\"/ui/models/{id}\">trained</a> {at}",
+                id = esc(model.id.as_deref().unwrap_or("")),
+                at = esc(model.trained_at.as_deref().unwrap_or("")),
+            ),
+            DefaultModelState::Seeding => {
+                let step = st.seeding.pending.iter().find(|p| p.robot == r.id);
+                match step {
+                    Some(p) => format!(
+                        "seeding: {} {}",
+                        esc(&p.kind),
+                        html::progress(&p.job_id, p.status.as_str(), p.fraction)
+                    ),
+                    None => "seeding".to_owned(),
+                }
+            }
+            DefaultModelState::None => "none".to_owned(),
+        };
+        rows.push_str(&format!(
+            "<tr><td><a href=\"/ui/robots/{id}\">{id}</a></td><td>{cell}</td></tr>",
+            id = esc(&r.id)
+        ));
+    }
+    format!(
+        "<section class=\"status\" data-seeding=\"{state}\"><h2>Status</h2><p>{seeding} \
+         {workers} bridge worker(s) connected; jobs: {queued} queued, {running} running, \
+         {failed} failed.</p><table><thead><tr><th>robot</th><th>default model</th></tr>\
+         </thead><tbody>{rows}</tbody></table></section>",
+        state = serde_json::to_value(st.seeding.state)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_owned))
+            .unwrap_or_default(),
+        workers = st.workers,
+        queued = st.jobs.queued,
+        running = st.jobs.running,
+        failed = st.jobs.failed,
+    )
 }
 
 pub async fn robots(State(state): State<AppState>) -> Page {

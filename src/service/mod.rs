@@ -29,6 +29,7 @@ pub mod models;
 pub mod plans;
 pub mod robots;
 pub mod seed;
+pub mod status;
 pub mod storage;
 pub mod trajectories;
 

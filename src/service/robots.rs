@@ -372,6 +372,8 @@ pub struct DefaultModelDto {
     /// (`POST /v1/models`) or name one in each plan.
     pub state: DefaultModelState,
     pub id: Option<String>,
+    /// `trained`: when its training finished (RFC 3339 UTC).
+    pub trained_at: Option<String>,
     pub job_id: Option<String>,
 }
 
@@ -386,14 +388,30 @@ pub enum DefaultModelState {
 
 /// The robot's default model as a plan would resolve it.
 pub async fn default_model(ctx: &Context, robot: &str) -> Result<DefaultModelDto, Error> {
-    let (state, id, job_id) = match crate::store::models::default_model_for(&ctx.db, robot).await? {
-        Some(row) => (DefaultModelState::Trained, Some(row.id), None),
-        None => match ctx.seed.pending_job(robot) {
-            Some(job) => (DefaultModelState::Seeding, None, Some(job.to_string())),
-            None => (DefaultModelState::None, None, None),
-        },
+    let Some(row) = crate::store::models::default_model_for(&ctx.db, robot).await? else {
+        let (state, job_id) = match ctx.seed.pending_job(robot) {
+            Some(job) => (DefaultModelState::Seeding, Some(job.to_string())),
+            None => (DefaultModelState::None, None),
+        };
+        return Ok(DefaultModelDto {
+            state,
+            id: None,
+            trained_at: None,
+            job_id,
+        });
     };
-    Ok(DefaultModelDto { state, id, job_id })
+    let trained_at = match row.job_id.parse() {
+        Ok(job) => crate::store::jobs::get(&ctx.db, job)
+            .await?
+            .and_then(|j| j.finished_at),
+        Err(_) => None,
+    };
+    Ok(DefaultModelDto {
+        state: DefaultModelState::Trained,
+        id: Some(row.id),
+        trained_at: trained_at.or(Some(row.created_at)),
+        job_id: None,
+    })
 }
 
 /// The system of a robot named in a request body: an unknown id is bad input at `field`.

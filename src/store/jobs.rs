@@ -239,6 +239,25 @@ pub async fn get(pool: &SqlitePool, id: Uuid) -> Result<Option<JobRecord>, sqlx:
     .transpose()
 }
 
+/// How many jobs are in each state (states with none are left out).
+pub async fn count_by_status(pool: &SqlitePool) -> Result<Vec<(JobStatus, i64)>, sqlx::Error> {
+    let rows: Vec<(String, i64)> =
+        sqlx::query_as("SELECT status, COUNT(*) FROM jobs GROUP BY status ORDER BY status")
+            .fetch_all(pool)
+            .await?;
+    rows.into_iter()
+        .map(|(status, n)| {
+            let status = JobStatus::ALL
+                .into_iter()
+                .find(|s| s.as_str() == status)
+                .ok_or_else(|| {
+                    sqlx::Error::Decode(format!("unknown job status {status}").into())
+                })?;
+            Ok((status, n))
+        })
+        .collect()
+}
+
 /// Jobs matching `filter`, newest first.
 pub async fn list(pool: &SqlitePool, filter: &JobFilter) -> Result<Vec<JobRecord>, sqlx::Error> {
     sqlx::query_as::<_, JobRow>(concat!(

@@ -49,3 +49,48 @@ async fn swagger_ui_is_served_from_the_binary() {
     let res = app.get("/docs/swagger-ui-bundle.js").await;
     assert_eq!(res.status(), 200);
 }
+
+/// Without seeding, the status says so, lists every bundled robot without a default model, and
+/// counts jobs as `/v1/jobs` does.
+#[tokio::test]
+async fn status_reports_seeding_default_models_and_jobs() {
+    let app = crate::helpers::spawn_app_with(|c| {
+        c.robots = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
+    })
+    .await;
+    let job = app.start_sleep_job(2, 5).await;
+    app.wait_job(job["id"].as_str().unwrap(), |j| j["status"] == "succeeded")
+        .await;
+    let res = app.get("/v1/status").await;
+    assert_eq!(res.status(), 200);
+    let s: serde_json::Value = res.json().await.unwrap();
+    assert_eq!(s["seeding"]["state"], "disabled", "{s}");
+    assert_eq!(s["seeding"]["trained"], 0, "{s}");
+    let robots: serde_json::Value = app.get("/v1/robots").await.json().await.unwrap();
+    let ids = |v: &serde_json::Value| -> Vec<String> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["id"].as_str().unwrap().to_owned())
+            .collect()
+    };
+    assert_eq!(ids(&s["robots"]), ids(&robots["items"]));
+    assert_eq!(
+        s["seeding"]["bundled"],
+        robots["items"].as_array().unwrap().len()
+    );
+    for r in s["robots"].as_array().unwrap() {
+        assert_eq!(r["default_model"]["state"], "none", "{r}");
+        assert!(r["default_model"]["trained_at"].is_null(), "{r}");
+    }
+    let listed: serde_json::Value = app
+        .get("/v1/jobs?status=succeeded&limit=100")
+        .await
+        .json()
+        .await
+        .unwrap();
+    let succeeded = listed["items"].as_array().unwrap().len();
+    assert_eq!(s["jobs"]["succeeded"], succeeded, "{s}");
+    assert!(succeeded >= 1);
+    assert_eq!(s["workers"], 0);
+}

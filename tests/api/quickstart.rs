@@ -125,6 +125,21 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     let job: Value = get_json(&client, &format!("{base}/v1/jobs/{job}")).await;
     assert!(job["kind"].is_string(), "{job}");
 
+    // The status says so too: seeding runs, each bundled robot waits for a real job.
+    let status = get_json(&client, &format!("{base}/v1/status")).await;
+    assert_eq!(status["seeding"]["state"], "running", "{status}");
+    assert_eq!(status["seeding"]["bundled"], 6, "{status}");
+    let pending = status["seeding"]["pending"].as_array().unwrap();
+    assert!(!pending.is_empty(), "{status}");
+    for step in pending {
+        let job = get_json(
+            &client,
+            &format!("{base}/v1/jobs/{}", step["job_id"].as_str().unwrap()),
+        )
+        .await;
+        assert_eq!(job["kind"], step["kind"], "{step} vs {job}");
+    }
+
     // Seeding finishes with a default model for every bundled system.
     let robots = [
         "wam_t42",
@@ -147,6 +162,35 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         "seeding finished after {:.1} s",
         started.elapsed().as_secs_f64()
     );
+    let status = wait_for(
+        "seeding done in /v1/status",
+        Duration::from_secs(60),
+        || async {
+            let s = get_json(&client, &format!("{base}/v1/status")).await;
+            (s["seeding"]["state"] == "done").then_some(s)
+        },
+    )
+    .await;
+    assert_eq!(status["seeding"]["trained"], 6, "{status}");
+    for robot in robots {
+        let r = status["robots"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["id"] == robot)
+            .unwrap_or_else(|| panic!("{robot} in {status}"));
+        let model = &r["default_model"];
+        assert_eq!(model["state"], "trained", "{r}");
+        // "since when" is when the model's training job finished
+        let id = model["id"].as_str().unwrap();
+        let stored = get_json(&client, &format!("{base}/v1/models/{id}")).await;
+        let job = get_json(
+            &client,
+            &format!("{base}/v1/jobs/{}", stored["job_id"].as_str().unwrap()),
+        )
+        .await;
+        assert_eq!(model["trained_at"], job["finished_at"], "{r} vs {job}");
+    }
 
     // The README's worker, as the built binary.
     let mut worker = Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
