@@ -288,7 +288,51 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
             }
         }
     }
+    synthetic_study(schemas);
     flatten_plan(schemas);
+}
+
+/// The synthetic study request is the numeric core's `StudyConfig` read as is (so that errors
+/// keep their paths); its derive stays free of API concerns, so its fields and the ranges
+/// `StudyConfig::validate` enforces are stated here. The total (at most
+/// [`MAX_DEMONSTRATIONS`](crate::human::synth::MAX_DEMONSTRATIONS) demonstrations) is a
+/// cross-field rule no schema states.
+fn synthetic_study(schemas: &mut serde_json::Map<String, Value>) {
+    use crate::human::synth::{MAX_SUBJECTS, MAX_TRIALS, POSITIONS};
+    let Some(Value::Object(study)) = schemas.get_mut("SyntheticRequest") else {
+        return;
+    };
+    let description = study.get("description").cloned();
+    let objects = ["ball", "bottle", "kitchen_timer", "pencil", "sunglasses"];
+    *study = json!({
+        "type": "object",
+        "additionalProperties": false,
+        "properties": {
+            "seed": {"type": "integer", "minimum": 0, "maximum": u64::MAX,
+                     "description": "Seed of the study (default 1): the same seed, the same study."},
+            "subjects": {"type": "integer", "minimum": 1, "maximum": MAX_SUBJECTS,
+                         "description": "Subjects (default 5)."},
+            "positions": {"type": "integer", "minimum": 1, "maximum": POSITIONS,
+                          "description": "Object positions (default 5)."},
+            "trials": {"type": "integer", "minimum": 1, "maximum": MAX_TRIALS,
+                       "description": "Trials per subject and position (default 10)."},
+            "objects": {"type": "array", "minItems": 1, "maxItems": objects.len(),
+                        "items": {"type": "string", "enum": objects},
+                        "description": "Objects of the study (default all five)."},
+            "full_factorial": {"type": "boolean",
+                               "description": "Every object at every position (default false: counterbalanced)."},
+            "noise": {"type": "boolean",
+                      "description": "Sensor noise at the devices' stated accuracy (default true)."},
+            "rate_hz": {"type": "number", "minimum": 1, "maximum": 1000,
+                        "description": "Common output rate, Hz (default 120)."},
+        },
+    })
+    .as_object()
+    .cloned()
+    .unwrap_or_default();
+    if let Some(d) = description {
+        study.insert("description".into(), d);
+    }
 }
 
 /// A plan body is a grasp body and the plan's own fields at one level, and the server refuses

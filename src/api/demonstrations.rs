@@ -35,6 +35,7 @@ impl From<HumanError> for ApiError {
 
 /// A demonstration upload (canonical JSON; see `reachgrasp::human::demo` for every field).
 #[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct DemonstrationUpload {
     /// `{id, stature_m, hand_length_m, hand_breadth_m, handedness: "right"|"left"}`.
     #[schema(value_type = Object)]

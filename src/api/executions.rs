@@ -38,6 +38,7 @@ pub fn router() -> OpenApiRouter<AppState> {
 
 /// A trajectory given in the request.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct InlineTrajectory {
     /// The robot's independent joints in model order.
     pub joint_names: Vec<String>,
@@ -56,6 +57,7 @@ pub struct JointValues {
 /// `open_loop`, or a model's closed-loop law (`model_id` + `goal`, or a stored trajectory's
 /// model and goal) in `closed_loop`.
 #[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct CreateExecution {
     /// Robot system id, e.g. `wam_ihy`.
     pub robot: String,

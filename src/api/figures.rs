@@ -190,6 +190,7 @@ async fn robot_plot(
     responses(
         (status = 200, description = "SVG figure", body = String, content_type = "image/svg+xml"),
         (status = 404, description = "Unknown demonstration", body = Problem, content_type = "application/problem+json"),
+        (status = 409, description = "The demonstration has too few frames to plot", body = Problem, content_type = "application/problem+json"),
     ))]
 async fn demonstration_plot(
     State(state): State<AppState>,

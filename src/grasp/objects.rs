@@ -147,6 +147,11 @@ impl Object {
         self.spec.support.as_ref()
     }
 
+    /// Lowest world `z` of the object (of its exact shape's bounding box at its pose).
+    pub fn lowest_z(&self) -> f64 {
+        self.shape.compute_aabb(&self.parry_pose).mins.z
+    }
+
     /// The parry shape and its world pose.
     pub fn shape(&self) -> (&SharedShape, &Isometry3<f64>) {
         (&self.shape, &self.parry_pose)

@@ -157,7 +157,7 @@ impl ObjectKind {
 /// five objects counterbalanced over positions (subject `s` meets object `(p + s) mod 5` at
 /// position `p`), 250 demonstrations; `full_factorial` crosses every object with every position.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct StudyConfig {
     pub seed: u64,
     pub subjects: usize,

@@ -28,6 +28,7 @@ pub const MAX_BATCH: usize = 200;
 
 /// An uploaded mesh: Wavefront OBJ text, or STL (ASCII text, or binary as base64).
 #[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct MeshIn {
     /// `obj` or `stl`.
     pub format: String,
@@ -39,7 +40,11 @@ pub struct MeshIn {
 }
 
 /// An object description. Give `shape` (a primitive or explicit mesh) or `mesh` (a file).
+/// Example: a 5 cm cube standing on the robot's table (no `support`: the table, `z = 0`).
 #[derive(Debug, Clone, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
+                          "position": [0.5, 0.0, 0.025]}))]
 pub struct ObjectIn {
     /// A name with at least one non-blank character.
     #[schema(min_length = 1, pattern = r"\S")]
@@ -52,7 +57,9 @@ pub struct ObjectIn {
     /// Orientation quaternion `[w, x, y, z]` (default identity).
     #[schema(min_items = 4, max_items = 4)]
     pub orientation: Option<[f64; 4]>,
-    /// Support plane the object rests on (optional).
+    /// Support plane the object rests on. Default: the table the robot stands at (the plane
+    /// `z = 0`, normal `+z`) when the object is on or above it (its lowest point at most 2 mm
+    /// below); none for an object reaching further below (held or mounted elsewhere).
     pub support: Option<SupportPlane>,
 }
 
@@ -322,15 +329,32 @@ fn parse_object(prefix: &str, o: &ObjectIn) -> Result<Object, Error> {
     if explicit_shape {
         check_shape_ranges(prefix, &shape)?;
     }
-    Object::new(ObjectSpec {
+    let spec = ObjectSpec {
         name: o.name.clone(),
         shape,
         position: o.position,
         orientation: o.orientation.unwrap_or([1.0, 0.0, 0.0, 0.0]),
         support: o.support,
-    })
-    .map_err(|e| object_error(prefix, explicit_shape, e))
+    };
+    let object = Object::new(spec.clone()).map_err(|e| object_error(prefix, explicit_shape, e))?;
+    // Without a stated support, an object standing on or above the robot's own table rests on
+    // it: left unsupported, the grasp optimiser happily puts a fingertip under a cube.
+    if spec.support.is_none() && object.lowest_z() >= -DEFAULT_SUPPORT_TOLERANCE_M {
+        return Object::new(ObjectSpec {
+            support: Some(SupportPlane::horizontal(DEFAULT_TABLE_Z_M)),
+            ..spec
+        })
+        .map_err(|e| object_error(prefix, explicit_shape, e));
+    }
+    Ok(object)
 }
+
+/// The table the bundled systems stand at: the plane `z = 0` of the robot base frame.
+pub const DEFAULT_TABLE_Z_M: f64 = 0.0;
+/// An object reaching at most this far below that table still rests on it (rounding in a
+/// lab's measured position); one reaching further is held or mounted elsewhere and gets no
+/// default support.
+pub const DEFAULT_SUPPORT_TOLERANCE_M: f64 = 0.002;
 
 /// Grasp views of the systems, by robot id, with the loaded system they were built from: a view
 /// is rebuilt only when [`super::robots::system`] hands out a different system (the robot's row

@@ -433,3 +433,48 @@ async fn typos_are_named_and_seeded_objects_go_by_name() {
         "{g}"
     );
 }
+
+/// An object stated without a support rests on the table the robot stands at (`z = 0`) when it
+/// stands on or above it, and the grasp keeps off that table: without the default, wam_ihy takes
+/// this cube with a fingertip on its bottom edge (contact at z = 0, normal 0.56 downward). An
+/// object reaching below the table gets no default support.
+#[tokio::test]
+async fn an_object_without_a_support_rests_on_the_robot_table() {
+    let app = app().await;
+    let cube = json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
+                      "position": [0.5, 0.0, 0.025]});
+    let res = app.post_json("/v1/objects", &cube).await;
+    assert_eq!(res.status(), 201);
+    let created: Value = res.json().await.unwrap();
+    assert_eq!(
+        created["spec"]["support"],
+        json!({"normal": [0.0, 0.0, 1.0], "offset": 0.0}),
+        "{created}"
+    );
+    let g: Value = app
+        .post_json(
+            "/v1/grasps",
+            &json!({"robot": "wam_ihy", "object_id": created["id"], "seed": 1,
+                    "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]}),
+        )
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(g["result"]["feasible"], true, "{}", g["result"]["reason"]);
+    for c in g["result"]["contacts"].as_array().unwrap() {
+        let z = c["point"][2].as_f64().unwrap();
+        let nz = c["normal"][2].as_f64().unwrap();
+        assert!(z > 0.005 && nz > -0.5, "a fingertip under the cube: {c}");
+    }
+    // a part hanging below the table's plane is held or mounted elsewhere: no default
+    let hanging = json!({"name": "lamp", "shape": {"type": "sphere", "radius": 0.04},
+                         "position": [0.5, 0.0, -0.3]});
+    let created: Value = app
+        .post_json("/v1/objects", &hanging)
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert!(created["spec"]["support"].is_null(), "{created}");
+}

@@ -207,3 +207,98 @@ async fn paging_ranges_are_documented_and_enforced() {
         .await;
     assert_eq!(res.status(), 400);
 }
+
+/// Every JSON request body the document lists (so a new endpoint cannot forget it) refuses an
+/// unknown field with a 422 at that field, and the document says so with
+/// `additionalProperties: false` (on each alternative where the body is a `oneOf`).
+#[tokio::test]
+async fn every_request_body_refuses_an_unknown_field_naming_it() {
+    let app = crate::helpers::spawn_app_with(|c| {
+        c.robots = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
+    })
+    .await;
+    let doc = serde_json::to_value(reachgrasp::api::openapi()).unwrap();
+    let schemas = &doc["components"]["schemas"];
+    let resolve = |s: &serde_json::Value| resolve_ref(schemas, s);
+    let mut checked = 0;
+    let mut open_schemas = Vec::new();
+    let mut accepted = Vec::new();
+    for (path, ops) in doc["paths"].as_object().unwrap() {
+        for (method, op) in ops.as_object().unwrap() {
+            let Some(schema) = op
+                .pointer("/requestBody/content/application~1json/schema")
+                .map(&resolve)
+            else {
+                continue;
+            };
+            // the document: closed objects, every alternative of a oneOf
+            let mut alternatives = vec![schema.clone()];
+            alternatives.extend(
+                schema["oneOf"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .map(&resolve),
+            );
+            for alt in alternatives.iter().filter(|a| a["type"] == "object") {
+                if alt["additionalProperties"] != false {
+                    open_schemas.push(format!("{method} {path}"));
+                }
+            }
+            // the server: ids that parse (a uuid where the parameter is one, else a robot)
+            let mut url = path.clone();
+            for p in op["parameters"].as_array().into_iter().flatten() {
+                if p["in"] == "path" {
+                    let name = p["name"].as_str().unwrap();
+                    let value = if resolve(&p["schema"])["format"] == "uuid" {
+                        "00000000-0000-4000-8000-00000000abcd"
+                    } else {
+                        "wam_ihy"
+                    };
+                    url = url.replace(&format!("{{{name}}}"), value);
+                }
+            }
+            let res = app
+                .client
+                .request(method.to_uppercase().parse().unwrap(), app.url(&url))
+                .json(&serde_json::json!({"zz_not_a_field": 1}))
+                .send()
+                .await
+                .unwrap();
+            let status = res.status().as_u16();
+            let body: serde_json::Value = res.json().await.unwrap_or_default();
+            let named = body["errors"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .any(|e| e["path"] == "$.zz_not_a_field");
+            if status != 422 || !named {
+                accepted.push(format!("{method} {path}: {status} {body}"));
+            }
+            checked += 1;
+        }
+    }
+    assert!(
+        checked >= 15,
+        "only {checked} request bodies in the document"
+    );
+    assert!(
+        accepted.is_empty(),
+        "unknown field not refused by name:\n{}",
+        accepted.join("\n")
+    );
+    assert!(
+        open_schemas.is_empty(),
+        "request bodies the document leaves open: {open_schemas:?}"
+    );
+}
+
+fn resolve_ref<'a>(
+    schemas: &'a serde_json::Value,
+    mut s: &'a serde_json::Value,
+) -> serde_json::Value {
+    while let Some(r) = s.get("$ref").and_then(|r| r.as_str()) {
+        s = &schemas[r.trim_start_matches("#/components/schemas/")];
+    }
+    s.clone()
+}
