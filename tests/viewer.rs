@@ -187,7 +187,7 @@ async fn the_viewer_draws_plays_back_and_follows_a_live_execution_in_headless_ch
     assert_eq!(res.status(), 200);
     let text = res.text().await.unwrap();
     println!(
-        "plan scene: {} bytes in {:?} (HTTP, debug build)",
+        "plan scene: {} bytes in {:?} (HTTP, test build)",
         text.len(),
         started.elapsed()
     );
@@ -228,6 +228,31 @@ async fn the_viewer_draws_plays_back_and_follows_a_live_execution_in_headless_ch
     .await;
     let unknown = app.get("/ui/view/plans/nope/scene.json").await;
     assert_eq!(unknown.status(), 404);
+
+    // A slow, 20-second trajectory to the same grasp (the viewer's timing target).
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": plan["model_id"], "start": start,
+                    "goal": {"grasp": plan["grasp"]["id"]}, "duration": 20.0}),
+        )
+        .await;
+    assert!(res.status().is_success(), "{}", res.text().await.unwrap());
+    let long: Value = res.json().await.unwrap();
+    let long_id = long["id"].as_str().unwrap().to_owned();
+    let started = Instant::now();
+    let text = app
+        .get(&format!("/ui/view/trajectories/{long_id}/scene.json"))
+        .await
+        .text()
+        .await
+        .unwrap();
+    println!(
+        "{} s trajectory scene: {} bytes in {:?} (HTTP, test build)",
+        long["points"].as_array().unwrap().last().unwrap()["t"],
+        text.len(),
+        started.elapsed()
+    );
 
     // The browser part.
     let chromium = tool("CHROMIUM", "/usr/bin/chromium");
@@ -274,7 +299,7 @@ async fn the_viewer_draws_plays_back_and_follows_a_live_execution_in_headless_ch
         .await
         .expect("a WebDriver session");
 
-    let outcome = drive(&c, &app, &plan_id, &trajectory_id, &mapping).await;
+    let outcome = drive(&c, &app, &plan_id, &long_id, &mapping).await;
     let shot = c.screenshot().await;
     c.close().await.ok();
     if let Ok(png) = shot {
@@ -335,12 +360,15 @@ async fn open(c: &Client, url: &str) -> Result<Value, String> {
         c,
         "const v = window.reachgraspViewer; \
          return {frames: v.frames, frame: v.frame, firstFrameMs: v.firstFrameMs, fetchMs: v.fetchMs, \
+                 sinceNavigationMs: v.sinceNavigationMs, \
                  error: document.querySelector('.viewer-error').textContent};",
     )
     .await?;
     println!(
-        "viewer {url}: first frame {:.0} ms after the script started (scene fetched in {:.0} ms), \
-         page open {:?}",
+        "viewer {url}: {} frames, first frame drawn {:.0} ms after navigation start, {:.0} ms \
+         after the viewer script started (scene fetched in {:.0} ms); page open {:?}",
+        state["frames"],
+        state["sinceNavigationMs"].as_f64().unwrap_or(f64::NAN),
         state["firstFrameMs"].as_f64().unwrap_or(f64::NAN),
         state["fetchMs"].as_f64().unwrap_or(f64::NAN),
         t.elapsed()
@@ -432,8 +460,11 @@ async fn drive(
         return Err(format!("time readout: {readout:?}"));
     }
 
-    // The trajectory: Play runs the clock.
-    open(c, &format!("{base}/ui/view/trajectories/{trajectory}")).await?;
+    // The 20 s trajectory: Play runs the clock.
+    let state = open(c, &format!("{base}/ui/view/trajectories/{trajectory}")).await?;
+    if state["frames"].as_u64().unwrap_or(0) < 300 {
+        return Err(format!("a 20 s trajectory at 30 frames/s: {state}"));
+    }
     assert_draws(c, false).await?;
     js(c, SNAPSHOT).await?;
     c.find(Locator::Css(".viewer-play"))

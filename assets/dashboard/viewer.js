@@ -79,7 +79,14 @@ function ellipsoidMesh(e) {
 // The static surroundings shared by the robot's and the human's side.
 function surroundings(data) {
   const g = new THREE.Group();
-  if (data.support) g.add(table(data.support, data.center, data.radius));
+  if (data.support) {
+    g.add(table(data.support, data.center, data.radius));
+  } else {
+    // No support in the scene: a grid on the base plane (z = 0) keeps up and down readable.
+    const grid = new THREE.GridHelper(2, 20, 0xb8c0ca, 0xd5dbe2);
+    grid.rotation.x = Math.PI / 2;
+    g.add(grid);
+  }
   if (data.object) {
     g.add(shapeMesh(data.object, new THREE.MeshStandardMaterial({ color: COLORS.object, roughness: 0.6 })));
   }
@@ -301,6 +308,8 @@ async function start(root) {
 
   show(0);
   state.firstFrameMs = performance.now() - t0;
+  // performance.now() counts from the navigation's start: the whole wait a user sees.
+  state.sinceNavigationMs = performance.now();
   state.frames = n;
   state.step = (k) => show(k);
   state.ready = true;
