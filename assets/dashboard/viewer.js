@@ -205,7 +205,7 @@ async function start(root) {
   const camera = new THREE.PerspectiveCamera(40, 1, 0.01, 50);
   camera.up.set(0, 0, 1);
   const c = new THREE.Vector3(...data.center);
-  const dist = data.radius / Math.sin(THREE.MathUtils.degToRad(20)) * 1.05;
+  const dist = data.radius / Math.sin(THREE.MathUtils.degToRad(20)) * 0.85;
   camera.position.copy(c).add(new THREE.Vector3(0.75, -0.55, 0.42).normalize().multiplyScalar(dist));
   const controls = new OrbitControls(camera, canvas);
   controls.target.copy(c);
@@ -306,7 +306,13 @@ async function start(root) {
   controls.addEventListener('change', render);
   window.addEventListener('resize', render);
 
-  show(0);
+  // ?t=<seconds> opens the motion at that time (a link to a moment of a plan).
+  const tParam = Number(new URLSearchParams(window.location.search).get('t'));
+  let first = 0;
+  if (Number.isFinite(tParam) && tParam > 0) {
+    while (first + 1 < n && frames.times[first + 1] <= tParam) first += 1;
+  }
+  show(first);
   state.firstFrameMs = performance.now() - t0;
   // performance.now() counts from the navigation's start: the whole wait a user sees.
   state.sinceNavigationMs = performance.now();
