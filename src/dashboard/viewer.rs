@@ -376,14 +376,14 @@ async fn mapping_scene(
         .map_err(|total| {
             crate::service::Error::not_found(
                 "mapped demonstration",
-                &format!("{id}#{index} (of {total})"),
+                format!("{id}#{index} (of {total})"),
             )
         })?;
     let row = crate::store::mappings::get_mapping(&state.db, &id)
         .await?
         .ok_or_else(|| crate::service::Error::not_found("mapping", &id))?;
     let traj = fig.demo.trajectory;
-    let registration = traj.registration.clone();
+    let registration = traj.registration;
     let s = Surroundings {
         object: registration.object.as_ref().map(|o| {
             let c = o.pose.translation.vector;
