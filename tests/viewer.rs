@@ -228,6 +228,44 @@ async fn the_viewer_draws_plays_back_and_follows_a_live_execution_in_headless_ch
     .await;
     let unknown = app.get("/ui/view/plans/nope/scene.json").await;
     assert_eq!(unknown.status(), 404);
+    assert_eq!(app.get("/ui/view/trajectories/nope").await.status(), 404);
+
+    // Everything the page loads comes from the binary: three.js r187 and its licence, no CDN;
+    // the trajectory's page links to its 3-D view.
+    let three = app.get("/assets/vendor/three.core.js").await;
+    assert!(
+        three.headers()["content-type"]
+            .to_str()
+            .unwrap()
+            .starts_with("text/javascript")
+    );
+    assert!(three.text().await.unwrap().contains("REVISION = '187'"));
+    assert!(
+        app.get("/assets/vendor/three-LICENSE")
+            .await
+            .text()
+            .await
+            .unwrap()
+            .contains("MIT License")
+    );
+    let page = app
+        .get(&format!("/ui/view/plans/{plan_id}"))
+        .await
+        .text()
+        .await
+        .unwrap();
+    assert!(page.contains("src=\"/assets/viewer.js\""), "{page}");
+    assert!(
+        !page.contains("src=\"http"),
+        "nothing loads from elsewhere: {page}"
+    );
+    let detail = app
+        .get(&format!("/ui/trajectories/{trajectory_id}"))
+        .await
+        .text()
+        .await
+        .unwrap();
+    assert!(detail.contains(&format!("href=\"/ui/view/trajectories/{trajectory_id}\"")));
 
     // A slow, 20-second trajectory to the same grasp (the viewer's timing target).
     let res = app
