@@ -291,6 +291,14 @@ async fn the_viewer_draws_plays_back_and_follows_a_live_execution_in_headless_ch
         text.len(),
         started.elapsed()
     );
+    // A trajectory to a stored grasp is drawn with that grasp's object, support and contacts.
+    let long_scene: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(
+        long_scene["object"]["geometry"]["type"], "sphere",
+        "the ball"
+    );
+    assert!(long_scene["support"].is_object());
+    assert!(!long_scene["contacts"].as_array().unwrap().is_empty());
 
     // The browser part.
     let chromium = tool("CHROMIUM", "/usr/bin/chromium");

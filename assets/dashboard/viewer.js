@@ -117,10 +117,14 @@ function graspMarks(data) {
     contacts.add(new THREE.ArrowHelper(new THREE.Vector3(...c.normal), s.position.clone(), 0.05,
       COLORS.contact, 0.012, 0.008));
   }
+  // One at a time (the select): velocity and force ellipsoids share axes and would hide each
+  // other.
   const ellipsoids = new THREE.Group();
-  // Only one at a time: velocity and force ellipsoids share axes and would hide each other.
-  const first = data.ellipsoids.find((e) => e.kind === 'velocity') ?? data.ellipsoids[0];
-  if (first) ellipsoids.add(ellipsoidMesh(first));
+  for (const e of data.ellipsoids) {
+    const m = ellipsoidMesh(e);
+    m.visible = e.kind === 'velocity';
+    ellipsoids.add(m);
+  }
   return { contacts, ellipsoids };
 }
 
@@ -224,7 +228,7 @@ async function start(root) {
   legend.textContent = `${data.title}. Grey: arm links, blue: hand links (URDF collision shapes)` +
     `${data.object ? ', brown: object' : ''}${data.support ? ' on its support' : ''}` +
     `${data.obstacles.length ? ', red: obstacles' : ''}${data.contacts.length ? ', red dots: contacts' : ''}` +
-    `${data.ellipsoids.length ? ', purple: velocity ellipsoid at the grasp' : ''}` +
+    `${data.ellipsoids.length ? ', purple/green: velocity/force ellipsoid of the arm at the grasp' : ''}` +
     `${data.human ? '. Left: the demonstrator (registered into the robot frame); right: the robot' : ''}.`;
 
   function resize() {
@@ -301,7 +305,10 @@ async function start(root) {
   step.addEventListener('click', () => { setPlaying(false); show(state.frame + 1 >= n ? 0 : state.frame + 1); });
   showEllipsoid.disabled = !data.ellipsoids.length;
   showContacts.disabled = !data.contacts.length;
-  showEllipsoid.addEventListener('change', () => { marks.ellipsoids.visible = showEllipsoid.checked; render(); });
+  showEllipsoid.addEventListener('change', () => {
+    for (const m of marks.ellipsoids.children) m.visible = m.userData.kind === showEllipsoid.value;
+    render();
+  });
   showContacts.addEventListener('change', () => { marks.contacts.visible = showContacts.checked; render(); });
   controls.addEventListener('change', render);
   window.addEventListener('resize', render);

@@ -106,7 +106,9 @@ fn viewer_page(title: &str, active: &str, scene: &str, live: Option<&str>, back:
          <input type=\"range\" class=\"viewer-time\" min=\"0\" max=\"0\" value=\"0\" step=\"1\" \
          aria-label=\"time\" disabled>\
          <span class=\"time-readout\">loading…</span>\
-         <label><input type=\"checkbox\" class=\"viewer-ellipsoid\" checked> ellipsoid</label>\
+         <label>ellipsoid <select class=\"viewer-ellipsoid\"><option value=\"velocity\">velocity\
+         </option><option value=\"force\">force</option><option value=\"\">none</option></select>\
+         </label>\
          <label><input type=\"checkbox\" class=\"viewer-contacts\" checked> contacts</label>\
          </div><p class=\"viewer-legend\"></p><p class=\"field-error viewer-error\"></p></div>\
          <script type=\"module\" src=\"/assets/viewer.js\"></script>",
