@@ -6,10 +6,15 @@
 //! shows each problem+json field error next to the input whose `data-path` matches the error's
 //! JSONPath; follows job progress over Server-Sent Events (`/v1/jobs/{id}/events`) with a
 //! progress bar; and re-requests a figure when its view sliders move.
+//!
+//! The 3-D viewer (`/ui/view/...`, [`viewer`]) adds `assets/dashboard/viewer.js` and three.js
+//! (vendored from npm, `assets/dashboard/vendor/`) and dashboard-internal JSON routes (its
+//! scenes and live poses), which are not part of the OpenAPI document.
 
 mod html;
 mod pages;
 mod resources;
+mod viewer;
 
 use axum::Router;
 use axum::http::header;
@@ -50,6 +55,7 @@ pub fn router() -> Router<AppState> {
         .route("/ui/executions/{id}", get(resources::execution))
         .route("/ui/jobs", get(pages::jobs))
         .route("/ui/jobs/{id}", get(pages::job))
+        .merge(viewer::router())
 }
 
 async fn style() -> impl IntoResponse {

@@ -220,6 +220,13 @@ pub async fn mapping(
             ("status", esc(&m.status)),
             ("job", link(&format!("/ui/jobs/{}", m.job_id), &m.job_id)),
             ("created", esc(&m.created_at)),
+            (
+                "3-D view",
+                link(
+                    &format!("/ui/view/mappings/{id}?demo={demo}"),
+                    "human and robot side by side"
+                )
+            ),
             ("API", link(&format!("/v1/mappings/{id}"), "JSON")),
         ]),
         table(
@@ -500,6 +507,10 @@ pub async fn trajectory(State(state): State<AppState>, Path(id): Path<String>) -
             ("duration", format!("{} s", num(t.duration, 3))),
             ("points", t.points.len().to_string()),
             ("joints", esc(&t.joint_names.join(", "))),
+            (
+                "3-D view",
+                link(&format!("/ui/view/trajectories/{id}"), "play it back")
+            ),
             ("API", link(&format!("/v1/trajectories/{id}"), "JSON")),
         ]),
         figure(
@@ -674,6 +685,10 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
             ),
             ("created", esc(&dto.created_at)),
             ("finished", esc(dto.finished_at.as_deref().unwrap_or(""))),
+            (
+                "3-D view",
+                link(&format!("/ui/view/executions/{id}"), "live robot pose")
+            ),
             ("API", link(&format!("/v1/executions/{id}"), "JSON")),
         ]),
         figure(

@@ -10,6 +10,7 @@
 
 mod scene;
 mod series;
+pub mod viewer;
 
 pub use scene::{
     EllipsoidKind, GraspInput, MappingInput, Marker, Polyline, Scene, grasp_scene, mapping_scene,
