@@ -9,6 +9,7 @@
 
 mod html;
 mod pages;
+mod plans;
 mod resources;
 
 use axum::Router;
@@ -50,6 +51,9 @@ pub fn router() -> Router<AppState> {
         .route("/ui/executions/{id}", get(resources::execution))
         .route("/ui/jobs", get(pages::jobs))
         .route("/ui/jobs/{id}", get(pages::job))
+        .route("/ui/plans", get(plans::plans))
+        .route("/ui/plans/{id}", get(plans::plan))
+        .route("/ui/compare", get(plans::compare))
 }
 
 async fn style() -> impl IntoResponse {
