@@ -579,6 +579,11 @@ pub async fn grasps(State(state): State<AppState>) -> Page {
             let object: Option<ObjectSpec> = serde_json::from_str(&g.object).ok();
             let result: Option<GraspResult> = serde_json::from_str(&g.result).ok();
             vec![
+                format!(
+                    "<input type=\"checkbox\" name=\"grasps\" value=\"{}\" \
+                     aria-label=\"compare grasp\">",
+                    esc(&g.id)
+                ),
                 link(&format!("/ui/grasps/{}", g.id), &g.id[..8.min(g.id.len())]),
                 esc(&g.robot),
                 object.map(|o| esc(&o.name)).unwrap_or_default(),
@@ -588,12 +593,18 @@ pub async fn grasps(State(state): State<AppState>) -> Page {
             ]
         })
         .collect();
+    // Ticked grasps open side by side (`/ui/compare?grasps=A&grasps=B`).
     let body = format!(
-        "{}{}",
+        "<form class=\"compare-pick\" action=\"/ui/compare\" method=\"get\">{}{}</form>{}",
         table(
-            &["grasp", "robot", "object", "result", "cost", "created"],
+            &["", "grasp", "robot", "object", "result", "cost", "created"],
             &trs
         ),
+        if trs.is_empty() {
+            ""
+        } else {
+            "<p><button type=\"submit\">Compare selected</button></p>"
+        },
         grasp_form(&state, None).await?
     );
     Ok(html::ok("Grasps", "/ui/grasps", &body))

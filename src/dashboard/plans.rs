@@ -58,6 +58,16 @@ fn directions_text(v: &Value) -> String {
         .join("; ")
 }
 
+/// `2026-12-04 06:05:20` from an RFC 3339 timestamp: the list's column stays narrow.
+fn when(rfc3339: &str) -> String {
+    let t = rfc3339.replacen('T', " ", 1);
+    t.split('.')
+        .next()
+        .unwrap_or(&t)
+        .trim_end_matches('Z')
+        .to_owned()
+}
+
 fn feasible_text(feasible: bool, reason: Option<&str>) -> String {
     if feasible {
         "<span class=\"ok\">feasible</span>".to_owned()
@@ -191,6 +201,13 @@ async fn plan_form(state: &AppState) -> Result<String, PageError> {
         &fields,
         "Plan",
     )
+    .replacen(
+        "</h2>",
+        "</h2><p class=\"hint\">A task-specific grasp of the object, a humanlike motion to it \
+         from the start, and, with execute, the motion run on a connected bridge worker. The \
+         new plan's page opens when it is stored.</p>",
+        1,
+    )
     .replacen("<button", &format!("{connected}<button"), 1))
 }
 
@@ -244,7 +261,7 @@ pub async fn plans(State(state): State<AppState>, Query(q): Query<ListQuery>) ->
                     })
                     .unwrap_or_else(|| "–".into()),
                 execution,
-                esc(&p.created_at),
+                format!("<span class=\"when\">{}</span>", esc(&when(&p.created_at))),
             ]
         })
         .collect();
@@ -377,10 +394,37 @@ fn grasp_numbers(r: &GraspResult) -> Result<Vec<(&'static str, Vec<(String, Valu
             .map(|(k, v)| (format!("exact.{k}"), v)),
     );
     Ok(vec![
-        ("Cost terms", flat(&r.terms)?),
-        ("Residuals and exact check", residuals),
+        ("Cost terms", labelled(&flat(&r.terms)?)),
+        ("Residuals and exact check", labelled(&residuals)),
         ("Ellipsoids", ellipsoids),
     ])
+}
+
+/// The unit of a grasp quantity by its name (the documented units of `Terms`, `Residuals`,
+/// `ExactCheck` and `Ellipsoids`), for the labels.
+fn unit(name: &str) -> &'static str {
+    let leaf = name.rsplit('.').next().unwrap_or(name);
+    match leaf {
+        "q_dc" => " (m)",
+        "q_agp" | "d" => " (m²)",
+        "min_limit_margin" => " (rad)",
+        "max_pad_angle_deg" => " (°)",
+        "max_coupling_error" | "max_spread_violation" => " (rad)",
+        _ if leaf.contains("penetration")
+            || leaf.contains("distance")
+            || leaf.contains("separation") =>
+        {
+            " (m)"
+        }
+        _ => "",
+    }
+}
+
+fn labelled(items: &[(String, Value)]) -> Vec<(String, Value)> {
+    items
+        .iter()
+        .map(|(k, v)| (format!("{k}{}", unit(k)), v.clone()))
+        .collect()
 }
 
 fn number_facts(items: &[(String, Value)]) -> String {
@@ -463,7 +507,10 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
         ("task", esc(&directions)),
         (
             "quality",
-            esc(&format!("{:?}", parts.settings.quality).to_lowercase()),
+            serde_json::to_value(parts.settings.quality)
+                .ok()
+                .and_then(|v| v.as_str().map(esc))
+                .unwrap_or_default(),
         ),
         ("start", start_text(&request["start"], &stored)),
         ("execute", execute),
@@ -522,28 +569,33 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
 
     let trajectory = match &stored.trajectory {
         Some(t) => format!(
-            "<section class=\"part\" id=\"trajectory\"><h2>Trajectory {}</h2>{}{}{}</section>",
+            "<section class=\"part\" id=\"trajectory\"><h2>Trajectory {}</h2><div class=\"split\">\
+             <div>{}{}</div><div>{}</div></div></section>",
             link(&format!("/ui/trajectories/{}", t.id), short(&t.id)),
             facts(&[
                 ("duration", format!("{} s", num(t.duration, 3))),
                 ("points", t.points.len().to_string()),
                 (
                     "executed",
-                    if p.feasible {
-                        "when asked"
-                    } else {
-                        "never: kept for inspection"
+                    match (&stored.execution_id, p.feasible) {
+                        (Some(e), _) => format!(
+                            "queued as {}",
+                            link(&format!("/ui/executions/{e}"), short(e))
+                        ),
+                        (None, true) => "not asked".into(),
+                        (None, false) => "never: the plan is infeasible; the motion is kept \
+                                          for inspection"
+                            .into(),
                     }
-                    .into()
                 ),
             ]),
+            report_facts(&t.summary),
             figure(
                 &format!("/v1/trajectories/{}/plot.svg", t.id),
                 "Joint positions over time",
                 false,
                 ""
             ),
-            report_facts(&t.summary),
         ),
         None => "<section class=\"part\" id=\"trajectory\"><h2>Trajectory</h2><p class=\"empty\">\
                  No motion was generated: the plan stopped at the grasp.</p></section>"
@@ -573,7 +625,8 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
                     })
                     .unwrap_or_else(|| "–".into());
                 format!(
-                    "<section class=\"part\" id=\"execution\"><h2>Execution {}</h2>{}{}</section>",
+                    "<section class=\"part\" id=\"execution\"><h2>Execution {}</h2>\
+                     <div class=\"split\"><div>{}</div><div>{}</div></div></section>",
                     link(&format!("/ui/executions/{e}"), short(e)),
                     facts(&[
                         ("state", execution_progress(e, dto.state, fraction)),

@@ -161,7 +161,9 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
             "tc",
             "gc",
             "manipulability",
-            "max_object_penetration",
+            "q_dc (m)",
+            "max_object_penetration (m)",
+            "exact.passed",
         ] {
             assert!(html.contains(&format!("<b>{term}</b>")), "{term}");
         }
@@ -173,11 +175,19 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
         );
         assert!(html.contains(&format!("{:.5}", cb - ca)), "cost difference");
     }
-    // Two grasps by id.
+    // Two grasps by id, ticked in the grasp list.
     let (ga, gb) = (
         a["grasp"]["id"].as_str().unwrap(),
         b["grasp"]["id"].as_str().unwrap(),
     );
+    let (_, grasps) = page(&app, "/ui/grasps").await;
+    for g in [ga, gb] {
+        assert!(
+            grasps.contains(&format!("name=\"grasps\" value=\"{g}\"")),
+            "{g}"
+        );
+    }
+    assert!(grasps.contains("action=\"/ui/compare\""));
     let (status, html) = page(&app, &format!("/ui/compare?grasps={ga},{gb}")).await;
     assert_eq!(status, 200);
     assert!(html.contains("Compare 2 grasps"));
