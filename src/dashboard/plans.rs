@@ -372,9 +372,12 @@ fn flat(v: &impl serde::Serialize) -> Result<Vec<(String, Value)>, PageError> {
     Ok(out)
 }
 
+/// Named quantities of one section of a grasp's numbers, titled.
+type Section = (&'static str, Vec<(String, Value)>);
+
 /// The numbers compared and shown for a grasp, by section: cost terms (eq. 12-22), the
 /// optimiser's residuals with the exact check, and the arm and hand ellipsoids (eq. 10-11).
-fn grasp_numbers(r: &GraspResult) -> Result<Vec<(&'static str, Vec<(String, Value)>)>, PageError> {
+fn grasp_numbers(r: &GraspResult) -> Result<Vec<Section>, PageError> {
     let mut ellipsoids = Vec::new();
     for (part, e) in [("arm", &r.arm_ellipsoids), ("hand", &r.hand_ellipsoids)] {
         ellipsoids.push((
@@ -859,7 +862,7 @@ pub async fn compare(
     let mut body = table(&header_refs, &about).replacen("<table>", "<table class=\"compare\">", 1);
 
     // The numbers, one row per quantity, so differences read across.
-    let numbers: Vec<Vec<(&'static str, Vec<(String, Value)>)>> = columns
+    let numbers: Vec<Vec<Section>> = columns
         .iter()
         .map(|c| grasp_numbers(&c.parts.result))
         .collect::<Result<_, _>>()?;
