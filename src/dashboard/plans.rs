@@ -570,7 +570,24 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
     ));
     grasp.push_str("</div></div></section>");
 
-    let trajectory = match &stored.trajectory {
+    let trajectory = trajectory_section(&stored);
+    let execution = execution_section(&state, &stored, request["execute"] == true).await?;
+
+    let body = format!(
+        "{summary}{}{grasp}{trajectory}{execution}",
+        compare_with(&state, &id).await?
+    );
+    Ok(html::ok(
+        &format!("Plan {}", short(&id)),
+        "/ui/plans",
+        &body,
+    ))
+}
+
+/// The plan's motion: its timing and clearance facts beside its figure.
+fn trajectory_section(stored: &StoredPlan) -> String {
+    let p = &stored.plan;
+    match &stored.trajectory {
         Some(t) => format!(
             "<section class=\"part\" id=\"trajectory\"><h2>Trajectory {}</h2><div class=\"split\">\
              <div>{}{}</div><div>{}</div></div></section>",
@@ -603,12 +620,21 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
         None => "<section class=\"part\" id=\"trajectory\"><h2>Trajectory</h2><p class=\"empty\">\
                  No motion was generated: the plan stopped at the grasp.</p></section>"
             .to_owned(),
-    };
+    }
+}
 
-    let execution = match &stored.execution_id {
+/// The plan's execution: a live bar (the script follows its events) beside the planned vs
+/// measured figure, or why there is none.
+async fn execution_section(
+    state: &AppState,
+    stored: &StoredPlan,
+    asked: bool,
+) -> Result<String, PageError> {
+    let p = &stored.plan;
+    Ok(match &stored.execution_id {
         Some(e) => match execution_repo::get(&state.db, e).await? {
             Some(row) => {
-                let view = crate::service::executions::view(&state, row);
+                let view = crate::service::executions::view(state, row);
                 let dto = &view.row;
                 let fraction = match (&view.last_feedback, dto.state) {
                     (_, ExecutionState::Succeeded) => 1.0,
@@ -664,20 +690,16 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
                 esc(e)
             ),
         },
-        None => "<section class=\"part\" id=\"execution\"><h2>Execution</h2><p class=\"empty\">\
-                 Not executed.</p></section>"
-            .to_owned(),
-    };
-
-    let body = format!(
-        "{summary}{}{grasp}{trajectory}{execution}",
-        compare_with(&state, &id).await?
-    );
-    Ok(html::ok(
-        &format!("Plan {}", short(&id)),
-        "/ui/plans",
-        &body,
-    ))
+        None => format!(
+            "<section class=\"part\" id=\"execution\"><h2>Execution</h2><p class=\"empty\">\
+             Not executed{}.</p></section>",
+            match (asked, p.feasible) {
+                (true, false) => ": execution was asked, but an infeasible plan is never queued",
+                (false, _) => ": execution was not asked",
+                (true, true) => "",
+            }
+        ),
+    })
 }
 
 /// A small GET form on a plan's page: compare it with one of the other recent plans.

@@ -137,7 +137,7 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
                 );
                 assert!(html.contains(&format!("/v1/executions/{e}/plot.svg")));
             }
-            None => assert!(html.contains("Not executed.")),
+            None => assert!(html.contains("Not executed: execution was")),
         }
     }
     // The ball plan asked to execute: queued whenever its motion was feasible.
