@@ -32,6 +32,10 @@ function fieldValue(el) {
     // Sent as typed even when not a number, so the server names the bad field.
     return Number.isFinite(n) ? n : raw;
   }
+  if (type === "json") {
+    // A choice between structured values (e.g. a plan's start: "current" or a configuration).
+    try { return JSON.parse(raw); } catch (e) { return raw; }
+  }
   if (type === "list") {
     return raw.split(/[\s,]+/).filter((s) => s !== "");
   }
@@ -53,12 +57,16 @@ function showProblem(form, problem) {
   const unplaced = [];
   (problem.errors || []).forEach((err) => {
     // The exact field, else the field of the array it indexes into, else the first field
-    // below the reported object (e.g. `$.demonstrations` -> `$.demonstrations.job_id`).
+    // below the reported object (e.g. `$.demonstrations` -> `$.demonstrations.job_id`), else
+    // the field holding the reported part (`$.start.positions[1]` -> `$.start`).
     const fields = Array.from(form.querySelectorAll("[data-path]"));
+    const holds = (f) => err.path.startsWith(`${f.dataset.path}.`)
+      || err.path.startsWith(`${f.dataset.path}[`);
     const input = fields.find((f) => f.dataset.path === err.path)
       || fields.find((f) => f.dataset.path === err.path.replace(/\[\d+\]$/, ""))
       || fields.find((f) => f.dataset.path.startsWith(`${err.path}.`)
-        || f.dataset.path.startsWith(`${err.path}[`));
+        || f.dataset.path.startsWith(`${err.path}[`))
+      || fields.filter(holds).sort((a, b) => b.dataset.path.length - a.dataset.path.length)[0];
     if (input) {
       const field = input.closest(".field");
       field.classList.add("invalid");

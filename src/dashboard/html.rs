@@ -53,8 +53,9 @@ pub fn esc(s: &str) -> String {
 }
 
 /// The sections of the navigation bar: (path, label).
-pub const NAV: [(&str, &str); 11] = [
+pub const NAV: [(&str, &str); 12] = [
     ("/", "Overview"),
+    ("/ui/plans", "Plans"),
     ("/ui/robots", "Robots"),
     ("/ui/objects", "Objects"),
     ("/ui/demonstrations", "Demonstrations"),

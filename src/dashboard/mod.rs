@@ -13,6 +13,7 @@
 
 mod html;
 mod pages;
+mod plans;
 mod resources;
 mod viewer;
 
@@ -55,6 +56,9 @@ pub fn router() -> Router<AppState> {
         .route("/ui/executions/{id}", get(resources::execution))
         .route("/ui/jobs", get(pages::jobs))
         .route("/ui/jobs/{id}", get(pages::job))
+        .route("/ui/plans", get(plans::plans))
+        .route("/ui/plans/{id}", get(plans::plan))
+        .route("/ui/compare", get(plans::compare))
         .merge(viewer::router())
 }
 

@@ -120,6 +120,42 @@ async fn map_form(state: &AppState, job_id: &str) -> Result<String, PageError> {
     ))
 }
 
+/// The inputs of task direction `i` of a grasp or plan body (direction, transmission, goal);
+/// an `optional` one starts empty and is left out of the body unless filled in.
+pub(super) fn task_fields(i: usize, optional: bool) -> [String; 3] {
+    let (label, direction, none) = if optional {
+        (format!("task direction {} (optional)", i + 1), "", "=–|")
+    } else if i == 0 {
+        ("task direction (x, y, z)".to_owned(), "0, 0, 1", "")
+    } else {
+        (format!("task direction {}", i + 1), "0, 0, 1", "")
+    };
+    let default = |v: &'static str| if optional { "" } else { v };
+    [
+        field(
+            &label,
+            &format!("task_directions.{i}.direction"),
+            &format!("$.task_directions[{i}].direction"),
+            "vec",
+            direction,
+        ),
+        field(
+            "transmission",
+            &format!("task_directions.{i}.kind"),
+            &format!("$.task_directions[{i}].kind"),
+            &format!("select:{none}force|velocity"),
+            default("force"),
+        ),
+        field(
+            "goal",
+            &format!("task_directions.{i}.goal"),
+            &format!("$.task_directions[{i}].goal"),
+            &format!("select:{none}maximize|minimize"),
+            default("maximize"),
+        ),
+    ]
+}
+
 async fn grasp_form(state: &AppState, object: Option<&str>) -> Result<String, PageError> {
     let robots = robot_repo::list(&state.db).await?;
     let robot_opts: String = robots.iter().map(|r| format!("{}|", r.id)).collect();
@@ -157,27 +193,7 @@ async fn grasp_form(state: &AppState, object: Option<&str>) -> Result<String, Pa
                 &format!("select:{object_opts}"),
                 &selected,
             ),
-            field(
-                "task direction (x, y, z)",
-                "task_directions.0.direction",
-                "$.task_directions[0].direction",
-                "vec",
-                "0, 0, 1",
-            ),
-            field(
-                "transmission",
-                "task_directions.0.kind",
-                "$.task_directions[0].kind",
-                "select:force|velocity",
-                "force",
-            ),
-            field(
-                "goal",
-                "task_directions.0.goal",
-                "$.task_directions[0].goal",
-                "select:maximize|minimize",
-                "maximize",
-            ),
+            task_fields(0, false).concat(),
             field("starts (1-64)", "starts", "$.starts", "int", "2"),
             field("seed", "seed", "$.seed", "int", "0"),
         ],
@@ -214,7 +230,9 @@ pub async fn home(State(state): State<AppState>) -> Page {
     let (_, models) = crate::store::models::list_models(&state.db, None, 1, 0).await?;
     let (_, trajectories) =
         crate::store::trajectories::list_trajectories(&state.db, None, 1, 0).await?;
+    let (_, plans) = crate::store::plans::list(&state.db, None, 1, 0).await?;
     let cards = [
+        ("/ui/plans", "plans", plans),
         ("/ui/robots", "robots", robots.len() as i64),
         ("/ui/objects", "objects", objects.len() as i64),
         ("/ui/demonstrations", "demonstrations", demos),
@@ -629,6 +647,11 @@ pub async fn grasps(State(state): State<AppState>) -> Page {
             let object: Option<ObjectSpec> = serde_json::from_str(&g.object).ok();
             let result: Option<GraspResult> = serde_json::from_str(&g.result).ok();
             vec![
+                format!(
+                    "<input type=\"checkbox\" name=\"grasps\" value=\"{}\" \
+                     aria-label=\"compare grasp\">",
+                    esc(&g.id)
+                ),
                 link(&format!("/ui/grasps/{}", g.id), &g.id[..8.min(g.id.len())]),
                 esc(&g.robot),
                 object.map(|o| esc(&o.name)).unwrap_or_default(),
@@ -638,12 +661,18 @@ pub async fn grasps(State(state): State<AppState>) -> Page {
             ]
         })
         .collect();
+    // Ticked grasps open side by side (`/ui/compare?grasps=A&grasps=B`).
     let body = format!(
-        "{}{}",
+        "<form class=\"compare-pick\" action=\"/ui/compare\" method=\"get\">{}{}</form>{}",
         table(
-            &["grasp", "robot", "object", "result", "cost", "created"],
+            &["", "grasp", "robot", "object", "result", "cost", "created"],
             &trs
         ),
+        if trs.is_empty() {
+            ""
+        } else {
+            "<p><button type=\"submit\">Compare selected</button></p>"
+        },
         grasp_form(&state, None).await?
     );
     Ok(html::ok("Grasps", "/ui/grasps", &body))

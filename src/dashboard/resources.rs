@@ -15,7 +15,7 @@ use crate::store::trajectories as trajectory_repo;
 
 type Page = Result<axum::response::Response, PageError>;
 
-fn short(id: &str) -> &str {
+pub(super) fn short(id: &str) -> &str {
     &id[..8.min(id.len())]
 }
 
@@ -26,7 +26,7 @@ fn pretty(json: &str) -> String {
 }
 
 /// A live progress bar for an execution (the script follows its Server-Sent Events).
-fn execution_progress(id: &str, state: ExecutionState, fraction: f64) -> String {
+pub(super) fn execution_progress(id: &str, state: ExecutionState, fraction: f64) -> String {
     progress(id, state.as_str(), fraction)
         .replacen(
             "class=\"job-status\"",
@@ -402,7 +402,7 @@ pub async fn trajectories(State(state): State<AppState>, Query(q): Query<PageQue
 /// learned duration and the limits, the exact clearance (closest pair, per kind), what the
 /// avoidance moved, and the approach and workspace-entry segments with their notes. Empty
 /// for a summary that is not a trajectory report.
-fn report_facts(summary: &str) -> String {
+pub(super) fn report_facts(summary: &str) -> String {
     use crate::grasp::ClearanceHit;
     use crate::service::trajectories::TrajectoryReportDto;
     let Ok(r) = serde_json::from_str::<TrajectoryReportDto>(summary) else {

@@ -17,6 +17,7 @@ mod obstacles;
 mod openapi;
 mod paths;
 mod plans;
+mod plans_ui;
 mod process;
 mod quickstart;
 mod robots;
