@@ -242,6 +242,16 @@ pub fn num(v: f64, digits: usize) -> String {
     }
 }
 
+/// `2026-12-04 06:05:20` (UTC) from an RFC 3339 timestamp: columns stay narrow.
+pub fn when(rfc3339: &str) -> String {
+    let t = rfc3339.replacen('T', " ", 1);
+    t.split('.')
+        .next()
+        .unwrap_or(&t)
+        .trim_end_matches('Z')
+        .to_owned()
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

@@ -293,9 +293,9 @@ fn status_section(st: &crate::service::status::StatusDto) -> String {
         let model = &r.default_model;
         let cell = match model.state {
             DefaultModelState::Trained => format!(
-                "<a href=\"/ui/models/{id}\">trained</a> {at}",
+                "<a href=\"/ui/models/{id}\">trained</a> since {at} UTC",
                 id = esc(model.id.as_deref().unwrap_or("")),
-                at = esc(model.trained_at.as_deref().unwrap_or("")),
+                at = esc(&html::when(model.trained_at.as_deref().unwrap_or(""))),
             ),
             DefaultModelState::Seeding => {
                 let step = st.seeding.pending.iter().find(|p| p.robot == r.id);

@@ -58,16 +58,6 @@ fn directions_text(v: &Value) -> String {
         .join("; ")
 }
 
-/// `2026-12-04 06:05:20` from an RFC 3339 timestamp: the list's column stays narrow.
-fn when(rfc3339: &str) -> String {
-    let t = rfc3339.replacen('T', " ", 1);
-    t.split('.')
-        .next()
-        .unwrap_or(&t)
-        .trim_end_matches('Z')
-        .to_owned()
-}
-
 fn feasible_text(feasible: bool, reason: Option<&str>) -> String {
     if feasible {
         "<span class=\"ok\">feasible</span>".to_owned()
@@ -261,7 +251,10 @@ pub async fn plans(State(state): State<AppState>, Query(q): Query<ListQuery>) ->
                     })
                     .unwrap_or_else(|| "–".into()),
                 execution,
-                format!("<span class=\"when\">{}</span>", esc(&when(&p.created_at))),
+                format!(
+                    "<span class=\"when\">{}</span>",
+                    esc(&html::when(&p.created_at))
+                ),
             ]
         })
         .collect();

@@ -273,14 +273,18 @@ async fn build(
 
 async fn plan_page(State(state): State<AppState>, Path(id): Path<String>) -> Page {
     if plan_repo::get(&state.db, &id).await?.is_none() {
-        return Ok(html::not_found("plan", &id, "/", "resources"));
+        return Ok(html::not_found("plan", &id, "/ui/plans", "plans"));
     }
     Ok(viewer_page(
         &format!("Plan {} in 3-D", short(&id)),
-        "/",
+        "/ui/plans",
         &format!("/ui/view/plans/{id}/scene.json"),
         None,
-        &link(&format!("/v1/plans/{id}"), "the plan (JSON)"),
+        &format!(
+            "{} · {}",
+            link(&format!("/ui/plans/{id}"), "the plan"),
+            link(&format!("/v1/plans/{id}"), "JSON")
+        ),
     ))
 }
 
