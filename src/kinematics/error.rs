@@ -92,8 +92,8 @@ pub enum KinematicsError {
     // ---- joint vectors ------------------------------------------------------------------
     #[error("joint vector has {got} values, the model has {expected} independent joints")]
     WrongLength { expected: usize, got: usize },
-    #[error("joint vector names unknown joint '{name}'")]
-    UnknownJoint { name: String },
+    #[error("joint vector names unknown joint '{name}' (the robot's joints: {known})")]
+    UnknownJoint { name: String, known: String },
     #[error("joint vector names joint '{name}' twice")]
     RepeatedJoint { name: String },
     #[error("joint vector is missing joint '{name}'")]

@@ -73,6 +73,7 @@ impl JointVector {
                 .q_index(name)
                 .ok_or_else(|| KinematicsError::UnknownJoint {
                     name: name.to_owned(),
+                    known: model.joint_names().join(", "),
                 })?;
             if set[k] {
                 return Err(KinematicsError::RepeatedJoint {
@@ -136,7 +137,7 @@ mod tests {
             })
         ));
         assert!(
-            matches!(JointVector::from_named(&m, &["q1", "qx"], &[1.0, 2.0]), Err(E::UnknownJoint { name }) if name == "qx")
+            matches!(JointVector::from_named(&m, &["q1", "qx"], &[1.0, 2.0]), Err(E::UnknownJoint { name, known }) if name == "qx" && known == "q1, q2")
         );
         assert!(
             matches!(JointVector::from_named(&m, &["q1", "q1"], &[1.0, 2.0]), Err(E::RepeatedJoint { name }) if name == "q1")
