@@ -12,6 +12,9 @@
 //! made over HTTP, and the 200 are those plans' rows stored again through the plan use case's
 //! store (so the bench measures the pages, not planning).
 
+#[path = "support/http.rs"]
+mod http;
+
 use std::time::{Duration, Instant};
 
 use reachgrasp::app::App;
@@ -25,38 +28,6 @@ const ROBOT: &str = "wam_ihy";
 const PLANS: usize = 200;
 const REPEATS: usize = 30;
 const BUDGET_MS: f64 = 200.0;
-
-async fn run_job(client: &reqwest::Client, base: &str, path: &str, body: Value) -> String {
-    let res = client
-        .post(format!("{base}{path}"))
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(res.status(), 202, "{path}");
-    let resource = res
-        .headers()
-        .get("content-location")
-        .map(|v| v.to_str().unwrap().rsplit('/').next().unwrap().to_owned());
-    let job: Value = res.json().await.unwrap();
-    let id = job["id"].as_str().unwrap().to_owned();
-    for _ in 0..6000 {
-        let j: Value = client
-            .get(format!("{base}/v1/jobs/{id}"))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
-        if j["status"] != "queued" && j["status"] != "running" {
-            assert_eq!(j["status"], "succeeded", "{path}: {j}");
-            return resource.unwrap_or(id);
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    panic!("job {id} did not finish");
-}
 
 /// Milliseconds from sending `GET path` to its last byte (asserting a 200 HTML page).
 async fn time_page(client: &reqwest::Client, base: &str, path: &str) -> f64 {
@@ -103,35 +74,7 @@ async fn run() -> anyhow::Result<()> {
         .timeout(Duration::from_secs(120))
         .build()?;
 
-    let study = run_job(
-        &client,
-        &base,
-        "/v1/demonstrations/synthetic",
-        json!({"seed": 5, "subjects": 1, "positions": 5, "trials": 3}),
-    )
-    .await;
-    let mapping = run_job(
-        &client,
-        &base,
-        "/v1/mappings",
-        json!({"robot": ROBOT, "demonstrations": {"job_id": study}, "output_rate_hz": 20}),
-    )
-    .await;
-    run_job(
-        &client,
-        &base,
-        "/v1/models",
-        json!({"robot": ROBOT, "mappings": [mapping], "held_out": false, "default": true}),
-    )
-    .await;
-    let m: Value = client
-        .get(format!("{base}/v1/mappings/{mapping}?limit=1"))
-        .send()
-        .await?
-        .json()
-        .await?;
-    let t = &m["demonstrations"]["items"][0]["trajectory"];
-    let start = json!({"joint_names": t["joint_names"], "positions": t["positions"][0]});
+    let (_, start) = http::trained(&client, &base, ROBOT).await;
 
     // Real plans over HTTP, feasible or not (the list shows both).
     let bodies = [

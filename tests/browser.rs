@@ -7,44 +7,16 @@
 //! override with `CHROMIUM` / `CHROMEDRIVER`). Without them the test FAILS when `CI=true` and
 //! skips with a loud message otherwise.
 
+#[path = "support/chromium.rs"]
+mod chromium;
 #[path = "api/helpers.rs"]
 #[allow(dead_code)]
 mod helpers;
 
-use std::net::TcpListener;
 use std::path::PathBuf;
-use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use fantoccini::{Client, ClientBuilder, Locator};
-use serde_json::json;
-
-fn tool(env: &str, default: &str) -> PathBuf {
-    std::env::var_os(env)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(default))
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
-}
-
-async fn wait_for_port(port: u16) {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while tokio::net::TcpStream::connect(("127.0.0.1", port))
-        .await
-        .is_err()
-    {
-        assert!(
-            Instant::now() < deadline,
-            "chromedriver did not listen on {port} within 20 s"
-        );
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-}
+use fantoccini::{Client, Locator};
 
 async fn text_of(c: &Client, css: &str) -> String {
     c.find(Locator::Css(css))
@@ -57,18 +29,7 @@ async fn text_of(c: &Client, css: &str) -> String {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn dashboard_runs_a_synthetic_study_in_headless_chromium() {
-    let chromium = tool("CHROMIUM", "/usr/bin/chromium");
-    let driver = tool("CHROMEDRIVER", "/usr/bin/chromedriver");
-    if !chromium.is_file() || !driver.is_file() {
-        let msg = format!(
-            "headless Chromium is not installed ({} / {}): apt-get install -y chromium chromium-driver",
-            chromium.display(),
-            driver.display()
-        );
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("{msg}");
-        }
-        eprintln!("\n!!!!!!!! SKIPPING the browser test: {msg} !!!!!!!!\n");
+    if !chromium::available("the dashboard browser test") {
         return;
     }
 
@@ -76,44 +37,9 @@ async fn dashboard_runs_a_synthetic_study_in_headless_chromium() {
         c.robots = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
     })
     .await;
-    let port = free_port();
-    let _driver = tokio::process::Command::new(&driver)
-        .arg(format!("--port={port}"))
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .kill_on_drop(true)
-        .spawn()
-        .expect("chromedriver starts");
-    wait_for_port(port).await;
-
-    let profile = tempfile::tempdir().unwrap();
-    let caps = json!({
-        "browserName": "chrome",
-        "goog:chromeOptions": {
-            "binary": chromium,
-            "args": [
-                "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                "--disable-dev-shm-usage", "--window-size=1280,1600",
-                format!("--user-data-dir={}", profile.path().display()),
-            ],
-        },
-    });
-    let caps = caps.as_object().unwrap().clone();
-    let c = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
-        .capabilities(caps)
-        .connect(&format!("http://127.0.0.1:{port}"))
-        .await
-        .expect("a WebDriver session");
-
-    let outcome = drive(&c, &app.base_url).await;
-    let shot = c.screenshot().await;
-    c.close().await.ok();
-    let png = shot.expect("a screenshot");
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"));
-    let path = dir.join("dashboard-e2e.png");
-    std::fs::write(&path, png).unwrap();
-    println!("dashboard screenshot: {}", path.display());
+    let browser = chromium::launch("1280,1600", &[]).await;
+    let outcome = drive(&browser.client, &app.base_url).await;
+    browser.close("dashboard-e2e.png").await;
     outcome.unwrap();
 }
 

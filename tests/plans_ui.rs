@@ -9,16 +9,16 @@
 //! override with `CHROMIUM` / `CHROMEDRIVER`). Without them the test FAILS when `CI=true` and
 //! skips with a loud message otherwise (the rule of `tests/browser.rs`).
 
+#[path = "support/chromium.rs"]
+mod chromium;
 #[path = "api/helpers.rs"]
 #[allow(dead_code)]
 mod helpers;
 
-use std::net::TcpListener;
 use std::path::PathBuf;
-use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use fantoccini::{Client, ClientBuilder, Locator};
+use fantoccini::{Client, Locator};
 use reachgrasp::bridge::worker::{WorkerOptions, run_worker};
 use reachgrasp::kinematics::System;
 use serde_json::{Value, json};
@@ -28,35 +28,8 @@ const TOKEN: &str = "plans-ui-token";
 const BALL: &str = "00000000-0000-4000-8000-000000000001";
 const BOTTLE: &str = "00000000-0000-4000-8000-000000000002";
 
-fn tool(env: &str, default: &str) -> PathBuf {
-    std::env::var_os(env)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(default))
-}
-
 fn robots_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
-}
-
-async fn wait_for_port(port: u16) {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while tokio::net::TcpStream::connect(("127.0.0.1", port))
-        .await
-        .is_err()
-    {
-        assert!(
-            Instant::now() < deadline,
-            "chromedriver did not listen on {port} within 20 s"
-        );
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
 }
 
 fn err(e: impl std::fmt::Display) -> String {
@@ -65,18 +38,7 @@ fn err(e: impl std::fmt::Display) -> String {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_plan_made_and_executed_from_the_form_and_two_plans_compared_in_headless_chromium() {
-    let chromium = tool("CHROMIUM", "/usr/bin/chromium");
-    let driver = tool("CHROMEDRIVER", "/usr/bin/chromedriver");
-    if !chromium.is_file() || !driver.is_file() {
-        let msg = format!(
-            "headless Chromium is not installed ({} / {}): apt-get install -y chromium chromium-driver",
-            chromium.display(),
-            driver.display()
-        );
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("{msg}");
-        }
-        eprintln!("\n!!!!!!!! SKIPPING the plans browser test: {msg} !!!!!!!!\n");
+    if !chromium::available("the plans browser test") {
         return;
     }
 
@@ -131,41 +93,10 @@ async fn a_plan_made_and_executed_from_the_form_and_two_plans_compared_in_headle
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
 
-    let port = free_port();
-    let _driver = tokio::process::Command::new(&driver)
-        .arg(format!("--port={port}"))
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .kill_on_drop(true)
-        .spawn()
-        .expect("chromedriver starts");
-    wait_for_port(port).await;
-    let profile = tempfile::tempdir().unwrap();
-    let caps = json!({
-        "browserName": "chrome",
-        "goog:chromeOptions": {
-            "binary": chromium,
-            "args": [
-                "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                "--disable-dev-shm-usage", "--window-size=1280,1600",
-                format!("--user-data-dir={}", profile.path().display()),
-            ],
-        },
-    });
-    let c = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
-        .capabilities(caps.as_object().unwrap().clone())
-        .connect(&format!("http://127.0.0.1:{port}"))
-        .await
-        .expect("a WebDriver session");
-
-    let outcome = drive(&c, &app).await;
-    let shot = c.screenshot().await;
-    c.close().await.ok();
+    let browser = chromium::launch("1280,1600", &[]).await;
+    let outcome = drive(&browser.client, &app).await;
+    browser.close("plans-ui-e2e.png").await;
     worker.abort();
-    let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("plans-ui-e2e.png");
-    std::fs::write(&path, shot.expect("a screenshot")).unwrap();
-    println!("plans screenshot: {}", path.display());
     outcome.unwrap();
 }
 

@@ -8,52 +8,25 @@
 //! with `CHROMIUM` / `CHROMEDRIVER`); without them the browser part FAILS when `CI=true` and
 //! skips with a loud message otherwise.
 
+#[path = "support/chromium.rs"]
+mod chromium;
 #[path = "api/helpers.rs"]
 #[allow(dead_code)]
 mod helpers;
 
-use std::net::TcpListener;
 use std::path::PathBuf;
-use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use fantoccini::{Client, ClientBuilder, Locator};
+use fantoccini::{Client, Locator};
 use reachgrasp::bridge::sim::{SimLimits, min_jerk};
 use reachgrasp::bridge::worker::{WorkerOptions, run_worker};
 use reachgrasp::kinematics::System;
 use serde_json::{Value, json};
 
-use helpers::{TestApp, run_job};
+use helpers::TestApp;
 
 const ROBOT: &str = "wam_ihy";
 const TOKEN: &str = "viewer-bridge-token";
-
-fn tool(env: &str, default: &str) -> PathBuf {
-    std::env::var_os(env)
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(default))
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
-}
-
-async fn wait_for_port(port: u16) {
-    let deadline = Instant::now() + Duration::from_secs(20);
-    while tokio::net::TcpStream::connect(("127.0.0.1", port))
-        .await
-        .is_err()
-    {
-        assert!(
-            Instant::now() < deadline,
-            "chromedriver did not listen on {port} within 20 s"
-        );
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-}
 
 fn robots_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
@@ -67,33 +40,6 @@ async fn get_json(app: &TestApp, path: &str) -> Value {
     let res = app.get(path).await;
     assert_eq!(res.status(), 200, "GET {path}");
     res.json().await.unwrap()
-}
-
-/// A small study mapped onto the robot and trained as its default model: the mapping id and a
-/// start inside the model's workspace (where the first demonstration starts).
-async fn trained(app: &TestApp) -> (String, Value) {
-    let study = run_job(
-        app,
-        "/v1/demonstrations/synthetic",
-        json!({"seed": 5, "subjects": 1, "positions": 5, "trials": 3}),
-    )
-    .await;
-    let mapping = run_job(
-        app,
-        "/v1/mappings",
-        json!({"robot": ROBOT, "demonstrations": {"job_id": study}, "output_rate_hz": 20}),
-    )
-    .await;
-    run_job(
-        app,
-        "/v1/models",
-        json!({"robot": ROBOT, "mappings": [mapping], "held_out": false, "default": true}),
-    )
-    .await;
-    let m = get_json(app, &format!("/v1/mappings/{mapping}?limit=1")).await;
-    let t = &m["demonstrations"]["items"][0]["trajectory"];
-    let start = json!({"joint_names": t["joint_names"], "positions": t["positions"][0]});
-    (mapping, start)
 }
 
 /// Each link pose of frame `k` of a scene equals the service's FK (`/v1/robots/{id}/fk`) of the
@@ -160,7 +106,7 @@ async fn the_viewer_draws_plays_back_and_follows_a_live_execution_in_headless_ch
     .await;
 
     // A plan: grasp the seeded ball from where the demonstrations start.
-    let (mapping, start) = trained(&app).await;
+    let (mapping, _, start) = helpers::trained_with_mapping(&app, ROBOT).await;
     let res = app
         .post_json(
             "/v1/plans",
@@ -301,58 +247,13 @@ async fn the_viewer_draws_plays_back_and_follows_a_live_execution_in_headless_ch
     assert!(!long_scene["contacts"].as_array().unwrap().is_empty());
 
     // The browser part.
-    let chromium = tool("CHROMIUM", "/usr/bin/chromium");
-    let driver = tool("CHROMEDRIVER", "/usr/bin/chromedriver");
-    if !chromium.is_file() || !driver.is_file() {
-        let msg = format!(
-            "headless Chromium is not installed ({} / {}): apt-get install -y chromium chromium-driver",
-            chromium.display(),
-            driver.display()
-        );
-        if std::env::var("CI").is_ok_and(|v| v == "true") {
-            panic!("{msg}");
-        }
-        eprintln!("\n!!!!!!!! SKIPPING the viewer browser test: {msg} !!!!!!!!\n");
+    if !chromium::available("the viewer browser test") {
         return;
     }
-    let port = free_port();
-    let _driver = tokio::process::Command::new(&driver)
-        .arg(format!("--port={port}"))
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .kill_on_drop(true)
-        .spawn()
-        .expect("chromedriver starts");
-    wait_for_port(port).await;
-    let profile = tempfile::tempdir().unwrap();
-    let caps = json!({
-        "browserName": "chrome",
-        "goog:chromeOptions": {
-            "binary": chromium,
-            "args": [
-                "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                "--disable-dev-shm-usage", "--window-size=1280,1000",
-                // WebGL without a GPU: Chromium's software rasteriser.
-                "--enable-unsafe-swiftshader",
-                format!("--user-data-dir={}", profile.path().display()),
-            ],
-        },
-    });
-    let c = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
-        .capabilities(caps.as_object().unwrap().clone())
-        .connect(&format!("http://127.0.0.1:{port}"))
-        .await
-        .expect("a WebDriver session");
-
-    let outcome = drive(&c, &app, &plan_id, &long_id, &mapping).await;
-    let shot = c.screenshot().await;
-    c.close().await.ok();
-    if let Ok(png) = shot {
-        let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("viewer-e2e.png");
-        std::fs::write(&path, png).unwrap();
-        println!("viewer screenshot: {}", path.display());
-    }
+    // WebGL without a GPU: Chromium's software rasteriser.
+    let browser = chromium::launch("1280,1000", &["--enable-unsafe-swiftshader"]).await;
+    let outcome = drive(&browser.client, &app, &plan_id, &long_id, &mapping).await;
+    browser.close("viewer-e2e.png").await;
     outcome.unwrap();
 }
 

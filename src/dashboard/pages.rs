@@ -216,7 +216,8 @@ pub async fn home(State(state): State<AppState>) -> Page {
         },
     )
     .await?;
-    let grasps = grasp_repo::list_grasps(&state.db, 1000).await?;
+    // the count alone (the overview read up to 1000 whole grasps to count them)
+    let grasps = grasp_repo::count_grasps(&state.db).await?;
     let jobs = state
         .jobs
         .list(&JobFilter {
@@ -238,7 +239,7 @@ pub async fn home(State(state): State<AppState>) -> Page {
         ("/ui/demonstrations", "demonstrations", demos),
         ("/ui/mappings", "mappings", mappings),
         ("/ui/models", "models", models),
-        ("/ui/grasps", "grasps", grasps.len() as i64),
+        ("/ui/grasps", "grasps", grasps),
         ("/ui/trajectories", "trajectories", trajectories),
         (
             "/ui/bridges",

@@ -232,6 +232,13 @@ pub async fn robot_in_use(pool: &SqlitePool, robot: &str) -> Result<bool, sqlx::
 }
 
 /// The newest grasps first (the dashboard's list).
+/// How many grasps are stored.
+pub async fn count_grasps(pool: &SqlitePool) -> Result<i64, sqlx::Error> {
+    sqlx::query_scalar("SELECT COUNT(*) FROM grasps")
+        .fetch_one(pool)
+        .await
+}
+
 pub async fn list_grasps(pool: &SqlitePool, limit: u32) -> Result<Vec<GraspRow>, sqlx::Error> {
     sqlx::query_as(
         "SELECT id, robot, object_id, object, request, result, feasible, batch_id, created_at \

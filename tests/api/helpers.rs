@@ -164,6 +164,12 @@ pub async fn run_job(app: &TestApp, path: &str, body: Value) -> String {
 /// model; returns the model id and a start where the demonstrations started (inside the
 /// model's workspace).
 pub async fn trained(app: &TestApp, robot: &str) -> (String, Value) {
+    let (_, model, start) = trained_with_mapping(app, robot).await;
+    (model, start)
+}
+
+/// [`trained`], with the mapping the model learned from: `(mapping, model, start)`.
+pub async fn trained_with_mapping(app: &TestApp, robot: &str) -> (String, String, Value) {
     let study = run_job(
         app,
         "/v1/demonstrations/synthetic",
@@ -190,5 +196,5 @@ pub async fn trained(app: &TestApp, robot: &str) -> (String, Value) {
         .unwrap();
     let t = &m["demonstrations"]["items"][0]["trajectory"];
     let start = json!({"joint_names": t["joint_names"], "positions": t["positions"][0]});
-    (model, start)
+    (mapping, model, start)
 }
