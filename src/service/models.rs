@@ -336,7 +336,8 @@ pub fn joint_values(system: &System, v: &JointValues, base: &str) -> Result<Vec<
     }
     let q = JointVector::from_named(model, &v.joint_names, &v.positions).map_err(|e| {
         let path = match &e {
-            KinematicsError::UnknownJoint { name, .. } | KinematicsError::RepeatedJoint { name } => {
+            KinematicsError::UnknownJoint { name, .. }
+            | KinematicsError::RepeatedJoint { name } => {
                 let i = v
                     .joint_names
                     .iter()
