@@ -12,12 +12,12 @@ use serde_json::Value;
 
 use super::html::{self, PageError, esc, facts, field, figure, form, link, num, table};
 use super::pages::task_fields;
-use super::resources::{execution_progress, report_facts, short};
+use super::resources::{execution_fraction, execution_progress, report_facts, short};
 use crate::grasp::{GraspResult, ObjectSpec};
 use crate::service::Context as AppState;
 use crate::service::grasps::GraspSettings;
 use crate::service::plans::StoredPlan;
-use crate::store::executions::{self as execution_repo, ExecutionState};
+use crate::store::executions as execution_repo;
 use crate::store::grasps::{self as grasp_repo, GraspRow};
 use crate::store::plans as plan_repo;
 use crate::store::robots as robot_repo;
@@ -629,11 +629,7 @@ async fn execution_section(
             Some(row) => {
                 let view = crate::service::executions::view(state, row);
                 let dto = &view.row;
-                let fraction = match (&view.last_feedback, dto.state) {
-                    (_, ExecutionState::Succeeded) => 1.0,
-                    (Some(f), _) => f.progress,
-                    _ => 0.0,
-                };
+                let fraction = execution_fraction(&view);
                 let tracking = view
                     .tracking
                     .as_ref()

@@ -36,6 +36,16 @@ pub(super) fn execution_progress(id: &str, state: ExecutionState, fraction: f64)
         .replacen("data-job=", "data-execution=", 1)
 }
 
+/// How far an execution is, 0 to 1: all of it once it succeeded, else as far as its latest
+/// feedback says.
+pub(super) fn execution_fraction(view: &crate::service::executions::ExecutionView) -> f64 {
+    match (&view.last_feedback, view.row.state) {
+        (_, ExecutionState::Succeeded) => 1.0,
+        (Some(f), _) => f.progress,
+        _ => 0.0,
+    }
+}
+
 fn train_form(robot: &str, mapping: &str) -> String {
     form(
         "train-form",
@@ -630,11 +640,7 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
     let view = crate::service::executions::view(&state, row);
     let mode = view.row.mode;
     let dto = &view.row;
-    let fraction = match (&view.last_feedback, dto.state) {
-        (_, ExecutionState::Succeeded) => 1.0,
-        (Some(f), _) => f.progress,
-        _ => 0.0,
-    };
+    let fraction = execution_fraction(&view);
     let tracking = view
         .tracking
         .as_ref()

@@ -172,7 +172,7 @@ pub fn render_scene(scene: &Scene, view: View) -> Result<Figure, FigureError> {
 }
 
 /// For every frame, whether a hand joint moves it (hand links are drawn in the hand colour).
-fn hand_frames(model: &Model, hand_joints: &[usize]) -> Vec<bool> {
+pub(super) fn hand_frames(model: &Model, hand_joints: &[usize]) -> Vec<bool> {
     (0..model.n_frames())
         .map(|f| {
             model

@@ -19,6 +19,7 @@ use parry3d_f64::shape::SharedShape;
 use serde::Serialize;
 
 use super::FigureError;
+use super::scene::hand_frames;
 use crate::geometry::{ShapeSpec, SupportPlane, build_shape};
 use crate::grasp::{Contact, Ellipsoids};
 use crate::human::HumanFrame;
@@ -276,18 +277,6 @@ fn placed_spec(
         geometry,
         pose: pose7(&(pose * built.local_fix * fix)),
     })
-}
-
-/// For every frame, whether a hand joint moves it.
-fn hand_frames(model: &Model, hand_joints: &[usize]) -> Vec<bool> {
-    (0..model.n_frames())
-        .map(|f| {
-            model
-                .supporting_q(FrameId(f))
-                .iter()
-                .any(|k| hand_joints.contains(k))
-        })
-        .collect()
 }
 
 /// The links with collision shapes, in first-shape order, with their frames.
