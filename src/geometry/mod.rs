@@ -16,6 +16,7 @@
 //! [`CheckData`], so posture queries on primitives allocate nothing.
 
 pub mod avoid;
+pub mod barrier;
 mod checker;
 mod path;
 mod robot;
