@@ -192,10 +192,10 @@ struct BridgeArgs {
     /// Joint acceleration limit (rad/s²; the system descriptor has none).
     #[arg(long, default_value_t = reachgrasp::bridge::sim::DEFAULT_ACCELERATION_LIMIT)]
     max_acceleration: f64,
-    /// Apply random state kicks during motion.
+    /// Push the simulated arm at random during motion (velocity impulses).
     #[arg(long)]
     perturb: bool,
-    /// Largest kick per joint (rad).
+    /// Largest displacement of a push per joint (rad).
     #[arg(long, default_value_t = 0.08)]
     perturb_magnitude: f64,
     /// Seed of the kicks.

@@ -67,6 +67,9 @@ pub struct TrackingSummary {
     pub last_error: f64,
     /// Sum of squared errors (keeps `rms_error` exact across flushes).
     pub sum_squared: f64,
+    /// The worker's safety filter report (a closed-loop law with a scene).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub safety: Option<super::protocol::SafetyReport>,
 }
 
 impl TrackingSummary {
@@ -360,9 +363,16 @@ impl Hub {
                 Mode::OpenLoop => Capability::OpenLoop,
                 Mode::ClosedLoop => Capability::ClosedLoop,
             };
+            let Some(payload) = repo::payload(&self.0.db, &row.id).await? else {
+                continue;
+            };
+            // A law with a scene runs only where the worker filters it (an unfiltered law
+            // could drive the arm into what the plan avoided).
+            let filtered = payload.safety().is_some();
             let compatible = |w: &Worker| {
                 w.snapshot.robot == row.robot
                     && w.snapshot.capabilities.contains(&cap)
+                    && (!filtered || w.snapshot.capabilities.contains(&Capability::SafetyFilter))
                     && row.worker.as_ref().is_none_or(|n| *n == w.snapshot.name)
             };
             let (pick, any) = {
@@ -386,12 +396,19 @@ impl Hub {
                 {
                     let secs = self.0.settings.queue_timeout.unwrap_or_default().as_secs();
                     let reason = format!(
-                        "no worker: no compatible worker for robot '{}'{} connected within {secs} s",
+                        "no worker: no compatible worker for robot '{}'{}{} connected within \
+                         {secs} s",
                         row.robot,
                         row.worker
                             .as_ref()
                             .map(|w| format!(" named '{w}'"))
-                            .unwrap_or_default()
+                            .unwrap_or_default(),
+                        if filtered {
+                            " with the safety_filter capability (this closed-loop law runs in \
+                             a scene)"
+                        } else {
+                            ""
+                        }
                     );
                     if repo::finish(
                         &self.0.db,
@@ -417,17 +434,6 @@ impl Hub {
                     && w.snapshot.execution_id.as_deref() == Some(row.id.as_str())
                 {
                     w.snapshot.execution_id = None;
-                }
-            };
-            let payload = match repo::payload(&self.0.db, &row.id).await {
-                Ok(Some(p)) => p,
-                Ok(None) => {
-                    release(self);
-                    continue;
-                }
-                Err(e) => {
-                    release(self);
-                    return Err(e);
                 }
             };
             if !repo::mark_running(&self.0.db, &row.id, &name).await? {
@@ -796,6 +802,9 @@ impl Hub {
             .as_ref()
             .and_then(|l| l.feedback.as_ref())
             .and_then(|f| serde_json::to_string(f).ok());
+        if let Some(l) = live.as_mut() {
+            l.tracking.safety = r.safety.clone();
+        }
         let tr = live
             .as_ref()
             .and_then(|l| serde_json::to_string(&l.tracking).ok());

@@ -31,6 +31,9 @@ pub use crate::store::payload::{ExecutionPayload, Mode, TrajectoryPointSchema};
 pub enum Capability {
     OpenLoop,
     ClosedLoop,
+    /// Runs a closed-loop law through the control-barrier-function safety filter of its
+    /// payload's `safety` scene (a payload with a scene goes only to such a worker).
+    SafetyFilter,
 }
 
 /// First message of a worker.
@@ -102,6 +105,32 @@ pub struct ExecutionResult {
     /// Final measured positions.
     #[serde(default)]
     pub positions: Vec<f64>,
+    /// What the safety filter did (a closed-loop law with a scene).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub safety: Option<SafetyReport>,
+}
+
+/// The safety filter's account of a closed-loop execution (exact distances at the measured
+/// states of the control periods; `geometry::barrier`). The filter monitors the pairs within
+/// a few centimetres of their target; the distance fields are absent when none came that near.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct SafetyReport {
+    /// Smallest barrier value `h = d − target` over the run, m: ≥ 0 when every monitored pair
+    /// kept its target (the margin, falling to the grasp's own clearance near the goal); < 0
+    /// after a push brought a pair inside it (the filter then drives it back out).
+    pub min_barrier_m: Option<f64>,
+    /// Smallest exact signed distance of a monitored pair, m (< 0: penetration; the grasp's
+    /// fingertip contacts on the object at the goal are about 0).
+    pub min_distance_m: Option<f64>,
+    /// The robot link of `min_distance_m`.
+    pub link: Option<String>,
+    /// "object", "support", the obstacle's name or the other link's name.
+    pub other: Option<String>,
+    /// Time of `min_distance_m` from the execution's start, s.
+    pub time_s: Option<f64>,
+    /// Control periods run, and those in which the filter changed the law's command.
+    pub periods: u64,
+    pub filtered_periods: u64,
 }
 
 /// Messages a worker sends.

@@ -19,6 +19,7 @@ use super::protocol::{
     ServiceMessage, WorkerMessage,
 };
 use super::sim::{Perturbation, Run, RunOptions, SimLimits, SimRobot};
+use crate::grasp::HandArm;
 
 /// Configuration of a simulated worker.
 #[derive(Debug, Clone)]
@@ -39,6 +40,9 @@ pub struct WorkerOptions {
     pub run: RunOptions,
     pub perturb: Option<Perturbation>,
     pub capabilities: Vec<Capability>,
+    /// The robot's collision model, for the safety filter of closed-loop laws with a scene
+    /// (the worker announces `safety_filter` when it has one).
+    pub geometry: Option<std::sync::Arc<HandArm>>,
     /// First reconnection delay; doubles up to `backoff_max`.
     pub backoff_initial: Duration,
     pub backoff_max: Duration,
@@ -67,6 +71,7 @@ impl WorkerOptions {
             run: RunOptions::default(),
             perturb: None,
             capabilities: vec![Capability::OpenLoop, Capability::ClosedLoop],
+            geometry: None,
             backoff_initial: Duration::from_millis(200),
             backoff_max: Duration::from_secs(5),
         }
@@ -89,7 +94,15 @@ impl WorkerOptions {
             m.velocity_limits(),
             acceleration_limit,
         );
-        WorkerOptions::new(url, token, name, robot, m.joint_names().to_vec(), limits)
+        let mut opts =
+            WorkerOptions::new(url, token, name, robot, m.joint_names().to_vec(), limits);
+        // A system the grasp model cannot describe (no hand) still runs both modes, only not a
+        // law with a scene.
+        if let Ok(sys) = HandArm::from_system(system) {
+            opts.geometry = Some(std::sync::Arc::new(sys));
+            opts.capabilities.push(Capability::SafetyFilter);
+        }
+        opts
     }
 }
 
@@ -313,6 +326,7 @@ where
                                 outcome: Outcome::Failed,
                                 reason: Some("the worker is busy with another execution".into()),
                                 positions: robot.q.clone(),
+                                safety: None,
                             }));
                         } else {
                             // Each execution gets its own perturbation sequence.
@@ -320,7 +334,7 @@ where
                                 perturb_seed = perturb_seed.wrapping_add(1);
                                 Perturbation { seed: perturb_seed, ..p }
                             });
-                            match Run::new(&ex, &opts.joint_names, robot, opts.run, perturb) {
+                            match Run::new(&ex, &opts.joint_names, robot, opts.run, perturb, opts.geometry.as_deref()) {
                                 Ok(r) => {
                                     tracing::info!(execution = %ex.execution_id, mode = ex.mode.as_str(), "executing");
                                     run = Some(r);
@@ -333,6 +347,7 @@ where
                                         outcome: Outcome::Failed,
                                         reason: Some(reason),
                                         positions: robot.q.clone(),
+                                        safety: None,
                                     }));
                                 }
                             }
@@ -340,13 +355,14 @@ where
                     }
                     Ok(ServiceMessage::Cancel(c)) => {
                         if run.as_ref().is_some_and(|r| r.id == c.execution_id) {
-                            run = None;
+                            let safety = run.take().and_then(|r| r.safety_report());
                             emit(WorkerEvent::Cancelled { id: c.execution_id.clone() });
                             outgoing.push(WorkerMessage::Result(ExecutionResult {
                                 execution_id: c.execution_id,
                                 outcome: Outcome::Aborted,
                                 reason: Some("cancelled".into()),
                                 positions: robot.q.clone(),
+                                safety,
                             }));
                         }
                     }
@@ -374,6 +390,7 @@ where
                             outcome,
                             reason,
                             positions: robot.q.clone(),
+                            safety: r.safety_report(),
                         }));
                         run = None;
                     }

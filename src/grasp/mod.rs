@@ -17,8 +17,8 @@ pub mod system;
 
 pub use approach::{ApproachOptions, PreGrasp, pre_grasp, shape_path};
 pub use clearance::{
-    ClearanceHit, PathClearance, PostureCollision, avoid, path_clearance, posture_collision,
-    scene_checker,
+    CLOSING_PRESS, ClearanceHit, PathClearance, PostureCollision, avoid, closing_contacts,
+    path_clearance, posture_collision, scene_checker,
 };
 pub use indexes::{Ellipsoids, Goal, TaskDirection, Transmission};
 pub use objects::{Object, ObjectSpec, ShapeSpec, SupportPlane};

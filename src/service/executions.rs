@@ -291,6 +291,7 @@ async fn resolve(
                     model_id,
                     params,
                     goal,
+                    safety: None,
                 },
                 PayloadPaths::all("$.model_id", "$.model_id", "$.goal.positions"),
             ))
@@ -355,6 +356,7 @@ async fn stored_trajectory(
                     model_id,
                     params,
                     goal,
+                    safety: None,
                 },
                 paths,
             ))

@@ -20,6 +20,7 @@ use crate::grasp::PathClearance;
 use crate::motion::ControlParams;
 use crate::store::grasps::{self as grasp_repo, GraspRow, NewGrasp};
 use crate::store::models as model_repo;
+use crate::store::payload::SafetySpec;
 use crate::store::plans::{self as plan_repo, NewPlan};
 use crate::store::trajectories::{self, StoredTrajectory, TrajectoryDraft};
 
@@ -303,6 +304,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         )
     });
     let mut trajectory = None;
+    let mut safety = None;
     if reason.is_none() {
         let (joint_names, positions) = result
             .q_arm
@@ -326,6 +328,13 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         // The closed-loop law is certified inside the workspace only: a start outside it is
         // entered along a straight line by the open-loop trajectory, which that law cannot run.
         let closed_loop = body.execute && body.mode == Some(Mode::ClosedLoop);
+        // What the worker's safety filter keeps that law clear of (issue 18 item 3).
+        safety = closed_loop.then(|| {
+            SafetySpec::new(
+                scene.object.as_ref().map(|o| o.spec().clone()),
+                body.obstacles.clone(),
+            )
+        });
         match super::trajectories::compute(ctx, &request, Some(scene), !closed_loop).await {
             // A motion that collides is kept with the plan for inspection, but the plan is
             // infeasible and nothing is queued.
@@ -361,7 +370,12 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
                         })?,
                 )),
             };
-            Some(ExecutionRequest { mode, worker, law })
+            Some(ExecutionRequest {
+                mode,
+                worker,
+                law,
+                safety,
+            })
         }
         _ => None,
     };
@@ -510,6 +524,8 @@ pub struct ExecutionRequest {
     pub worker: Option<WorkerName>,
     /// The model's law for a closed-loop execution (`model_id`, its parameters).
     pub law: Option<(String, ControlParams)>,
+    /// The scene the worker's safety filter keeps a closed-loop law clear of.
+    pub safety: Option<SafetySpec>,
 }
 
 /// Everything a plan stores, computed before anything is written.
@@ -548,6 +564,7 @@ pub fn payload(
     mode: Mode,
     trajectory: &StoredTrajectory,
     law: Option<&(String, ControlParams)>,
+    safety: Option<SafetySpec>,
 ) -> Result<ExecutionPayload, Error> {
     match (mode, law) {
         (Mode::OpenLoop, _) => Ok(ExecutionPayload::Trajectory {
@@ -559,6 +576,7 @@ pub fn payload(
             model_id: model_id.clone(),
             params: params.clone(),
             goal: trajectory.goal.clone(),
+            safety: safety.map(Box::new),
         }),
         (Mode::ClosedLoop, None) => Err(Error::internal(anyhow::anyhow!(
             "a closed-loop execution needs the model's law"
@@ -594,7 +612,7 @@ pub(crate) async fn store_with(
     after(Write::Trajectory)?;
     let mut execution_id = None;
     if let (Some(e), Some(t)) = (&execution, &trajectory) {
-        let p = payload(e.mode, t, e.law.as_ref())?;
+        let p = payload(e.mode, t, e.law.as_ref(), e.safety.clone())?;
         // The library reads through another pooled connection; in WAL mode that read does not
         // wait for this transaction.
         ctx.bridges.check(&plan.robot, e.mode, &p).await?;
@@ -678,6 +696,7 @@ mod tests {
                 mode: Mode::OpenLoop,
                 worker: None,
                 law: None,
+                safety: None,
             }),
             plan: NewPlan {
                 robot: ROBOT.into(),

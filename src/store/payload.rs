@@ -59,7 +59,63 @@ pub enum ExecutionPayload {
         params: ControlParams,
         /// Goal joint values in the order of `params.joint_names`.
         goal: Vec<f64>,
+        /// The scene the law must keep clear of, for the worker's safety filter (absent: no
+        /// scene, the plain law). A worker runs such a payload only if it announced the
+        /// `safety_filter` capability.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        safety: Option<Box<SafetySpec>>,
     },
+}
+
+/// What a worker's control-barrier-function safety filter keeps the closed-loop law clear of
+/// (issue 18: [`crate::geometry::barrier`]): the plan's object on its support, its obstacles
+/// (robot base frame), and the filter's margins and gain.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SafetySpec {
+    /// The grasped object as the grasp was computed, with its support plane.
+    pub object: Option<crate::grasp::ObjectSpec>,
+    /// Further obstacles of the plan.
+    #[serde(default)]
+    pub obstacles: Vec<crate::geometry::ObstacleSpec>,
+    /// Clearance kept from the object, the support and obstacles, m.
+    pub margin_m: f64,
+    /// Clearance kept between two links, m.
+    pub self_margin_m: f64,
+    /// Barrier gain `α`, 1/s (how fast a barrier may fall near its target, and how fast a
+    /// pushed-in pair is driven back out).
+    pub rate: f64,
+    /// Deceleration the approach to a barrier is limited to farther out, m/s².
+    pub braking_m_s2: f64,
+}
+
+impl SafetySpec {
+    /// The default filter around `object` and `obstacles`.
+    pub fn new(
+        object: Option<crate::grasp::ObjectSpec>,
+        obstacles: Vec<crate::geometry::ObstacleSpec>,
+    ) -> SafetySpec {
+        let o = crate::geometry::barrier::BarrierOptions::default();
+        SafetySpec {
+            object,
+            obstacles,
+            margin_m: o.margin,
+            self_margin_m: o.self_margin,
+            rate: o.rate,
+            braking_m_s2: o.braking,
+        }
+    }
+
+    /// The filter options these values give.
+    pub fn options(&self) -> crate::geometry::barrier::BarrierOptions {
+        crate::geometry::barrier::BarrierOptions {
+            margin: self.margin_m,
+            self_margin: self.self_margin_m,
+            rate: self.rate,
+            braking: self.braking_m_s2,
+            ..crate::geometry::barrier::BarrierOptions::default()
+        }
+    }
 }
 
 impl ExecutionPayload {
@@ -75,6 +131,14 @@ impl ExecutionPayload {
         match self {
             ExecutionPayload::Trajectory { .. } => Mode::OpenLoop,
             ExecutionPayload::Model { .. } => Mode::ClosedLoop,
+        }
+    }
+
+    /// The safety filter this payload asks for (closed loop in a scene).
+    pub fn safety(&self) -> Option<&SafetySpec> {
+        match self {
+            ExecutionPayload::Model { safety, .. } => safety.as_deref(),
+            ExecutionPayload::Trajectory { .. } => None,
         }
     }
 

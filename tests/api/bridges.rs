@@ -512,6 +512,7 @@ async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
             model_id: "synthetic".into(),
             params,
             goal: goal.clone(),
+            safety: None,
         },
         None,
     )
@@ -1387,4 +1388,169 @@ async fn a_service_restart_keeps_queued_executions_and_the_worker_reconnects_to_
     assert_eq!(last["assigned_worker"], "sim-bin");
     worker.kill().await.unwrap();
     second.kill().await.unwrap();
+}
+
+/// The reference worker's closed-loop controller (`bridge::sim::Run`, what `run_worker` ticks)
+/// run to the end at 100 Hz, recording the measured state of every period.
+fn run_law(
+    payload: &ExecutionPayload,
+    start: &[f64],
+    perturb: Option<Perturbation>,
+    geometry: &reachgrasp::grasp::HandArm,
+) -> (
+    reachgrasp::bridge::protocol::Outcome,
+    Vec<f64>,
+    Option<reachgrasp::bridge::protocol::SafetyReport>,
+) {
+    use reachgrasp::bridge::protocol::Execute;
+    use reachgrasp::bridge::sim::{Run, RunOptions, SimRobot};
+    let s = system();
+    let m = &s.model;
+    let limits = SimLimits::new(m.lower_limits(), m.upper_limits(), m.velocity_limits(), 4.0);
+    let mut robot = SimRobot::new(limits, start.to_vec());
+    let exec = Execute {
+        execution_id: "e".into(),
+        mode: Mode::ClosedLoop,
+        payload: payload.clone(),
+    };
+    let mut run = Run::new(
+        &exec,
+        m.joint_names(),
+        &robot,
+        RunOptions::default(),
+        perturb,
+        Some(geometry),
+    )
+    .expect("the worker takes it");
+    let mut path = start.to_vec();
+    loop {
+        let done = run.tick(&mut robot, 0.01);
+        path.extend_from_slice(&robot.q);
+        if let Some((outcome, reason)) = done {
+            if outcome != reachgrasp::bridge::protocol::Outcome::Succeeded {
+                println!("ended {outcome:?}: {reason:?}, {:?}", run.safety_report());
+            }
+            return (outcome, path, run.safety_report());
+        }
+    }
+}
+
+/// Issue 18 item 3 for closed loop: a plan's law in its scene (the ball on the table). The model
+/// is trained through the API on a small study; the plan's grasp is the goal. The plain law
+/// knows nothing of the scene and its flow cuts through the table; through the safety filter it
+/// keeps out of the table, the ball and its own links, judged by the exact continuous check of
+/// the states it went through (not by the filter's numbers). Then end to end: a closed-loop
+/// plan queues the law with its scene, a worker that announces the filter runs it, and the
+/// execution record carries the filter's report.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_scene() {
+    use reachgrasp::bridge::protocol::Outcome;
+    use reachgrasp::geometry::{Category, PathOptions, Polyline};
+    use reachgrasp::grasp::{
+        CLOSING_PRESS, HandArm, Object, ObjectSpec, closing_contacts, scene_checker,
+    };
+    use reachgrasp::motion::ControlParams;
+    use reachgrasp::store::payload::SafetySpec;
+
+    let app = spawn(|c| {
+        c.no_seed = true;
+        c.job_concurrency = Some(2);
+    })
+    .await;
+    let api = crate::helpers::TestApp {
+        base_url: app.base.clone(),
+        client: app.client.clone(),
+        _dir: tempfile::tempdir().unwrap(),
+    };
+    let (model, start) = crate::helpers::trained(&api, ROBOT).await;
+    let ball = |start: &Value| {
+        json!({"robot": ROBOT, "object_id": "00000000-0000-4000-8000-000000000001",
+               "start": start, "task_directions": [{"direction": [0, 0, 1], "kind": "force",
+               "goal": "maximize"}]})
+    };
+    let res = app.post("/v1/plans", &ball(&start)).await;
+    assert_eq!(res.status(), 201);
+    let plan: Value = res.json().await.unwrap();
+    assert_eq!(plan["feasible"], true, "{}", plan["reason"]);
+    let params: ControlParams =
+        serde_json::from_value(app.get(&format!("/v1/models/{model}/params")).await).unwrap();
+    let goal = floats(&plan["trajectory"]["goal"]);
+    let q0 = floats(&plan["trajectory"]["points"][0]["positions"]);
+    let ball_spec: ObjectSpec = serde_json::from_value(plan["grasp"]["object"].clone()).unwrap();
+    let object = Object::new(ball_spec.clone()).unwrap();
+
+    let s = system();
+    let sys = HandArm::from_system(&s).unwrap();
+    let m = &*sys.model;
+    let n = m.nq();
+    let payload = |safety: Option<SafetySpec>| ExecutionPayload::Model {
+        model_id: model.clone(),
+        params: params.clone(),
+        goal: goal.clone(),
+        safety: safety.map(Box::new),
+    };
+    // (closest of everything with the pads on the ball allowed, the pads on the ball)
+    let check = |path: &[f64]| {
+        let opts = PathOptions {
+            tolerance: 2e-4,
+            max_steps: 2_000_000,
+        };
+        let mut checker = scene_checker(&sys, Some(&object), &[]);
+        let mut data = checker.data();
+        let pads = checker.check_path(&mut data, &Polyline::new(path, n), &opts);
+        checker.set_allowed(&closing_contacts(&sys));
+        let r = checker.check_path(&mut data, &Polyline::new(path, n), &opts);
+        assert!(r.complete && pads.complete);
+        (r.distance(), pads.category_distance(Category::Object))
+    };
+    let (outcome, plain, _) = run_law(&payload(None), &q0, None, &sys);
+    assert_eq!(outcome, Outcome::Succeeded);
+    let (rest_plain, _) = check(&plain);
+    // the plain law knows nothing of the scene: its flow cuts through the table
+    assert!(rest_plain < -0.01, "the plain law's path: {rest_plain} m");
+    let safety = SafetySpec::new(Some(ball_spec.clone()), vec![]);
+    // Filtered, the same law keeps out of the table and the ball. It does not arrive: where
+    // its flow closes a finger into the ball, the filter holds the finger and the arm stops
+    // short of the grasp (a boundary equilibrium; the worker's timeout ends the run).
+    let (outcome, path, report) = run_law(&payload(Some(safety.clone())), &q0, None, &sys);
+    let (rest, pads) = check(&path);
+    let report = report.unwrap();
+    let short = {
+        let last = &path[path.len() - n..];
+        max_abs_diff(last, &goal)
+    };
+    println!(
+        "plain law {rest_plain:.4} m; filtered {rest:.4} m, pads {pads:.4} m, {outcome:?} \
+         {short:.3} rad from the grasp; {report:?}"
+    );
+    assert!(
+        rest > -1e-3 && pads > -CLOSING_PRESS,
+        "{rest} m from the table, the ball and its own links, the pads {pads} m into the ball"
+    );
+    assert!(report.filtered_periods > 0);
+    // End to end: a closed-loop plan queues the law with its scene; a worker that announces
+    // the filter runs it and the execution record carries the filter's report.
+    let mut opts = app.worker("sim-safe");
+    opts.initial = Some(q0.clone());
+    let mut w = Worker::start(opts);
+    w.until(10, |e| *e == WorkerEvent::Connected).await;
+    let mut body = ball(&start);
+    body["execute"] = json!(true);
+    body["mode"] = json!("closed_loop");
+    let res = app.post("/v1/plans", &body).await;
+    assert_eq!(res.status(), 201);
+    let plan: Value = res.json().await.unwrap();
+    let id = plan["execution_id"].as_str().expect("queued").to_owned();
+    let done = app
+        .wait(&id, 60, |e| {
+            e["state"] != "queued" && e["state"] != "running"
+        })
+        .await;
+    let report = &done["tracking"]["safety"];
+    assert!(report["periods"].as_u64().unwrap() > 10, "{done}");
+    assert!(report["filtered_periods"].as_u64().unwrap() > 0, "{done}");
+    assert!(
+        report["min_distance_m"].as_f64().unwrap() > -CLOSING_PRESS,
+        "{done}"
+    );
 }
