@@ -437,7 +437,95 @@ async fn drive(
         return Err("moving the mapping's slider did not move the human and the robot".into());
     }
 
+    visual_toggle(c, app).await?;
     live_execution(c, app).await
+}
+
+/// A robot registered with `<visual>` geometry (the WAM's shoulder drawn as a 30 cm cube
+/// instead of its 9 cm collision sphere) opens with its visual geometry, and the "links"
+/// control switches to the collision shapes (pixels change) and back. A bundled robot has no
+/// visuals: the control stays on the collision shapes and is disabled.
+async fn visual_toggle(c: &Client, app: &TestApp) -> Result<(), String> {
+    let read = |rel: &str| std::fs::read_to_string(robots_dir().join(rel)).unwrap();
+    let desc: Value =
+        serde_json::to_value(toml::from_str::<toml::Value>(&read("systems/wam_t42.toml")).unwrap())
+            .unwrap();
+    let sphere = "<collision><geometry><sphere radius=\"0.09\"/></geometry></collision>";
+    let arm = read("arms/wam.urdf").replacen(
+        sphere,
+        &format!("{sphere}<visual><geometry><box size=\"0.3 0.3 0.3\"/></geometry></visual>"),
+        1,
+    );
+    let res = app
+        .post_json(
+            "/v1/robots",
+            &json!({"descriptor": desc, "arm_urdf": arm, "hand_urdf": read("hands/t42.urdf")}),
+        )
+        .await;
+    if res.status() != 201 {
+        return Err(format!("registration: {}", res.text().await.unwrap()));
+    }
+    let robot: Value = res.json().await.unwrap();
+    let names = robot["joint_names"].clone();
+    let n = names.as_array().unwrap().len();
+    let point = |t: f64| {
+        json!({"t": t, "positions": vec![0.2; n], "velocities": vec![0.0; n],
+                                "accelerations": vec![0.0; n]})
+    };
+    let res = app
+        .post_json(
+            "/v1/executions",
+            &json!({"robot": robot["id"], "mode": "open_loop",
+                    "trajectory": {"joint_names": names, "points": [point(0.0), point(1.0)]}}),
+        )
+        .await;
+    if res.status() != 202 {
+        return Err(format!("execution refused: {}", res.text().await.unwrap()));
+    }
+    let id = res.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    open(c, &format!("{}/ui/view/executions/{id}", app.base_url)).await?;
+    assert_draws(c, false).await?;
+    let control = "const s = document.querySelector('.viewer-geometry'); \
+                   return {value: s.value, disabled: s.disabled};";
+    let state = js(c, control).await?;
+    if state != json!({"value": "visual", "disabled": false}) {
+        return Err(format!("a robot with visuals opens on them: {state}"));
+    }
+    js(c, SNAPSHOT).await?;
+    let choose = |v: &'static str| async move {
+        c.find(Locator::Css(".viewer-geometry"))
+            .await
+            .map_err(|e| e.to_string())?
+            .select_by_value(v)
+            .await
+            .map_err(|e| e.to_string())
+    };
+    choose("collision").await?;
+    let to_collision = changed(c).await?;
+    choose("visual").await?;
+    let to_visual = changed(c).await?;
+    println!("links control: {to_collision} pixels changed to collision, {to_visual} back");
+    if to_collision < 200 || to_visual < 200 {
+        return Err(format!(
+            "switching between the visual cube and the collision sphere changed \
+             {to_collision} / {to_visual} pixels"
+        ));
+    }
+    // A bundled robot (no <visual>): collision shapes, control disabled.
+    let plans: Value = get_json(app, "/v1/plans").await;
+    let plan = plans["items"][0]["id"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
+    open(c, &format!("{}/ui/view/plans/{plan}", app.base_url)).await?;
+    let state = js(c, control).await?;
+    if state != json!({"value": "collision", "disabled": true}) {
+        return Err(format!("a robot without visuals: {state}"));
+    }
+    Ok(())
 }
 
 /// An execution on the reference worker (in-process simulated robot): the live view poses the

@@ -1,6 +1,6 @@
 // reachgrasp 3-D viewer: draws the scene the server computed (/ui/view/.../scene.json) with
 // three.js. The server sends every shape in its link frame and every link's world pose per
-// frame (its own FK and URDF collision shapes), so this script only composes transforms; it
+// frame (its own FK, URDF collision and visual shapes), so this script only composes transforms; it
 // computes no kinematics. World frame: the robot base, metres, z up; poses [x,y,z,qw,qx,qy,qz].
 import * as THREE from './vendor/three.module.js';
 import { OrbitControls } from './vendor/OrbitControls.js';
@@ -96,15 +96,33 @@ function surroundings(data) {
   return g;
 }
 
+// Each link carries its collision shapes and, where the URDF has them, its visual shapes, as
+// two groups; showGeometry picks which one a link shows.
 function robotLinks(data) {
   const arm = new THREE.MeshStandardMaterial({ color: COLORS.arm, roughness: 0.5, metalness: 0.2 });
   const hand = new THREE.MeshStandardMaterial({ color: COLORS.hand, roughness: 0.5 });
   return data.links.map((l) => {
     const group = new THREE.Group();
     group.name = l.name;
-    for (const s of l.shapes) group.add(shapeMesh(s, l.hand ? hand : arm));
+    const collision = new THREE.Group();
+    for (const s of l.shapes) collision.add(shapeMesh(s, l.hand ? hand : arm));
+    const visual = new THREE.Group();
+    for (const s of l.visuals ?? []) visual.add(shapeMesh(s, l.hand ? hand : arm));
+    group.add(collision, visual);
+    group.userData = { collision, visual };
     return group;
   });
+}
+
+// 'visual': links with visual geometry show it, the others their collision shapes;
+// 'collision': every link shows its collision shapes (what the collision checks use).
+function showGeometry(links, mode) {
+  for (const l of links) {
+    const { collision, visual } = l.userData;
+    const useVisual = mode === 'visual' && visual.children.length > 0;
+    visual.visible = useVisual;
+    collision.visible = !useVisual;
+  }
 }
 
 function graspMarks(data) {
@@ -192,6 +210,11 @@ async function start(root) {
   robotScene.add(surroundings(data));
   const links = robotLinks(data);
   for (const l of links) robotScene.add(l);
+  const hasVisuals = data.links.some((l) => (l.visuals ?? []).length > 0);
+  const geometrySelect = root.querySelector('.viewer-geometry');
+  geometrySelect.value = hasVisuals ? 'visual' : 'collision';
+  geometrySelect.disabled = !hasVisuals;
+  showGeometry(links, geometrySelect.value);
   const marks = graspMarks(data);
   robotScene.add(marks.contacts, marks.ellipsoids);
 
@@ -225,11 +248,17 @@ async function start(root) {
   const showEllipsoid = root.querySelector('.viewer-ellipsoid');
   const showContacts = root.querySelector('.viewer-contacts');
   const legend = root.querySelector('.viewer-legend');
-  legend.textContent = `${data.title}. Grey: arm links, blue: hand links (URDF collision shapes)` +
-    `${data.object ? ', brown: object' : ''}${data.support ? ' on its support' : ''}` +
-    `${data.obstacles.length ? ', red: obstacles' : ''}${data.contacts.length ? ', red dots: contacts' : ''}` +
-    `${data.ellipsoids.length ? ', purple/green: velocity/force ellipsoid of the arm at the grasp' : ''}` +
-    `${data.human ? '. Left: the demonstrator (registered into the robot frame); right: the robot' : ''}.`;
+  const linkLegend = () => (geometrySelect.value === 'visual'
+    ? 'URDF visual geometry where the robot has it, collision shapes elsewhere'
+    : 'URDF collision shapes');
+  const setLegend = () => {
+    legend.textContent = `${data.title}. Grey: arm links, blue: hand links (${linkLegend()})` +
+      `${data.object ? ', brown: object' : ''}${data.support ? ' on its support' : ''}` +
+      `${data.obstacles.length ? ', red: obstacles' : ''}${data.contacts.length ? ', red dots: contacts' : ''}` +
+      `${data.ellipsoids.length ? ', purple/green: velocity/force ellipsoid of the arm at the grasp' : ''}` +
+      `${data.human ? '. Left: the demonstrator (registered into the robot frame); right: the robot' : ''}.`;
+  };
+  setLegend();
 
   function resize() {
     const w = canvas.clientWidth;
@@ -307,6 +336,11 @@ async function start(root) {
   showContacts.disabled = !data.contacts.length;
   showEllipsoid.addEventListener('change', () => {
     for (const m of marks.ellipsoids.children) m.visible = m.userData.kind === showEllipsoid.value;
+    render();
+  });
+  geometrySelect.addEventListener('change', () => {
+    showGeometry(links, geometrySelect.value);
+    setLegend();
     render();
   });
   showContacts.addEventListener('change', () => { marks.contacts.visible = showContacts.checked; render(); });

@@ -280,11 +280,14 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
             }
         }
     }
-    // `"current"` is the only word a plan's start takes.
+    // `"current"` and `"zero"` are the only words a plan's start takes.
     if let Some(Value::Array(alts)) = schemas.get_mut("StartIn").and_then(|s| s.get_mut("oneOf")) {
         for alt in alts.iter_mut() {
             if alt.get("type") == Some(&json!("string")) {
-                alt["enum"] = json!(["current"]);
+                alt["enum"] = json!([
+                    crate::service::Keyword::Current.as_str(),
+                    crate::service::Keyword::Zero.as_str()
+                ]);
             }
         }
     }

@@ -136,9 +136,11 @@ pub struct RobotDetail {
 }
 
 /// Register a system: a descriptor plus either `arm_urdf` + `hand_urdf` (with `descriptor.mount`)
-/// or one combined `urdf` (with `descriptor.wrist_frame`). Collision meshes the URDFs reference
-/// (STL or OBJ) are uploaded in `meshes`, keyed by the filename exactly as the URDF writes it;
-/// a reference to a mesh not uploaded is a 422 naming the link.
+/// or one combined `urdf` (with `descriptor.wrist_frame`). Meshes the URDFs reference in
+/// `<collision>` or `<visual>` (STL or OBJ) are uploaded in `meshes`, keyed by the filename
+/// exactly as the URDF writes it; a reference to a mesh not uploaded is a 422 naming the link
+/// and the file. Visual geometry is only drawn (the dashboard's 3-D viewer); collision checks
+/// use the collision geometry.
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CreateRobot {

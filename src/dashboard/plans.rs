@@ -69,30 +69,15 @@ fn feasible_text(feasible: bool, reason: Option<&str>) -> String {
     }
 }
 
-/// The start choices: `"current"` (the connected worker's measured state) or each robot's zero
-/// configuration, as the JSON the API takes for `start`.
-async fn start_select(state: &AppState, robots: &[String]) -> Result<String, PageError> {
-    let mut opts = String::from(
-        "<option value=\"&quot;current&quot;\" selected>current: where the connected worker \
-         is</option>",
-    );
-    for r in robots {
-        let s = state.robots.system(r).await?;
-        let names = s.model.joint_names();
-        let start = serde_json::json!({
-            "joint_names": names,
-            "positions": vec![0.0; names.len()],
-        });
-        opts.push_str(&format!(
-            "<option value=\"{}\">zero configuration of {}</option>",
-            esc(&start.to_string()),
-            esc(r)
-        ));
-    }
-    Ok(format!(
-        "<div class=\"field\"><label>start</label><select name=\"start\" data-type=\"json\" \
-         data-path=\"$.start\">{opts}</select><span class=\"field-error\"></span></div>"
-    ))
+/// The start choices, as the JSON the API takes for `start`: `"current"` (the connected
+/// worker's measured state) or `"zero"` (the zero configuration of whichever robot is chosen,
+/// resolved by the service), so that no robot and start chosen together can disagree.
+fn start_select() -> String {
+    "<div class=\"field\"><label>start</label><select name=\"start\" data-type=\"json\" \
+     data-path=\"$.start\"><option value=\"&quot;current&quot;\" selected>current: where the \
+     connected worker is</option><option value=\"&quot;zero&quot;\">zero configuration of the \
+     robot</option></select><span class=\"field-error\"></span></div>"
+        .to_owned()
 }
 
 /// The "plan and execute" form: robot, object, task directions, start, and execution on a
@@ -153,7 +138,7 @@ async fn plan_form(state: &AppState) -> Result<String, PageError> {
         d1,
         k1,
         g1,
-        start_select(state, &robots).await?,
+        start_select(),
         field(
             "execute",
             "execute",

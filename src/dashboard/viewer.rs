@@ -5,10 +5,11 @@
 //!
 //! These JSON routes are the dashboard's own, not part of the documented API (not in the
 //! OpenAPI document): their shape follows what the page draws. The scene is computed by the
-//! pure [`crate::figures::viewer`] from the service's URDF collision shapes and FK, so the
-//! browser only composes transforms; this module loads what a scene needs (the trajectory,
-//! its plan's or goal grasp's object, support, obstacles, contacts and ellipsoids; a mapping's
-//! demonstration; an execution's measured history) and runs the build off the async workers.
+//! pure [`crate::figures::viewer`] from the service's URDF collision (and visual) shapes and FK,
+//! so the browser only composes transforms; this module loads what a scene needs (the
+//! trajectory, its plan's or goal grasp's object, support, obstacles, contacts and ellipsoids;
+//! a mapping's demonstration; an execution's plan and measured history) and runs the build off
+//! the async workers.
 
 use std::sync::Arc;
 
@@ -82,10 +83,21 @@ fn short(id: &str) -> &str {
     &id[..8.min(id.len())]
 }
 
-/// The viewer page: canvas, playback controls, and where its scene (and live events) come from.
-fn viewer_page(title: &str, active: &str, scene: &str, live: Option<&str>, back: &str) -> Response {
+/// The viewer page: canvas, playback controls, and where its scene (and live events) come from;
+/// `note` (HTML) is shown above the canvas, for what the scene lacks.
+fn viewer_page(
+    title: &str,
+    active: &str,
+    scene: &str,
+    live: Option<&str>,
+    back: &str,
+    note: Option<&str>,
+) -> Response {
     let live_attr = live
         .map(|l| format!(" data-live=\"{}\"", esc(l)))
+        .unwrap_or_default();
+    let note = note
+        .map(|n| format!("<p class=\"viewer-note\">{n}</p>"))
         .unwrap_or_default();
     let body = format!(
         "<style>\
@@ -96,8 +108,10 @@ fn viewer_page(title: &str, active: &str, scene: &str, live: Option<&str>, back:
          .viewer-controls input[type=range] {{ flex: 1; min-width: 12rem; }}\
          .viewer-controls .time-readout {{ font-variant-numeric: tabular-nums; min-width: 9rem; }}\
          .viewer-legend {{ color: var(--muted); font-size: .88rem; }}\
+         .viewer-note {{ background: #fff6d6; border-left: 4px solid #e0a800; \
+         padding: .4rem .7rem; }}\
          </style>\
-         <p>{back} · drag to orbit, scroll to zoom, right-drag to pan.</p>\
+         <p>{back} · drag to orbit, scroll to zoom, right-drag to pan.</p>{note}\
          <div class=\"viewer\" data-scene=\"{s}\"{live_attr}>\
          <canvas class=\"viewer-canvas\"></canvas>\
          <div class=\"viewer-controls\">\
@@ -110,6 +124,9 @@ fn viewer_page(title: &str, active: &str, scene: &str, live: Option<&str>, back:
          </option><option value=\"force\">force</option><option value=\"\">none</option></select>\
          </label>\
          <label><input type=\"checkbox\" class=\"viewer-contacts\" checked> contacts</label>\
+         <label>links <select class=\"viewer-geometry\" title=\"visual geometry where the robot \
+         has it, or the collision shapes the checks use\"><option value=\"collision\">collision\
+         </option><option value=\"visual\">visual</option></select></label>\
          </div><p class=\"viewer-legend\"></p><p class=\"field-error viewer-error\"></p></div>\
          <script type=\"module\" src=\"/assets/viewer.js\"></script>",
         s = esc(scene),
@@ -177,8 +194,7 @@ async fn trajectory_surroundings(
     if let Some(plan_id) = users.plans.first()
         && let Some(plan) = plan_repo::get(&state.db, plan_id).await?
     {
-        with_grasp(state, &mut s, &plan.grasp_id).await?;
-        s.obstacles = obstacles_of(&plan.request);
+        s = plan_surroundings(state, &plan).await?;
     } else if let Some(g) = serde_json::from_str::<serde_json::Value>(&t.request)
         .ok()
         .and_then(|v| v["goal"]["grasp"].as_str().map(str::to_owned))
@@ -285,18 +301,29 @@ async fn plan_page(State(state): State<AppState>, Path(id): Path<String>) -> Pag
             link(&format!("/ui/plans/{id}"), "the plan"),
             link(&format!("/v1/plans/{id}"), "JSON")
         ),
+        None,
     ))
+}
+
+/// A plan's scene: its grasp's object (with its support), contacts and ellipsoids, and the
+/// obstacles of its request.
+async fn plan_surroundings(
+    state: &AppState,
+    plan: &plan_repo::PlanRow,
+) -> Result<Surroundings, PageError> {
+    let mut s = Surroundings {
+        obstacles: obstacles_of(&plan.request),
+        ..Surroundings::default()
+    };
+    with_grasp(state, &mut s, &plan.grasp_id).await?;
+    Ok(s)
 }
 
 async fn plan_scene(State(state): State<AppState>, Path(id): Path<String>) -> Page {
     let plan = plan_repo::get(&state.db, &id)
         .await?
         .ok_or_else(|| crate::service::Error::not_found("plan", &id))?;
-    let mut s = Surroundings {
-        obstacles: obstacles_of(&plan.request),
-        ..Surroundings::default()
-    };
-    with_grasp(&state, &mut s, &plan.grasp_id).await?;
+    let s = plan_surroundings(&state, &plan).await?;
     let track = match &plan.trajectory_id {
         Some(t) => trajectory_repo::get_trajectory(&state.db, t)
             .await?
@@ -331,6 +358,7 @@ async fn trajectory_page(State(state): State<AppState>, Path(id): Path<String>) 
         &format!("/ui/view/trajectories/{id}/scene.json"),
         None,
         &link(&format!("/ui/trajectories/{id}"), "Back to the trajectory"),
+        None,
     ))
 }
 
@@ -368,6 +396,7 @@ async fn mapping_page(
         &format!("/ui/view/mappings/{id}/scene.json?demo={demo}"),
         None,
         &link(&format!("/ui/mappings/{id}"), "Back to the mapping"),
+        None,
     ))
 }
 
@@ -431,38 +460,71 @@ async fn mapping_scene(
     .await
 }
 
-async fn execution_page(State(state): State<AppState>, Path(id): Path<String>) -> Page {
-    if crate::store::executions::get(&state.db, &id)
-        .await?
-        .is_none()
+/// What an execution is drawn in: the scene of the plan that queued it (whatever its mode),
+/// else the surroundings of the stored trajectory it follows; an inline trajectory or a bare
+/// model execution has none.
+async fn execution_surroundings(
+    state: &AppState,
+    id: &str,
+    payload: &ExecutionPayload,
+) -> Result<Surroundings, PageError> {
+    if let Some(plan) = plan_repo::of_execution(&state.db, id).await? {
+        return plan_surroundings(state, &plan).await;
+    }
+    if let ExecutionPayload::Trajectory { trajectory_id, .. } = payload
+        && let Some(t) = trajectory_repo::get_trajectory(&state.db, trajectory_id).await?
     {
+        return trajectory_surroundings(state, &t).await;
+    }
+    Ok(Surroundings::default())
+}
+
+/// What the page says when an execution has nothing around the robot to draw.
+pub const NO_SCENE: &str = "no scene: this execution was not made by a plan";
+
+async fn execution_page(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let Some(payload) = crate::store::executions::payload(&state.db, &id).await? else {
         return Ok(html::not_found(
             "execution",
             &id,
             "/ui/executions",
             "executions",
         ));
-    }
+    };
+    let s = execution_surroundings(&state, &id, &payload).await?;
+    let note = s.object.is_none().then(|| {
+        format!(
+            "<b>{NO_SCENE}</b> (it runs {}), so there is no object, support or obstacle to \
+             draw: only the robot.",
+            match &payload {
+                ExecutionPayload::Trajectory { trajectory_id, .. } if trajectory_id == "inline" => {
+                    "a trajectory given inline".to_owned()
+                }
+                ExecutionPayload::Trajectory { trajectory_id, .. } => {
+                    format!("trajectory {}", esc(short(trajectory_id)))
+                }
+                ExecutionPayload::Model { model_id, .. } => {
+                    format!("the control law of model {}", esc(short(model_id)))
+                }
+            }
+        )
+    });
     Ok(viewer_page(
         &format!("Execution {} in 3-D", short(&id)),
         "/ui/executions",
         &format!("/ui/view/executions/{id}/scene.json"),
         Some(&format!("/v1/executions/{id}/events")),
         &link(&format!("/ui/executions/{id}"), "Back to the execution"),
+        note.as_deref(),
     ))
 }
 
-/// An execution's scene: its trajectory's surroundings, and as motion the measured history when
-/// there is one (what the robot did), else what was sent (what it will do).
+/// An execution's scene: its plan's (or trajectory's) surroundings, and as motion the measured
+/// history when there is one (what the robot did), else what was sent (what it will do).
 async fn execution_scene(State(state): State<AppState>, Path(id): Path<String>) -> Page {
     let (row, payload, history) = crate::service::executions::with_payload(&state, &id).await?;
     let joint_names = payload.joint_names().to_vec();
-    let mut s = Surroundings::default();
-    if let ExecutionPayload::Trajectory { trajectory_id, .. } = &payload
-        && let Some(t) = trajectory_repo::get_trajectory(&state.db, trajectory_id).await?
-    {
-        s = trajectory_surroundings(&state, &t).await?;
-    }
+    let s = execution_surroundings(&state, &id, &payload).await?;
     let track = if history.is_empty() {
         match payload {
             ExecutionPayload::Trajectory { points, .. } if !points.is_empty() => {

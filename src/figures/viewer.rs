@@ -1,12 +1,13 @@
 //! The 3-D viewer's scene: what the dashboard's WebGL page draws, computed here so that the
 //! browser draws the service's own geometry and kinematics and only composes transforms.
 //!
-//! A [`ViewScene`] holds the static shapes (every link's URDF collision shapes in its link
-//! frame; object, support plane and obstacles in the world; a grasp's contacts and ellipsoids)
-//! and the motion sampled at a fixed rate: per frame, the world pose of every link from
-//! [`forward_kinematics`] at the joint positions linearly interpolated from the track. Shapes are
-//! described in parry's own frames (cylinders and capsules along local `y`, which is also
-//! three.js's convention), so a shape's pose is exactly the pose the collision checks use.
+//! A [`ViewScene`] holds the static shapes (every link's URDF collision shapes, and its visual
+//! shapes where the URDF has them, in its link frame; object, support plane and obstacles in
+//! the world; a grasp's contacts and ellipsoids) and the motion sampled at a fixed rate: per
+//! frame, the world pose of every link from [`forward_kinematics`] at the joint positions
+//! linearly interpolated from the track. Shapes are described in parry's own frames (cylinders
+//! and capsules along local `y`, which is also three.js's convention), so a shape's pose is
+//! exactly the pose the collision checks use.
 //!
 //! Units and conventions: robot base frame, metres, `z` up; a pose is `[x, y, z, qw, qx, qy,
 //! qz]`. Numbers are rounded to 10 µm and 1e-5 (the JSON of a 20-second trajectory stays well
@@ -76,13 +77,16 @@ pub struct ViewShape {
     pub pose: [f64; 7],
 }
 
-/// A robot link that carries collision shapes.
+/// A robot link that carries collision or visual shapes.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ViewLink {
     pub name: String,
     /// A hand joint moves it (drawn in the hand colour).
     pub hand: bool,
+    /// The URDF collision shapes (what the collision checks use), in the link frame.
     pub shapes: Vec<ViewShape>,
+    /// The URDF visual shapes where the robot has them, in the link frame (drawing only).
+    pub visuals: Vec<ViewShape>,
 }
 
 /// A grasp's contact on the object surface.
@@ -279,32 +283,45 @@ fn placed_spec(
     })
 }
 
-/// The links with collision shapes, in first-shape order, with their frames.
+/// The links with collision or visual shapes (collision shapes first, in first-shape order),
+/// with their frames.
 fn view_links(system: &System) -> (Vec<ViewLink>, Vec<FrameId>) {
     let model = &system.model;
     let is_hand = hand_frames(model, &system.hand_joints);
     let mut links: Vec<ViewLink> = Vec::new();
     let mut frames: Vec<FrameId> = Vec::new();
-    for (i, c) in model.collisions().iter().enumerate() {
-        let k = match frames.iter().position(|f| *f == c.frame) {
+    let mut link_of = |frame: FrameId, links: &mut Vec<ViewLink>| -> usize {
+        match frames.iter().position(|f| *f == frame) {
             Some(k) => k,
             None => {
-                frames.push(c.frame);
+                frames.push(frame);
                 links.push(ViewLink {
-                    name: model.frame_name(c.frame).to_owned(),
-                    hand: is_hand[c.frame.0],
+                    name: model.frame_name(frame).to_owned(),
+                    hand: is_hand[frame.0],
                     shapes: Vec::new(),
+                    visuals: Vec::new(),
                 });
                 links.len() - 1
             }
-        };
-        let (geometry, fix) = geometry_of(&c.shape);
-        let name = format!("{} #{i}", links[k].name);
-        links[k].shapes.push(ViewShape {
+        }
+    };
+    let placed = |name: String, shape: &SharedShape, origin: &Isometry3<f64>| {
+        let (geometry, fix) = geometry_of(shape);
+        ViewShape {
             name,
             geometry,
-            pose: pose7(&(c.origin * fix)),
-        });
+            pose: pose7(&(origin * fix)),
+        }
+    };
+    for (i, c) in model.collisions().iter().enumerate() {
+        let k = link_of(c.frame, &mut links);
+        let name = format!("{} #{i}", links[k].name);
+        links[k].shapes.push(placed(name, &c.shape, &c.origin));
+    }
+    for (i, v) in model.visuals().iter().enumerate() {
+        let k = link_of(v.frame, &mut links);
+        let name = format!("{} visual #{i}", links[k].name);
+        links[k].visuals.push(placed(name, &v.shape, &v.origin));
     }
     (links, frames)
 }

@@ -20,9 +20,7 @@ pub fn parse_mesh(filename: &str, bytes: &[u8], scale: [f64; 3]) -> Result<TriMe
         "stl" => parse_stl(bytes)?,
         "obj" => parse_obj(bytes)?,
         other => {
-            return Err(format!(
-                "mesh format '{other}' is not supported for collision (STL, OBJ)"
-            ));
+            return Err(format!("mesh format '{other}' is not supported (STL, OBJ)"));
         }
     };
     if indices.is_empty() {

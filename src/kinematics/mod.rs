@@ -28,6 +28,7 @@ pub use manipulability::{
 };
 pub use model::{
     Actuation, Collision, FrameId, Joint, JointKind, JointLimits, Mimic, Model, ModelBuilder,
+    Visual,
 };
 pub use system::{Finger, FingerSpec, Mount, SpreadPair, System, SystemDescriptor, UrdfSources};
 pub use urdf::{

@@ -213,6 +213,25 @@ impl fmt::Debug for Collision {
     }
 }
 
+/// A link's `<visual>` shape, rigidly attached to a frame like a [`Collision`]; for drawing only.
+#[derive(Clone)]
+pub struct Visual {
+    pub frame: FrameId,
+    /// Placement of the shape in the frame.
+    pub origin: Isometry3<f64>,
+    pub shape: SharedShape,
+}
+
+impl fmt::Debug for Visual {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Visual")
+            .field("frame", &self.frame)
+            .field("origin", &self.origin)
+            .field("shape", &self.shape.shape_type())
+            .finish()
+    }
+}
+
 /// The immutable kinematic tree. Build it with [`ModelBuilder`] or the URDF loader; share it as
 /// `Arc<Model>`.
 #[derive(Clone, Debug)]
@@ -238,6 +257,8 @@ pub struct Model {
     pub(crate) velocity: Vec<f64>,
     pub(crate) effort: Vec<f64>,
     pub(crate) collisions: Vec<Collision>,
+    pub(crate) visuals: Vec<Visual>,
+    pub(crate) visual_errors: Vec<KinematicsError>,
 }
 
 impl Model {
@@ -318,6 +339,15 @@ impl Model {
     pub fn collisions(&self) -> &[Collision] {
         &self.collisions
     }
+    /// The URDF `<visual>` shapes (drawing only; nothing kinematic reads them).
+    pub fn visuals(&self) -> &[Visual] {
+        &self.visuals
+    }
+    /// Why `<visual>` elements could not be kept (a mesh file not supplied or malformed, a bad
+    /// size), in document order. Loading tolerates them; registering a robot refuses them.
+    pub fn visual_errors(&self) -> &[KinematicsError] {
+        &self.visual_errors
+    }
     /// Midpoint of the limits (0 for unbounded coordinates): a neutral configuration.
     pub fn neutral(&self) -> Vec<f64> {
         self.lower
@@ -346,6 +376,8 @@ pub struct ModelBuilder {
     joints: Vec<Joint>,
     joint_index: HashMap<String, usize>,
     collisions: Vec<Collision>,
+    visuals: Vec<Visual>,
+    visual_errors: Vec<KinematicsError>,
 }
 
 fn check_isometry(path: impl Fn() -> String, iso: &Isometry3<f64>) -> Result<(), KinematicsError> {
@@ -372,6 +404,8 @@ impl ModelBuilder {
             joints: Vec::new(),
             joint_index: HashMap::new(),
             collisions: Vec::new(),
+            visuals: Vec::new(),
+            visual_errors: Vec::new(),
         }
     }
 
@@ -529,6 +563,25 @@ impl ModelBuilder {
         Ok(())
     }
 
+    /// Attaches a visual shape to `frame` at `origin` (in the frame); a non-finite origin is
+    /// recorded as a visual error instead.
+    pub fn add_visual(&mut self, frame: FrameId, origin: Isometry3<f64>, shape: SharedShape) {
+        let name = self.frame_names.get(frame.0).cloned().unwrap_or_default();
+        match check_isometry(|| format!("link '{name}' visual origin"), &origin) {
+            Ok(()) => self.visuals.push(Visual {
+                frame,
+                origin,
+                shape,
+            }),
+            Err(e) => self.visual_errors.push(e),
+        }
+    }
+
+    /// Records why a `<visual>` element could not be kept.
+    pub fn add_visual_error(&mut self, error: KinematicsError) {
+        self.visual_errors.push(error);
+    }
+
     /// Resolves mimic chains, numbers the independent joints and freezes the tree.
     pub fn build(mut self) -> Result<Model, KinematicsError> {
         let n_joints = self.joints.len();
@@ -641,6 +694,8 @@ impl ModelBuilder {
             velocity,
             effort,
             collisions: self.collisions,
+            visuals: self.visuals,
+            visual_errors: self.visual_errors,
         })
     }
 }

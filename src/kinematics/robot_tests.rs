@@ -409,3 +409,84 @@ fn descriptor_rejections_name_the_field() {
     let unknown_field = toml::from_str::<SystemDescriptor>("name = \"x\"\nbogus = 1\n");
     assert!(unknown_field.is_err());
 }
+
+#[test]
+fn visual_geometry_is_kept_beside_the_collision_shapes_and_never_changes_them() {
+    use nalgebra::{Quaternion, UnitQuaternion};
+    // A unit tetrahedron as OBJ; scaled (2, 3, 4) its far vertices land at x = 2, y = 3, z = 4.
+    let tetra = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+    let collision = r#"<collision><origin xyz="0 0 0.1"/><geometry><cylinder radius="0.05" length="0.2"/></geometry></collision>"#;
+    let urdf = |visuals: &str| {
+        format!(
+            r#"<robot name="r"><link name="a"/>
+          <link name="b">{collision}{visuals}</link>
+          <joint name="j" type="revolute"><parent link="a"/><child link="b"/>
+            <origin xyz="0 0 0.3"/><axis xyz="0 0 1"/>
+            <limit lower="-1" upper="1" velocity="1" effort="1"/></joint></robot>"#
+        )
+    };
+    let visuals = r#"<visual><origin xyz="0.1 0.2 0.3" rpy="0 0 1.5707963267948966"/>
+          <geometry><box size="0.4 0.2 0.1"/></geometry></visual>
+        <visual><origin xyz="0 0 -0.05"/>
+          <geometry><mesh filename="package://r/meshes/b.obj" scale="2 3 4"/></geometry></visual>"#;
+    let meshes = MapMeshes(
+        [(
+            "package://r/meshes/b.obj".to_owned(),
+            tetra.as_bytes().to_vec(),
+        )]
+        .into_iter()
+        .collect(),
+    );
+    let with = model_from_urdf_str(&urdf(visuals), &meshes).unwrap();
+    let without = model_from_urdf_str(&urdf(""), &NoMeshes).unwrap();
+    assert!(
+        with.visual_errors().is_empty(),
+        "{:?}",
+        with.visual_errors()
+    );
+    let b = with.frame_id("b").unwrap();
+    let v = with.visuals();
+    assert_eq!(v.len(), 2);
+    assert!(v.iter().all(|v| v.frame == b));
+    // The box: half extents of 0.4 x 0.2 x 0.1, at (0.1, 0.2, 0.3) turned 90° about z:
+    // q = (cos 45°, 0, 0, sin 45°).
+    let cuboid = v[0].shape.as_cuboid().expect("a box");
+    assert!((cuboid.half_extents - Vector3::new(0.2, 0.1, 0.05)).norm() < 1e-12);
+    assert!((v[0].origin.translation.vector - Vector3::new(0.1, 0.2, 0.3)).norm() < 1e-12);
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let want = UnitQuaternion::from_quaternion(Quaternion::new(h, 0.0, 0.0, h));
+    assert!(v[0].origin.rotation.angle_to(&want) < 1e-9);
+    // The mesh: scaled per axis, placed 5 cm down.
+    let mesh = v[1].shape.as_trimesh().expect("a mesh");
+    assert_eq!(mesh.num_triangles(), 4);
+    let aabb = mesh.local_aabb();
+    assert!((aabb.maxs.coords - Vector3::new(2.0, 3.0, 4.0)).norm() < 1e-12);
+    assert!((v[1].origin.translation.vector - Vector3::new(0.0, 0.0, -0.05)).norm() < 1e-12);
+    // Collision shapes, joints and FK are those of the URDF without visuals.
+    assert_eq!(with.collisions().len(), 1);
+    assert_eq!(without.collisions().len(), 1);
+    assert_eq!(with.collisions()[0].origin, without.collisions()[0].origin);
+    assert_eq!(
+        with.collisions()[0]
+            .shape
+            .as_cylinder()
+            .map(|c| (c.radius, c.half_height)),
+        Some((0.05, 0.1))
+    );
+    assert!(without.visuals().is_empty());
+    let (mut da, mut db) = (Data::new(&with), Data::new(&without));
+    forward_kinematics(&with, &mut da, &[0.7]);
+    forward_kinematics(&without, &mut db, &[0.7]);
+    assert_eq!(da.frame(b), db.frame(without.frame_id("b").unwrap()));
+
+    // A visual mesh that is not supplied is kept as an error naming the link and the file
+    // (registration refuses it), and the model still loads with its collision shapes.
+    let missing = model_from_urdf_str(&urdf(visuals), &NoMeshes).unwrap();
+    assert_eq!(missing.visuals().len(), 1, "the box is still kept");
+    assert_eq!(missing.collisions().len(), 1);
+    assert!(matches!(
+        missing.visual_errors(),
+        [KinematicsError::MeshUnreadable { link, path, .. }]
+            if link == "b" && path == "package://r/meshes/b.obj"
+    ));
+}

@@ -2,7 +2,9 @@
 //!
 //! Supported: revolute, continuous, prismatic and fixed joints; `<mimic>` folded into the driver
 //! (multiplier and offset); position/velocity/effort limits; collision geometry as parry shapes
-//! (box, cylinder, capsule, sphere, STL/OBJ meshes). Links without inertia or geometry are fine.
+//! (box, cylinder, capsule, sphere, STL/OBJ meshes), and `<visual>` geometry of the same kinds for
+//! drawing only (kinematics and collision checks never read it). Links without inertia or
+//! geometry are fine.
 //! Everything is validated before the model is built, and every error names the joint or link.
 
 use std::collections::{HashMap, HashSet};
@@ -270,6 +272,7 @@ pub fn append_robot(
         children.entry(j.parent.link.as_str()).or_default().push(j);
     }
     add_collisions(b, root_frame, links[root.as_str()], meshes)?;
+    add_visuals(b, root_frame, links[root.as_str()], meshes);
     // Depth-first in document order, so `q` follows the order a reader of the file expects.
     let mut stack: Vec<(&str, FrameId)> = vec![(root.as_str(), root_frame)];
     while let Some((link, frame)) = stack.pop() {
@@ -280,6 +283,7 @@ pub fn append_robot(
         for j in js {
             let child = add_joint(b, j, frame)?;
             add_collisions(b, child, links[j.child.link.as_str()], meshes)?;
+            add_visuals(b, child, links[j.child.link.as_str()], meshes);
             added.push((j.child.link.as_str(), child));
         }
         stack.extend(added.into_iter().rev());
@@ -358,84 +362,113 @@ fn add_collisions(
     link: &urdf_rs::Link,
     meshes: &dyn MeshSource,
 ) -> Result<(), KinematicsError> {
-    let name = link.name.as_str();
+    for c in &link.collision {
+        let (shape, origin) =
+            placed_shape(&link.name, "collision", &c.origin, &c.geometry, meshes)?;
+        b.add_collision(frame, origin, shape)?;
+    }
+    Ok(())
+}
+
+/// Keeps a link's `<visual>` geometry for drawing. A visual that cannot be built (a mesh file
+/// that is missing or malformed, a bad size) is recorded on the model instead of failing the
+/// load: drawing-only data must not make a robot stored before it was read unusable, while
+/// registration refuses it (see [`Model::visual_errors`]).
+fn add_visuals(
+    b: &mut ModelBuilder,
+    frame: FrameId,
+    link: &urdf_rs::Link,
+    meshes: &dyn MeshSource,
+) {
+    for v in &link.visual {
+        match placed_shape(&link.name, "visual", &v.origin, &v.geometry, meshes) {
+            Ok((shape, origin)) => b.add_visual(frame, origin, shape),
+            Err(e) => b.add_visual_error(e),
+        }
+    }
+}
+
+/// A URDF geometry as a parry shape and its placement in the link frame (`role` is
+/// `collision` or `visual`, for the messages).
+fn placed_shape(
+    name: &str,
+    role: &str,
+    origin: &urdf_rs::Pose,
+    geometry: &urdf_rs::Geometry,
+    meshes: &dyn MeshSource,
+) -> Result<(SharedShape, Isometry3<f64>), KinematicsError> {
     let bad = |reason: String| KinematicsError::BadGeometry {
         link: name.to_owned(),
         reason,
     };
-    for c in &link.collision {
-        let origin = pose(|| format!("link '{name}' collision origin"), &c.origin)?;
-        let positive = |what: &str, v: f64| -> Result<f64, KinematicsError> {
-            check_finite(|| format!("link '{name}' collision {what}"), v)?;
-            if v <= 0.0 {
-                Err(bad(format!("collision {what} must be positive, got {v}")))
-            } else {
-                Ok(v)
-            }
-        };
-        // parry's cylinder is along y; URDF cylinders and capsules are along z.
-        let y_to_z =
-            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
-        let (shape, origin) = match &c.geometry {
-            urdf_rs::Geometry::Box { size } => {
-                let s: Vec<f64> = size
-                    .iter()
-                    .map(|&v| positive("box size", v))
-                    .collect::<Result<_, _>>()?;
-                (
-                    SharedShape::cuboid(s[0] / 2.0, s[1] / 2.0, s[2] / 2.0),
-                    origin,
-                )
-            }
-            urdf_rs::Geometry::Cylinder { radius, length } => {
-                let (r, l) = (
-                    positive("cylinder radius", *radius)?,
-                    positive("cylinder length", *length)?,
-                );
-                (SharedShape::cylinder(l / 2.0, r), origin * y_to_z)
-            }
-            urdf_rs::Geometry::Capsule { radius, length } => {
-                let (r, l) = (
-                    positive("capsule radius", *radius)?,
-                    positive("capsule length", *length)?,
-                );
-                (
-                    SharedShape::capsule(
-                        Point3::new(0.0, 0.0, -l / 2.0),
-                        Point3::new(0.0, 0.0, l / 2.0),
-                        r,
-                    ),
-                    origin,
-                )
-            }
-            urdf_rs::Geometry::Sphere { radius } => (
-                SharedShape::ball(positive("sphere radius", *radius)?),
+    let origin = pose(|| format!("link '{name}' {role} origin"), origin)?;
+    let positive = |what: &str, v: f64| -> Result<f64, KinematicsError> {
+        check_finite(|| format!("link '{name}' {role} {what}"), v)?;
+        if v <= 0.0 {
+            Err(bad(format!("{role} {what} must be positive, got {v}")))
+        } else {
+            Ok(v)
+        }
+    };
+    // parry's cylinder is along y; URDF cylinders and capsules are along z.
+    let y_to_z = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::FRAC_PI_2);
+    Ok(match geometry {
+        urdf_rs::Geometry::Box { size } => {
+            let s: Vec<f64> = size
+                .iter()
+                .map(|&v| positive("box size", v))
+                .collect::<Result<_, _>>()?;
+            (
+                SharedShape::cuboid(s[0] / 2.0, s[1] / 2.0, s[2] / 2.0),
                 origin,
-            ),
-            urdf_rs::Geometry::Mesh { filename, scale } => {
-                let s = scale.map(|s| s.0).unwrap_or([1.0; 3]);
-                for v in s {
-                    positive("mesh scale", v)?;
-                }
-                let bytes =
-                    meshes
-                        .read(filename)
-                        .map_err(|reason| KinematicsError::MeshUnreadable {
-                            link: name.to_owned(),
-                            path: filename.clone(),
-                            reason,
-                        })?;
-                let mesh = parse_mesh(filename, &bytes, s).map_err(|reason| {
-                    KinematicsError::MeshMalformed {
+            )
+        }
+        urdf_rs::Geometry::Cylinder { radius, length } => {
+            let (r, l) = (
+                positive("cylinder radius", *radius)?,
+                positive("cylinder length", *length)?,
+            );
+            (SharedShape::cylinder(l / 2.0, r), origin * y_to_z)
+        }
+        urdf_rs::Geometry::Capsule { radius, length } => {
+            let (r, l) = (
+                positive("capsule radius", *radius)?,
+                positive("capsule length", *length)?,
+            );
+            (
+                SharedShape::capsule(
+                    Point3::new(0.0, 0.0, -l / 2.0),
+                    Point3::new(0.0, 0.0, l / 2.0),
+                    r,
+                ),
+                origin,
+            )
+        }
+        urdf_rs::Geometry::Sphere { radius } => (
+            SharedShape::ball(positive("sphere radius", *radius)?),
+            origin,
+        ),
+        urdf_rs::Geometry::Mesh { filename, scale } => {
+            let s = scale.map(|s| s.0).unwrap_or([1.0; 3]);
+            for v in s {
+                positive("mesh scale", v)?;
+            }
+            let bytes =
+                meshes
+                    .read(filename)
+                    .map_err(|reason| KinematicsError::MeshUnreadable {
                         link: name.to_owned(),
                         path: filename.clone(),
                         reason,
-                    }
-                })?;
-                (SharedShape::new(mesh), origin)
-            }
-        };
-        b.add_collision(frame, origin, shape)?;
-    }
-    Ok(())
+                    })?;
+            let mesh = parse_mesh(filename, &bytes, s).map_err(|reason| {
+                KinematicsError::MeshMalformed {
+                    link: name.to_owned(),
+                    path: filename.clone(),
+                    reason,
+                }
+            })?;
+            (SharedShape::new(mesh), origin)
+        }
+    })
 }

@@ -72,7 +72,8 @@ impl AsRef<Hub> for Context {
 }
 
 /// A word a request may give in place of a value: `"auto"` (learn or choose it) where a number
-/// is expected, `"current"` (the connected worker's measured state) where a configuration is.
+/// is expected, `"current"` (the connected worker's measured state) or `"zero"` (the robot's
+/// zero configuration) where a configuration is.
 /// Requests carry the word as text, so that an unknown one is quoted back in the 422 that
 /// refuses it (and the OpenAPI schemas stay `string`); the use cases parse it here, once, and
 /// match on the enum.
@@ -80,6 +81,7 @@ impl AsRef<Hub> for Context {
 pub enum Keyword {
     Auto,
     Current,
+    Zero,
 }
 
 impl Keyword {
@@ -87,11 +89,12 @@ impl Keyword {
         match self {
             Keyword::Auto => "auto",
             Keyword::Current => "current",
+            Keyword::Zero => "zero",
         }
     }
 
     pub fn parse(s: &str) -> Option<Keyword> {
-        [Keyword::Auto, Keyword::Current]
+        [Keyword::Auto, Keyword::Current, Keyword::Zero]
             .into_iter()
             .find(|k| k.as_str() == s)
     }

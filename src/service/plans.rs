@@ -36,10 +36,12 @@ pub use crate::store::plans::PlanRow;
 pub enum StartIn {
     /// A configuration: every independent joint of the robot once, any order.
     Configuration(JointValues),
-    /// `"current"`: where the connected worker for the robot (the one named by `worker`, if
-    /// given) will be when an execution queued now starts: the end of what it runs or has
-    /// queued before, else its state as its last heartbeat or feedback reported it.
-    Current(String),
+    /// A word. `"current"`: where the connected worker for the robot (the one named by
+    /// `worker`, if given) will be when an execution queued now starts: the end of what it runs
+    /// or has queued before, else its state as its last heartbeat or feedback reported it.
+    /// `"zero"`: the robot's zero configuration (every independent joint at 0, or at its
+    /// nearest position limit when 0 is outside its range), whichever robot is asked for.
+    Word(String),
 }
 
 impl<'de> Deserialize<'de> for StartIn {
@@ -49,11 +51,11 @@ impl<'de> Deserialize<'de> for StartIn {
             type Value = StartIn;
             fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
                 f.write_str(
-                    "a configuration {\"joint_names\": [...], \"positions\": [...]} or \"current\"",
+                    "a configuration {\"joint_names\": [...], \"positions\": [...]}, \"current\" or \"zero\"",
                 )
             }
             fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<StartIn, E> {
-                Ok(StartIn::Current(v.to_owned()))
+                Ok(StartIn::Word(v.to_owned()))
             }
             fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<StartIn, A::Error> {
                 // The same map access: its keys stay on the error path.
@@ -77,8 +79,9 @@ pub struct PlanIn {
     /// grasp optimiser's settings: the body of `POST /v1/grasps`.
     #[serde(flatten)]
     pub grasp: GraspIn,
-    /// Start of the motion: a configuration, or `"current"` (where the connected worker will be:
-    /// its measured state, or the end of what it runs or has queued before). With `execute`, a
+    /// Start of the motion: a configuration, `"current"` (where the connected worker will be:
+    /// its measured state, or the end of what it runs or has queued before), or `"zero"` (the
+    /// robot's zero configuration, clamped into its joint limits). With `execute`, a
     /// configuration farther than the worker's start tolerance from that is a 422.
     pub start: StartIn,
     /// Motion model id (default: the robot's default model).
@@ -204,14 +207,19 @@ async fn resolve_model(ctx: &Context, body: &PlanIn) -> Result<String, Error> {
 
 /// The start configuration; `"current"` reads where the connected worker will be when an
 /// execution queued now starts: the end of what it runs or has queued before, else its measured
-/// state. With `"current"`, also the worker it read.
+/// state; `"zero"` is the robot's zero configuration (clamped into the limits, so that it is
+/// always a valid start of that robot). With `"current"`, also the worker it read.
 async fn resolve_start(
     ctx: &Context,
     body: &PlanIn,
 ) -> Result<(JointValues, Option<String>), Error> {
     match &body.start {
         StartIn::Configuration(v) => Ok((v.clone(), None)),
-        StartIn::Current(s) if Keyword::parse(s) == Some(Keyword::Current) => {
+        StartIn::Word(s) if Keyword::parse(s) == Some(Keyword::Zero) => {
+            let system = ctx.robots.system(&body.grasp.robot).await?;
+            Ok((zero_configuration(&system.model), None))
+        }
+        StartIn::Word(s) if Keyword::parse(s) == Some(Keyword::Current) => {
             let robot = &body.grasp.robot;
             let state = super::bridges::expected_states(ctx, robot, body.worker.as_deref())
                 .await?
@@ -238,12 +246,26 @@ async fn resolve_start(
                 Some(state.worker),
             ))
         }
-        StartIn::Current(other) => Err(Error::invalid(
+        StartIn::Word(other) => Err(Error::invalid(
             "$.start",
             format!(
-                "must be a configuration {{joint_names, positions}} or \"current\", got \"{other}\""
+                "must be a configuration {{joint_names, positions}}, \"current\" or \"zero\", got \"{other}\""
             ),
         )),
+    }
+}
+
+/// Every independent joint of `model` at 0, or at its nearest position limit when 0 is outside
+/// the joint's range.
+pub fn zero_configuration(model: &crate::kinematics::Model) -> JointValues {
+    JointValues {
+        joint_names: model.joint_names().to_vec(),
+        positions: model
+            .lower_limits()
+            .iter()
+            .zip(model.upper_limits())
+            .map(|(&lo, &hi)| 0.0_f64.clamp(lo, hi))
+            .collect(),
     }
 }
 
@@ -820,6 +842,44 @@ mod tests {
         assert!(matches!(ok.start, StartIn::Configuration(ref v) if v.positions == [0.5]));
         let current: PlanIn =
             serde_json::from_str(r#"{"robot": "r", "start": "current"}"#).unwrap();
-        assert!(matches!(current.start, StartIn::Current(ref s) if s == "current"));
+        assert!(matches!(current.start, StartIn::Word(ref s) if s == "current"));
+    }
+
+    /// The same `"start": "zero"` is each robot's own zero configuration (the dashboard's form
+    /// sends it with whichever robot is chosen), and an unknown word names the two there are.
+    #[tokio::test]
+    async fn a_zero_start_is_the_zero_configuration_of_the_robot_asked_for() {
+        let dir = tempfile::tempdir().unwrap();
+        let ctx = super::super::test_context(dir.path()).await;
+        for robot in ["wam_ihy", "pa10_t42"] {
+            let body: PlanIn = serde_json::from_value(serde_json::json!({
+                "robot": robot, "object_id": "ball", "start": "zero"}))
+            .unwrap();
+            let (start, worker) = resolve_start(&ctx, &body).await.expect(robot);
+            let model = ctx.robots.system(robot).await.unwrap().model.clone();
+            assert_eq!(start.joint_names, model.joint_names(), "{robot}");
+            assert!(start.positions.iter().all(|&v| v == 0.0), "{robot}");
+            assert_eq!(worker, None);
+        }
+        // A joint whose range excludes 0 starts at its nearest limit.
+        let mut b = crate::kinematics::ModelBuilder::new("base");
+        let limits = crate::kinematics::JointLimits::new(0.2, 1.0, 1.0, 1.0);
+        let axis = nalgebra::Vector3::z_axis();
+        b.add_joint(
+            "j",
+            b.root(),
+            "l",
+            crate::kinematics::JointKind::Revolute { axis },
+            nalgebra::Isometry3::identity(),
+            limits,
+            None,
+        )
+        .unwrap();
+        assert_eq!(zero_configuration(&b.build().unwrap()).positions, [0.2]);
+        let body: PlanIn = serde_json::from_value(serde_json::json!({
+            "robot": "wam_ihy", "object_id": "ball", "start": "home"}))
+        .unwrap();
+        let e = resolve_start(&ctx, &body).await.unwrap_err().to_string();
+        assert!(e.contains("\"zero\"") && e.contains("\"home\""), "{e}");
     }
 }

@@ -463,10 +463,18 @@ pub async fn register(
     };
     let source = MapMeshes(meshes);
     let (built, source) = tokio::task::spawn_blocking(move || {
-        let built = system_from_stored(&probe, &source).map_err(|e| {
-            let which = urdf_field_of(&e, &probe.arm_urdf, probe.hand_urdf.as_deref());
-            kin_error(e, which)
-        });
+        // A visual the loader had to leave out (it tolerates them, so that a stored robot keeps
+        // loading) is refused here like a collision shape would be: the user is still there
+        // to upload the missing file.
+        let built = system_from_stored(&probe, &source)
+            .and_then(|s| match s.model.visual_errors().first() {
+                Some(e) => Err(e.clone()),
+                None => Ok(s),
+            })
+            .map_err(|e| {
+                let which = urdf_field_of(&e, &probe.arm_urdf, probe.hand_urdf.as_deref());
+                kin_error(e, which)
+            });
         (built, source)
     })
     .await

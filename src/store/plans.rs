@@ -88,6 +88,21 @@ pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<PlanRow>, sqlx::E
     .await
 }
 
+/// The plan that queued execution `execution_id`, if a plan did (a plan queues at most one
+/// execution, and an execution belongs to at most one plan).
+pub async fn of_execution(
+    pool: &SqlitePool,
+    execution_id: &str,
+) -> Result<Option<PlanRow>, sqlx::Error> {
+    sqlx::query_as(
+        "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
+         request, timings, created_at FROM plans WHERE execution_id = ? LIMIT 1",
+    )
+    .bind(execution_id)
+    .fetch_optional(pool)
+    .await
+}
+
 /// A page of plans, newest first, optionally of one robot; with the total count.
 pub async fn list(
     pool: &SqlitePool,

@@ -143,6 +143,116 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     // The ball plan asked to execute: queued whenever its motion was feasible.
     assert_eq!(a["execution_id"].is_string(), a["feasible"] == true, "{a}");
 
+    // The form's start is robot-independent: "current" or "zero", never one robot's joints.
+    let (_, list) = page(&app, "/ui/plans").await;
+    let select = &list[list.find("name=\"start\"").unwrap()..];
+    let select = &select[..select.find("</select>").unwrap()];
+    assert_eq!(select.matches("<option").count(), 2, "{select}");
+    assert!(
+        select.contains("value=\"&quot;current&quot;\" selected"),
+        "{select}"
+    );
+    assert!(select.contains("value=\"&quot;zero&quot;\""), "{select}");
+    assert!(!select.contains("joint_names"), "{select}");
+    // What the form sends for "zero" plans from the chosen robot's zero configuration.
+    let res = app
+        .post_json(
+            "/v1/plans",
+            &json!({"robot": ROBOT, "object_id": BALL, "start": "zero",
+                    "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]}),
+        )
+        .await;
+    assert_eq!(res.status(), 201, "{}", res.text().await.unwrap());
+    let zero: Value = res.json().await.unwrap();
+    if let Some(points) = zero["trajectory"]["points"].as_array() {
+        let first = points[0]["positions"].as_array().unwrap();
+        assert!(first.iter().all(|v| v.as_f64() == Some(0.0)), "{first:?}");
+    }
+
+    // An execution a plan queued is drawn in the plan's scene whatever its mode: the closed
+    // loop's payload is the model's law, with no trajectory to find the object through.
+    let res = app
+        .post_json(
+            "/v1/plans",
+            &json!({"robot": ROBOT, "object_id": BALL, "start": start, "execute": true,
+                    "mode": "closed_loop",
+                    "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]}),
+        )
+        .await;
+    assert_eq!(res.status(), 201, "{}", res.text().await.unwrap());
+    let closed: Value = res.json().await.unwrap();
+    let open_e = a["execution_id"]
+        .as_str()
+        .expect("the ball plan was executed");
+    let closed_e = closed["execution_id"]
+        .as_str()
+        .unwrap_or_else(|| panic!("the closed-loop plan was executed: {closed}"));
+    let exec: Value = app
+        .get(&format!("/v1/executions/{closed_e}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(exec["mode"], "closed_loop", "{exec}");
+    for (e, plan) in [(open_e, a), (closed_e, &closed)] {
+        let res = app
+            .get(&format!("/ui/view/executions/{e}/scene.json"))
+            .await;
+        assert_eq!(res.status(), 200, "{e}");
+        let scene: Value = res.json().await.unwrap();
+        assert_eq!(
+            scene["object"]["geometry"]["type"], "sphere",
+            "{e}: the ball"
+        );
+        let want = &plan["grasp"]["object"]["position"];
+        for i in 0..3 {
+            let (got, want) = (
+                scene["object"]["pose"][i].as_f64().unwrap(),
+                want[i].as_f64().unwrap(),
+            );
+            assert!((got - want).abs() < 1e-4, "{e}: object at {got} vs {want}");
+        }
+        assert!(scene["support"].is_object(), "{e}: the ball's support");
+        assert_eq!(
+            scene["contacts"].as_array().unwrap().len(),
+            plan["grasp"]["result"]["contacts"]
+                .as_array()
+                .unwrap()
+                .len(),
+            "{e}"
+        );
+        let (_, html) = page(&app, &format!("/ui/view/executions/{e}")).await;
+        assert!(!html.contains("no scene"), "{e}");
+    }
+    // A bare model execution posted to /v1/executions has no plan and so no object: the page
+    // says so instead of drawing an empty scene.
+    let res = app
+        .post_json(
+            "/v1/executions",
+            &json!({"robot": ROBOT, "mode": "closed_loop", "model_id": closed["model_id"],
+                    "goal": start}),
+        )
+        .await;
+    assert_eq!(res.status(), 202, "{}", res.text().await.unwrap());
+    let bare = res.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let scene: Value = app
+        .get(&format!("/ui/view/executions/{bare}/scene.json"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert!(scene["object"].is_null(), "{}", scene["object"]);
+    let (status, html) = page(&app, &format!("/ui/view/executions/{bare}")).await;
+    assert_eq!(status, 200);
+    assert!(
+        html.contains("no scene: this execution was not made by a plan"),
+        "{html}"
+    );
+    assert!(html.contains("the control law of model"), "{html}");
+
     // The comparison of the two plans: both columns, every cost term's row, both figures.
     let (ia, ib) = (a["id"].as_str().unwrap(), b["id"].as_str().unwrap());
     for query in [format!("plans={ia},{ib}"), format!("plans={ia}&plans={ib}")] {
@@ -212,5 +322,6 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     assert_eq!(status, 200, "the empty comparison is its form");
 
     let (_, home) = page(&app, "/").await;
-    assert!(home.contains("href=\"/ui/plans\"><span class=\"count\">2</span> plans"));
+    // The two compared, the one from "zero" and the closed-loop one.
+    assert!(home.contains("href=\"/ui/plans\"><span class=\"count\">4</span> plans"));
 }

@@ -1,8 +1,10 @@
 //! `/v1/robots`: the bundled library, registration with every rejection, and the kinematics
 //! endpoints.
 
+use std::f64::consts::{FRAC_1_SQRT_2, FRAC_PI_2};
 use std::path::PathBuf;
 
+use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
 use reachgrasp::kinematics::{Data, NoMeshes, forward_kinematics, model_from_urdf_str};
 use serde_json::{Value, json};
 
@@ -606,5 +608,169 @@ async fn meshes_uploaded_with_a_registered_system_are_stored_and_reload_after_a_
     assert_eq!(
         delete(&again, &format!("/v1/robots/{id}")).await.status(),
         204
+    );
+}
+
+/// A registered robot's `<visual>` geometry: a missing visual mesh is refused like a collision
+/// mesh; uploaded, it is drawn in the 3-D viewer's scene on its link, placed as the URDF says.
+/// An execution of an inline trajectory has no plan, and its viewer page says there is no scene.
+#[tokio::test]
+async fn a_visual_mesh_registered_with_a_robot_is_in_the_viewer_scene_where_the_urdf_puts_it() {
+    let app = app().await;
+    let mesh = "package://wam/meshes/link1_visual.obj";
+    let mut body = wam_t42_body();
+    // On wam_link1 (the shoulder): the tetrahedron scaled (2, 3, 4), 1/2/3 cm off the link
+    // origin and turned 90° about z; a box beside it.
+    let visuals = format!(
+        "<visual><origin xyz=\"0.01 0.02 0.03\" rpy=\"0 0 1.5707963267948966\"/>\
+         <geometry><mesh filename=\"{mesh}\" scale=\"2 3 4\"/></geometry></visual>\
+         <visual><origin xyz=\"0 0 -0.2\"/><geometry><box size=\"0.1 0.2 0.3\"/></geometry></visual>"
+    );
+    body["arm_urdf"] = json!(body["arm_urdf"].as_str().unwrap().replacen(
+        "<collision><geometry><sphere radius=\"0.09\"/></geometry></collision>\n  </link>",
+        &format!(
+            "<collision><geometry><sphere radius=\"0.09\"/></geometry></collision>{visuals}\n  </link>"
+        ),
+        1
+    ));
+    assert!(body["arm_urdf"].as_str().unwrap().contains(mesh));
+    let before = count(&app).await;
+    let p = assert_problem(app.post_json("/v1/robots", &body).await, 422, "validation").await;
+    let detail = p["detail"].as_str().unwrap();
+    assert!(detail.contains("wam_link1") && detail.contains(mesh), "{p}");
+    assert_eq!(p["errors"][0]["path"], "$.arm_urdf", "{p}");
+    assert_eq!(count(&app).await, before, "nothing stored");
+    body["meshes"] = json!({mesh: {"data": TETRA_OBJ}});
+    let res = app.post_json("/v1/robots", &body).await;
+    assert_eq!(res.status(), 201, "{}", res.text().await.unwrap());
+    let robot = res.json::<Value>().await.unwrap();
+    let id = robot["id"].as_str().unwrap().to_owned();
+    let names = robot["joint_names"].as_array().unwrap().clone();
+
+    // Joint 1 at 90°, every other joint at 0, held for a second (no worker: it stays queued
+    // and the scene draws what was sent).
+    let q: Vec<f64> = names
+        .iter()
+        .map(|n| if n == "wam_joint1" { FRAC_PI_2 } else { 0.0 })
+        .collect();
+    let zeros = vec![0.0; q.len()];
+    let point =
+        |t: f64| json!({"t": t, "positions": q, "velocities": zeros, "accelerations": zeros});
+    let res = app
+        .post_json(
+            "/v1/executions",
+            &json!({"robot": id, "mode": "open_loop",
+                    "trajectory": {"joint_names": names, "points": [point(0.0), point(1.0)]}}),
+        )
+        .await;
+    assert_eq!(res.status(), 202, "{}", res.text().await.unwrap());
+    let execution = res.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let res = app
+        .get(&format!("/ui/view/executions/{execution}/scene.json"))
+        .await;
+    assert_eq!(res.status(), 200);
+    let scene: Value = res.json().await.unwrap();
+    let links = scene["links"].as_array().unwrap();
+    let k = links
+        .iter()
+        .position(|l| l["name"] == "wam_link1")
+        .expect("wam_link1 is drawn");
+    let link1 = &links[k];
+    assert_eq!(
+        link1["shapes"].as_array().unwrap().len(),
+        1,
+        "its collision sphere"
+    );
+    let visuals = link1["visuals"].as_array().unwrap();
+    assert_eq!(visuals.len(), 2, "{link1}");
+    let nums = |v: &Value| -> Vec<f64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let close = |got: &[f64], want: &[f64], what: &str| {
+        assert_eq!(got.len(), want.len(), "{what}");
+        for (g, w) in got.iter().zip(want) {
+            assert!((g - w).abs() < 1e-4, "{what}: {got:?} vs {want:?}");
+        }
+    };
+    let h = FRAC_1_SQRT_2;
+    // The mesh in the link frame: the URDF origin, rpy (0, 0, 90°) = q (cos 45°, 0, 0, sin 45°).
+    let m = &visuals[0];
+    assert_eq!(m["geometry"]["type"], "mesh");
+    close(
+        &nums(&m["pose"]),
+        &[0.01, 0.02, 0.03, h, 0.0, 0.0, h],
+        "mesh pose",
+    );
+    // The vertices scaled (2, 3, 4): (0.1, 0, 0) -> (0.2, 0, 0), (0, 0, 0.1) -> (0, 0, 0.4).
+    let v = nums(&m["geometry"]["vertices"]);
+    assert!(
+        v.chunks(3)
+            .any(|p| (p[0] - 0.2).abs() < 1e-6 && p[1] == 0.0 && p[2] == 0.0)
+    );
+    assert!(
+        v.chunks(3)
+            .any(|p| p[0] == 0.0 && p[1] == 0.0 && (p[2] - 0.4).abs() < 1e-6)
+    );
+    assert!(
+        v.chunks(3)
+            .any(|p| p[0] == 0.0 && (p[1] - 0.3).abs() < 1e-6 && p[2] == 0.0)
+    );
+    assert_eq!(m["geometry"]["indices"].as_array().unwrap().len(), 12);
+    let b = &visuals[1];
+    assert_eq!(
+        b["geometry"],
+        json!({"type": "box", "size": [0.1, 0.2, 0.3]})
+    );
+    close(
+        &nums(&b["pose"]),
+        &[0.0, 0.0, -0.2, 1.0, 0.0, 0.0, 0.0],
+        "box pose",
+    );
+    // wam_link1 in the world at joint 1 = 90°: 0.346 m above the base, turned 90° about z.
+    let frame0 = nums(&scene["frames"]["links"][0]);
+    close(
+        &frame0[7 * k..7 * k + 7],
+        &[0.0, 0.0, 0.346, h, 0.0, 0.0, h],
+        "wam_link1 pose",
+    );
+    // So the mesh's vertex (0.2, 0, 0) is at link (0.01, 0.22, 0.03) and, turned once more,
+    // at world (-0.22, 0.01, 0.376): where the link pose and the shape pose put it.
+    let iso = |p: &[f64]| {
+        Isometry3::from_parts(
+            Translation3::new(p[0], p[1], p[2]),
+            UnitQuaternion::from_quaternion(Quaternion::new(p[3], p[4], p[5], p[6])),
+        )
+    };
+    let world =
+        iso(&frame0[7 * k..7 * k + 7]) * iso(&nums(&m["pose"])) * Point3::new(0.2, 0.0, 0.0);
+    close(
+        &[world.x, world.y, world.z],
+        &[-0.22, 0.01, 0.376],
+        "the vertex",
+    );
+
+    // No plan made it: the page says there is no scene, and the scene has no object.
+    assert!(scene["object"].is_null() && scene["support"].is_null());
+    let page = app
+        .get(&format!("/ui/view/executions/{execution}"))
+        .await
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        page.contains("no scene: this execution was not made by a plan"),
+        "{page}"
+    );
+    assert!(page.contains("a trajectory given inline"), "{page}");
+    assert!(
+        page.contains("class=\"viewer-geometry\""),
+        "the collision / visual switch"
     );
 }
