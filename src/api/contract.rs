@@ -293,6 +293,162 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
     }
     synthetic_study(schemas);
     flatten_plan(schemas);
+    demonstration_streams(schemas);
+    robot_sources(schemas);
+}
+
+/// `items` (and the items' items) of an array at `pointer` in `schema`.
+fn constrain_rows(
+    schemas: &mut serde_json::Map<String, Value>,
+    schema: &str,
+    pointer: &str,
+    row: Value,
+    value: Value,
+) {
+    let Some(target) = schemas.get_mut(schema) else {
+        return;
+    };
+    if let Some(Value::Object(o)) = target.pointer_mut(&format!("{pointer}/items")) {
+        o.extend(row.as_object().cloned().unwrap_or_default());
+    }
+    if let Some(Value::Object(o)) = target.pointer_mut(&format!("{pointer}/items/items")) {
+        o.extend(value.as_object().cloned().unwrap_or_default());
+    }
+}
+
+/// The demonstration streams' row widths and per-value ranges (`human::demo` checks each row:
+/// 3 coordinates within the tracker's 3 m, 4 quaternion components, 22 glove channels, a
+/// calibrated angle within ±π), at least two samples per stream (one sample spans no frame),
+/// and the glove's `angles` or `raw` + `calibration`. The object's pose and box edges are
+/// checked per value too. What relates rows to each other (equal column lengths, increasing
+/// times, overlap, a position's distance) is in the upload's description.
+fn demonstration_streams(schemas: &mut serde_json::Map<String, Value>) {
+    let count = |n: usize| json!({"minItems": n, "maxItems": n});
+    let tracker = json!({"minimum": -crate::human::demo::MAX_POSITION_M,
+                         "maximum": crate::human::demo::MAX_POSITION_M});
+    for column in ["shoulder", "elbow", "wrist"] {
+        constrain_rows(
+            schemas,
+            "TrackerStream",
+            &format!("/properties/{column}"),
+            count(3),
+            tracker.clone(),
+        );
+    }
+    constrain_rows(
+        schemas,
+        "TrackerStream",
+        "/properties/wrist_orientation",
+        count(4),
+        json!({}),
+    );
+    let pi = std::f64::consts::PI;
+    constrain_rows(
+        schemas,
+        "GloveStream",
+        "/properties/angles",
+        count(22),
+        json!({"minimum": -pi, "maximum": pi}),
+    );
+    constrain_rows(
+        schemas,
+        "GloveStream",
+        "/properties/raw",
+        count(22),
+        json!({}),
+    );
+    for stream in ["TrackerStream", "GloveStream"] {
+        if let Some(Value::Object(t)) = schemas
+            .get_mut(stream)
+            .and_then(|s| s.pointer_mut("/properties/t"))
+        {
+            t.insert("minItems".into(), json!(2));
+        }
+    }
+    if let Some(Value::Object(glove)) = schemas.get_mut("GloveStream") {
+        // 422 "the glove stream needs either `angles`, or `raw` together with `calibration`".
+        glove.insert(
+            "oneOf".into(),
+            json!([
+                {"required": ["angles"], "properties": {
+                    "angles": {"type": "array"},
+                    "raw": {"type": "null"}, "calibration": {"type": "null"}}},
+                {"required": ["raw", "calibration"], "properties": {
+                    "raw": {"type": "array"},
+                    "calibration": {"$ref": "#/components/schemas/GloveCalibration"},
+                    "angles": {"type": "null"}}},
+            ]),
+        );
+    }
+    if let Some(Value::Object(p)) = schemas
+        .get_mut("DemoPose")
+        .and_then(|s| s.pointer_mut("/properties/position/items"))
+    {
+        p.extend(tracker.as_object().cloned().unwrap_or_default());
+    }
+    if let Some(Value::Array(alts)) = schemas
+        .get_mut("ObjectShape")
+        .and_then(|s| s.get_mut("oneOf"))
+    {
+        for alt in alts.iter_mut() {
+            if let Some(Value::Object(p)) = alt.pointer_mut("/properties/size/items") {
+                p.insert("minimum".into(), json!(1e-4));
+                p.insert("maximum".into(), json!(2.0));
+            }
+            // `deny_unknown_fields` on the tagged enum refuses them in every variant; the
+            // derive leaves its variants open.
+            if let Value::Object(o) = alt {
+                o.insert("additionalProperties".into(), json!(false));
+            }
+        }
+    }
+}
+
+/// A robot is registered from `arm_urdf` + `hand_urdf` with a `descriptor.mount`, or from one
+/// combined `urdf` with a `descriptor.wrist_frame` (422 "give either arm_urdf and hand_urdf,
+/// or urdf", "required when the hand is a separate URDF", "required for a combined URDF").
+fn robot_sources(schemas: &mut serde_json::Map<String, Value>) {
+    // Spread pairs are `[a, b]` (a longer array is a 400 "trailing characters").
+    for (schema, pointer) in [
+        ("SystemDescriptor", "/properties/spread_pairs/items"),
+        ("RobotDetail", "/properties/spread_pairs/items"),
+    ] {
+        if let Some(Value::Object(pair)) =
+            schemas.get_mut(schema).and_then(|s| s.pointer_mut(pointer))
+        {
+            pair.insert("minItems".into(), json!(2));
+            pair.insert("maxItems".into(), json!(2));
+        }
+    }
+    let Some(Value::Object(robot)) = schemas.get_mut("CreateRobot") else {
+        return;
+    };
+    // At most MAX_MESHES meshes, each named by 1 to 512 bytes (a character count can only
+    // state the lower bound exactly: a character is 1 to 4 bytes).
+    if let Some(Value::Object(meshes)) = robot
+        .get_mut("properties")
+        .and_then(|p| p.get_mut("meshes"))
+    {
+        meshes.insert("maxProperties".into(), json!(super::robots::MAX_MESHES));
+        meshes.insert(
+            "propertyNames".into(),
+            json!({"type": "string", "minLength": 1, "maxLength": 512}),
+        );
+    }
+    let text = json!({"type": "string"});
+    robot.insert(
+        "oneOf".into(),
+        json!([
+            {"required": ["arm_urdf", "hand_urdf"], "properties": {
+                "arm_urdf": text, "hand_urdf": text, "urdf": {"type": "null"},
+                "descriptor": {"required": ["mount"], "properties": {
+                    "mount": {"$ref": "#/components/schemas/Mount"}}}}},
+            {"required": ["urdf"], "properties": {
+                "urdf": text, "arm_urdf": {"type": "null"}, "hand_urdf": {"type": "null"},
+                "descriptor": {"required": ["wrist_frame"], "properties": {
+                    "wrist_frame": {"type": "string"}}}}},
+        ]),
+    );
 }
 
 /// The synthetic study request is the numeric core's `StudyConfig` read as is (so that errors

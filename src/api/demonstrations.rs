@@ -34,27 +34,24 @@ impl From<HumanError> for ApiError {
 }
 
 /// A demonstration upload (canonical JSON; see `reachgrasp::human::demo` for every field).
+/// Every nested object refuses unknown fields (a 422 naming e.g. `$.subject.heigth`).
+/// Beyond the schema, the server checks what relates fields or samples to each other (a 422
+/// naming the stream, sample and field): every stream column has as many rows as its `t`,
+/// timestamps strictly increase with gaps of at most `sync.max_gap_s`, the two streams overlap
+/// for at least two frames at `sync.rate_hz`, tracker positions lie within 3 m of its origin,
+/// quaternions are not zero, and calibrated glove angles are within ±π.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DemonstrationUpload {
-    /// `{id, stature_m, hand_length_m, hand_breadth_m, handedness: "right"|"left"}`.
-    #[schema(value_type = Object)]
     pub subject: Subject,
-    /// `{name, shape: {type: sphere|cylinder|box|capsule, ...}, pose: {position, orientation}}`.
-    #[schema(value_type = Object)]
     pub object: ObjectSpec,
-    /// `{task, position_index, trial, synthetic, external_id}`.
-    #[schema(value_type = Object)]
     pub labels: Labels,
-    /// `{t: [s], shoulder: [[x,y,z]], elbow, wrist, wrist_orientation: [[w,x,y,z]]}`, metres.
-    #[schema(value_type = Object)]
+    /// Positions in metres, orientations `[w, x, y, z]`.
     pub tracker: TrackerStream,
     /// `{t, angles: [[22 radians]]}` or `{t, raw: [[22]], calibration: {gain: [22], offset: [22]}}`.
-    #[schema(value_type = Object)]
     pub glove: GloveStream,
-    /// `{glove_offset_s: 0, rate_hz: 120, max_gap_s: 0.1}`.
+    /// Default `{glove_offset_s: 0, rate_hz: 120, max_gap_s: 0.1}`.
     #[serde(default)]
-    #[schema(value_type = Object)]
     pub sync: SyncOptions,
 }
 
@@ -77,7 +74,7 @@ impl From<DemonstrationUpload> for DemonstrationInput {
 pub struct DemonstrationForm {
     /// JSON: `{subject, object, labels, sync?, calibration?}`; with a `calibration` the glove CSV
     /// holds raw sensor values.
-    #[schema(value_type = Object)]
+    #[schema(value_type = FormMeta)]
     meta: String,
     /// CSV `t,shoulder_x,shoulder_y,shoulder_z,elbow_x,...,wrist_z,qw,qx,qy,qz`.
     #[schema(content_media_type = "text/csv")]
@@ -87,15 +84,61 @@ pub struct DemonstrationForm {
     glove: String,
 }
 
-#[derive(Debug, Deserialize)]
-struct FormMeta {
-    subject: Subject,
-    object: ObjectSpec,
-    labels: Labels,
+/// The `meta` part of a multipart upload: the upload's fields other than its streams, and the
+/// glove calibration when the glove CSV holds raw values. Unknown fields are refused (a 422
+/// naming e.g. `meta.subject.heigth`).
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(as = DemonstrationMeta)]
+pub struct FormMeta {
+    pub subject: Subject,
+    pub object: ObjectSpec,
+    pub labels: Labels,
+    /// Default `{glove_offset_s: 0, rate_hz: 120, max_gap_s: 0.1}`.
     #[serde(default)]
-    sync: SyncOptions,
+    pub sync: SyncOptions,
+    /// Present exactly when the glove CSV holds raw sensor values.
     #[serde(default)]
-    calibration: Option<GloveCalibration>,
+    pub calibration: Option<GloveCalibration>,
+}
+
+/// The `meta` part read with the path of a bad field (`meta.subject.heigth`), as a JSON body's
+/// errors name theirs.
+fn read_meta(text: &str) -> Result<FormMeta, ApiError> {
+    let mut de = serde_json::Deserializer::from_str(text);
+    let meta: FormMeta = serde_path_to_error::deserialize(&mut de).map_err(|e| {
+        let path = match e.path().to_string() {
+            p if p == "." => "meta".to_owned(),
+            p => format!("meta.{p}"),
+        };
+        let inner = e.into_inner();
+        if inner.is_syntax() || inner.is_eof() {
+            return ApiError::invalid_field(path, format!("invalid JSON: {inner}"));
+        }
+        let message = strip_position(&inner);
+        // A missing field is named itself, not its parent object.
+        let path = match message
+            .strip_prefix("missing field `")
+            .and_then(|rest| rest.strip_suffix('`'))
+        {
+            Some(name) => format!("{path}.{name}"),
+            None => path,
+        };
+        let path = super::extract::with_unknown_field(path, &message);
+        ApiError::invalid_field(path, message)
+    })?;
+    de.end()
+        .map_err(|e| ApiError::invalid_field("meta", format!("invalid JSON: {e}")))?;
+    Ok(meta)
+}
+
+/// serde_json's message without " at line L column C" (the path says where).
+fn strip_position(e: &serde_json::Error) -> String {
+    let full = e.to_string();
+    match full.rfind(" at line ") {
+        Some(i) if e.line() > 0 => full[..i].to_owned(),
+        _ => full,
+    }
 }
 
 /// Key figures of an ingested demonstration.
@@ -136,9 +179,7 @@ pub struct DemonstrationDto {
     pub external_id: Option<String>,
     /// The synthetic-study job that produced it, if any.
     pub job_id: Option<String>,
-    #[schema(value_type = Object)]
     pub subject: Subject,
-    #[schema(value_type = Object)]
     pub object: ObjectSpec,
     pub task: String,
     pub position_index: u32,
@@ -322,8 +363,7 @@ async fn read_form(mut form: Multipart) -> Result<DemonstrationInput, ApiError> 
     let missing = |part: &str| {
         ApiError::invalid_field(part, format!("the multipart part `{part}` is missing"))
     };
-    let meta: FormMeta = serde_json::from_str(&meta.ok_or_else(|| missing("meta"))?)
-        .map_err(|e| ApiError::invalid_field("meta", format!("invalid JSON: {e}")))?;
+    let meta = read_meta(&meta.ok_or_else(|| missing("meta"))?)?;
     let tracker = human::csv::parse_tracker_csv(&tracker.ok_or_else(|| missing("tracker"))?)?;
     let glove =
         human::csv::parse_glove_csv(&glove.ok_or_else(|| missing("glove"))?, meta.calibration)?;

@@ -46,13 +46,6 @@ pub struct InlineTrajectory {
     pub points: Vec<TrajectoryPoint>,
 }
 
-/// Joint values with their names.
-#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
-pub struct JointValues {
-    pub joint_names: Vec<String>,
-    pub positions: Vec<f64>,
-}
-
 /// What to execute: a trajectory (stored `trajectory_id` or inline `trajectory`) in
 /// `open_loop`, or a model's closed-loop law (`model_id` + `goal`, or a stored trajectory's
 /// model and goal) in `closed_loop`.
@@ -69,7 +62,9 @@ pub struct CreateExecution {
     /// A trained model (`closed_loop`).
     pub model_id: Option<String>,
     /// Goal of a `closed_loop` execution with `model_id` (every joint, any order).
-    pub goal: Option<JointValues>,
+    // The models' joint vector, so that the document's one `JointValues` (closed) is what
+    // both endpoints read: a second, open struct of that name let `goal` take unknown fields.
+    pub goal: Option<crate::service::models::JointValues>,
     /// Run on this worker only (default: any idle worker of the robot).
     pub worker: Option<String>,
 }
@@ -254,10 +249,7 @@ async fn create_execution(
     Json(mut body): Json<CreateExecution>,
 ) -> Result<impl IntoResponse, ApiError> {
     let source = source(&mut body)?;
-    let goal = body.goal.map(|g| crate::service::models::JointValues {
-        joint_names: g.joint_names,
-        positions: g.positions,
-    });
+    let goal = body.goal;
     let dto = execution_dto(
         service::create(
             &state,

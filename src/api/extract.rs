@@ -91,7 +91,31 @@ fn field_error(e: &PathError) -> FieldError {
             format!("{path}.{name}")
         };
     }
+    path = with_unknown_field(path, &message);
     FieldError::new(path, message)
+}
+
+/// The path of an unknown field, also inside an internally tagged enum: serde buffers such an
+/// enum's content and reads the variant from the buffer, so the tracked path stops at the
+/// enum (`$.object.shape`) while the message names the field.
+pub(crate) fn with_unknown_field(path: String, message: &str) -> String {
+    let Some(name) = message
+        .strip_prefix("unknown field `")
+        .and_then(|rest| rest.split('`').next())
+    else {
+        return path;
+    };
+    let simple = !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+    let segment = if simple {
+        format!(".{name}")
+    } else {
+        format!("[{name:?}]")
+    };
+    if path.ends_with(&segment) {
+        path
+    } else {
+        format!("{path}{segment}")
+    }
 }
 
 impl From<JsonRejection> for ApiError {

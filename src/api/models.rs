@@ -52,7 +52,8 @@ pub struct ModelDto {
     pub default: bool,
     /// The model's joint order.
     pub joint_names: Vec<String>,
-    #[schema(value_type = Object)]
+    /// The training request as given (stored as the server read it, defaults not filled in).
+    #[schema(value_type = CreateModel)]
     pub request: serde_json::Value,
     pub report: Option<ModelReportDto>,
     pub created_at: String,
@@ -200,7 +201,7 @@ async fn get_model(
 /// names, `K_⊥`, per group: joint indices, PCA mean and basis, navigation function, `K_p`).
 #[utoipa::path(get, path = "/v1/models/{id}/params", tag = "models",
     params(("id" = String, Path, description = "Model id")),
-    responses((status = 200, body = Object, description = "`motion::ControlParams` as JSON"),
+    responses((status = 200, body = ControlParams, description = "The model's closed-loop law (`motion::ControlParams`)"),
               (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json"),
               (status = 409, body = Problem, content_type = "application/problem+json", description = "Not trained (yet)")))]
 async fn get_params(

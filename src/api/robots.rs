@@ -126,9 +126,9 @@ pub struct RobotDetail {
     pub elbow_frames: Vec<String>,
     pub shoulder_frame: String,
     pub wrist_frame: String,
-    /// The descriptor as registered.
-    #[schema(value_type = Object)]
-    pub descriptor: serde_json::Value,
+    /// The descriptor as registered (bundled systems: as in `robots/systems/`, with the URDF
+    /// paths).
+    pub descriptor: SystemDescriptor,
     /// The model plans use when they name none, or why there is none yet.
     pub default_model: DefaultModelDto,
     pub created_at: String,
@@ -144,14 +144,14 @@ pub struct RobotDetail {
 #[derive(Debug, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CreateRobot {
-    /// The system descriptor (same fields as `robots/systems/*.toml`; path fields are ignored).
-    #[schema(value_type = Object)]
-    pub descriptor: serde_json::Value,
+    /// The system descriptor (same fields as `robots/systems/*.toml`; its URDF path fields are
+    /// ignored here, the URDF texts come in `arm_urdf` + `hand_urdf` or `urdf`).
+    pub descriptor: SystemDescriptor,
     pub arm_urdf: Option<String>,
     pub hand_urdf: Option<String>,
     pub urdf: Option<String>,
-    /// Mesh files by URDF filename (e.g. `package://my_arm/meshes/link1.stl`), at most
-    /// [`MAX_MESHES`]; stored with the robot.
+    /// Mesh files by URDF filename (e.g. `package://my_arm/meshes/link1.stl`), at most 64,
+    /// each name 1 to 512 bytes of UTF-8; stored with the robot.
     #[serde(default)]
     pub meshes: BTreeMap<String, MeshUpload>,
 }
@@ -297,7 +297,7 @@ fn detail(row: &RobotRow, s: &System, default_model: DefaultModelDto) -> RobotDe
             .collect(),
         shoulder_frame: m.frame_name(s.shoulder_frame).into(),
         wrist_frame: m.frame_name(s.wrist_frame).into(),
-        descriptor: serde_json::from_str(&row.descriptor).unwrap_or(serde_json::Value::Null),
+        descriptor: s.descriptor.clone(),
         default_model,
         created_at: row.created_at.clone(),
         updated_at: row.updated_at.clone(),
@@ -360,8 +360,7 @@ async fn create_robot(
     State(state): State<AppState>,
     Json(body): Json<CreateRobot>,
 ) -> Result<Response, ApiError> {
-    let desc: SystemDescriptor = serde_json::from_value(body.descriptor.clone())
-        .map_err(|e| ApiError::invalid_field("$.descriptor", e.to_string()))?;
+    let desc = body.descriptor;
     let (arm, hand) = match (body.arm_urdf, body.hand_urdf, body.urdf) {
         (Some(a), Some(h), None) => (a, Some(h)),
         (None, None, Some(c)) => (c, None),

@@ -42,7 +42,7 @@ pub const MAX_POSITION_M: f64 = 3.0;
 /// Quaternions with a norm below this cannot be normalised meaningfully.
 pub const MIN_QUATERNION_NORM: f64 = 1e-6;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Handedness {
     #[default]
@@ -50,16 +50,25 @@ pub enum Handedness {
     Left,
 }
 
-/// The demonstrating person: id and the anthropometry the model is scaled by.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// The demonstrating person: id and the anthropometry the model is scaled by (within the
+/// ranges the parametric hand and arm models are defined for).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct Subject {
     pub id: String,
+    /// Stature, m (default 1.72).
     #[serde(default = "default_stature")]
+    #[schema(minimum = 1.0, maximum = 2.3)]
     pub stature_m: f64,
+    /// Wrist crease to the tip of the middle finger, m (default 0.185).
     #[serde(default = "default_hand_length")]
+    #[schema(minimum = 0.10, maximum = 0.30)]
     pub hand_length_m: f64,
+    /// Across the metacarpal heads, m (default 0.085).
     #[serde(default = "default_hand_breadth")]
+    #[schema(minimum = 0.04, maximum = 0.15)]
     pub hand_breadth_m: f64,
+    /// Default `right`.
     #[serde(default)]
     pub handedness: Handedness,
 }
@@ -94,22 +103,29 @@ impl Subject {
 }
 
 /// Object geometry in its own frame (cylinder and capsule axes along `z`, centred at the origin).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
+/// Every length is 0.0001 to 2 m.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ObjectShape {
     Sphere {
+        #[schema(minimum = 0.0001, maximum = 2.0)]
         radius: f64,
     },
     Cylinder {
+        #[schema(minimum = 0.0001, maximum = 2.0)]
         radius: f64,
+        #[schema(minimum = 0.0001, maximum = 2.0)]
         height: f64,
     },
     /// Full edge lengths along x, y, z.
     Box {
+        #[schema(min_items = 3, max_items = 3)]
         size: [f64; 3],
     },
     Capsule {
+        #[schema(minimum = 0.0001, maximum = 2.0)]
         radius: f64,
+        #[schema(minimum = 0.0001, maximum = 2.0)]
         height: f64,
     },
 }
@@ -172,10 +188,15 @@ impl ObjectShape {
     }
 }
 
-/// A pose in the tracker frame: position (m) and orientation quaternion `[w, x, y, z]`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// A pose in the tracker frame: position (m, each coordinate within the tracker's 3 m) and
+/// orientation quaternion `[w, x, y, z]` (not zero; normalised on ingest).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(as = DemoPose)]
 pub struct Pose {
+    #[schema(min_items = 3, max_items = 3)]
     pub position: [f64; 3],
+    #[schema(min_items = 4, max_items = 4)]
     pub orientation: [f64; 4],
 }
 
@@ -206,23 +227,33 @@ impl Pose {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// The grasped object of a demonstration, in the tracker frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(as = DemoObject)]
 pub struct ObjectSpec {
     /// What the object is (`ball`, `bottle`, ...); a free label.
     pub name: String,
     pub shape: ObjectShape,
+    /// Default: at the tracker origin, identity orientation.
     #[serde(default)]
     pub pose: Pose,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// What the trial was (the study design's labels).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct Labels {
+    /// Default `grasp`.
     #[serde(default = "default_task")]
     pub task: String,
+    /// Default 0.
     #[serde(default)]
     pub position_index: u32,
+    /// Default 0.
     #[serde(default)]
     pub trial: u32,
+    /// Default false.
     #[serde(default)]
     pub synthetic: bool,
     /// Client-chosen id; a re-upload with the same id returns the existing record.
@@ -234,9 +265,12 @@ fn default_task() -> String {
     "grasp".to_string()
 }
 
-/// The magnetic tracker stream: one row per sample in each column.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+/// The magnetic tracker stream: one row per sample in each column, as many rows as `t` has;
+/// positions `[x, y, z]` within 3 m of the tracker's origin, orientations `[w, x, y, z]`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct TrackerStream {
+    /// Sample times, s, strictly increasing.
     pub t: Vec<f64>,
     pub shoulder: Vec<Vec<f64>>,
     pub elbow: Vec<Vec<f64>>,
@@ -246,15 +280,21 @@ pub struct TrackerStream {
 }
 
 /// Per-channel linear calibration of raw glove values: `angle = gain · raw + offset` (radians).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct GloveCalibration {
+    /// One per glove channel, in the channel order of the glove format.
+    #[schema(min_items = 22, max_items = 22)]
     pub gain: Vec<f64>,
+    #[schema(min_items = 22, max_items = 22)]
     pub offset: Vec<f64>,
 }
 
 /// The data-glove stream: calibrated `angles` (radians), or `raw` values with a `calibration`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct GloveStream {
+    /// Sample times on the glove's clock, s, strictly increasing.
     pub t: Vec<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub angles: Option<Vec<Vec<f64>>>,
@@ -265,16 +305,20 @@ pub struct GloveStream {
 }
 
 /// Clock alignment and resampling settings.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
 pub struct SyncOptions {
-    /// Added to glove timestamps to put them on the tracker's clock, seconds.
+    /// Added to glove timestamps to put them on the tracker's clock, seconds (default 0).
     #[serde(default)]
+    #[schema(minimum = -3600.0, maximum = 3600.0)]
     pub glove_offset_s: f64,
-    /// Common output rate, Hz.
+    /// Common output rate, Hz (default 120).
     #[serde(default = "default_rate")]
+    #[schema(minimum = 1.0, maximum = 1000.0)]
     pub rate_hz: f64,
-    /// Largest accepted gap between consecutive samples of a stream, seconds.
+    /// Largest accepted gap between consecutive samples of a stream, seconds (default 0.1).
     #[serde(default = "default_max_gap")]
+    #[schema(minimum = 0.0001, maximum = 60.0)]
     pub max_gap_s: f64,
 }
 

@@ -14,10 +14,13 @@ use super::error::{KinematicsError, check_finite};
 use super::model::{Actuation, FrameId, Model, ModelBuilder};
 use super::urdf::{Attach, DirMeshes, MeshSource, append_robot, parse_urdf, read_text, root_link};
 
-/// The descriptor as written in `robots/systems/*.toml` or posted as JSON.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// The descriptor as written in `robots/systems/*.toml` or posted as JSON. The names it uses
+/// (frames, joints) must exist in the system's URDF.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SystemDescriptor {
+    /// Not blank.
+    #[schema(pattern = r"\S")]
     pub name: String,
     /// Arm URDF path, relative to the descriptor file (files only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -37,6 +40,8 @@ pub struct SystemDescriptor {
     pub wrist_frame: Option<String>,
     /// The arm's shoulder centre (where a human shoulder is registered by default).
     pub shoulder_frame: String,
+    /// At least one; names are unique.
+    #[schema(min_items = 1)]
     pub fingers: Vec<FingerSpec>,
     /// Name of the finger that plays the thumb.
     pub thumb: String,
@@ -48,26 +53,33 @@ pub struct SystemDescriptor {
     pub elbow_frames: Vec<String>,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// Where the hand's root link attaches to the arm.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Mount {
     /// Arm frame the hand is attached to (usually the flange).
     pub parent_frame: String,
+    /// Translation, metres (default zero).
     #[serde(default)]
+    #[schema(min_items = 3, max_items = 3)]
     pub xyz: [f64; 3],
-    /// Fixed-axis roll, pitch, yaw (URDF convention), radians.
+    /// Fixed-axis roll, pitch, yaw (URDF convention), radians (default zero).
     #[serde(default)]
+    #[schema(min_items = 3, max_items = 3)]
     pub rpy: [f64; 3],
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// One finger of the hand.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FingerSpec {
     pub name: String,
     /// The finger's joints from palm to tip (mimic joints may be listed; they fold into drivers).
+    #[schema(min_items = 1)]
     pub joints: Vec<String>,
     pub tip_frame: String,
     /// Radius of the fingertip contact sphere centred on the tip frame, metres.
+    #[schema(exclusive_minimum = 0)]
     pub contact_radius: f64,
 }
 

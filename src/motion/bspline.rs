@@ -9,12 +9,17 @@ pub const MAX_DIM: usize = 5;
 
 /// `s(y) = Σ c_j Π_i N_{j_i}(y_i)` over a uniform grid on a box; cubic B-splines per axis,
 /// `intervals + 3` coefficients per axis, axis 0 varying fastest in `coefficients`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct TensorBSpline {
+    /// Axes (the manifold's dimension).
     dim: usize,
+    /// Knot intervals per axis.
     intervals: usize,
+    /// The grid's lower corner, one per axis.
     lower: Vec<f64>,
+    /// Knot spacing, one per axis.
     spacing: Vec<f64>,
+    /// `(intervals + 3)^dim` coefficients, axis 0 varying fastest.
     coefficients: Vec<f64>,
 }
 

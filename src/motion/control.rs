@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use super::{MAX_DIM, NavigationFunction, Pca};
 
 /// One manifold's share of the law.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ControlGroup {
     /// Indices of this group's joints in the full joint vector.
     pub joints: Vec<usize>,
@@ -19,9 +19,11 @@ pub struct ControlGroup {
 }
 
 /// Everything a worker needs to evaluate `u(q)` for a goal `q_d` (joint order of the model).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ControlParams {
+    /// The model's joint order (of `q`, `q_d` and `u`).
     pub joint_names: Vec<String>,
+    /// `K_⊥`: gain of the off-manifold correction.
     pub k_perp: f64,
     pub groups: Vec<ControlGroup>,
 }

@@ -13,9 +13,11 @@ use super::{MAX_DIM, TensorBSpline};
 /// so `γ ≤ 1` everywhere): the flow direction, hence every path and the certificate, is
 /// invariant under that scaling, but `∇φ` is not — in raw units `γ^k` overwhelms `β` for large
 /// `k` and the closed-loop law would stall away from the goal.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct NavigationFunction {
+    /// `k` of eq. 9.
     pub k: f64,
+    /// `L`: PCA coordinates are divided by it before `φ` is evaluated.
     pub length_scale: f64,
     /// Workspace ball centre `c` and radius `R`.
     pub center: Vec<f64>,

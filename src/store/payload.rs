@@ -55,7 +55,6 @@ pub enum ExecutionPayload {
     Model {
         model_id: String,
         /// `ControlParams` of the model (as `GET /v1/models/{id}/params` returns them).
-        #[schema(value_type = Object)]
         params: ControlParams,
         /// Goal joint values in the order of `params.joint_names`.
         goal: Vec<f64>,

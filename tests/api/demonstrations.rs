@@ -429,6 +429,55 @@ mod rejections {
     }
 
     #[tokio::test]
+    async fn a_misspelt_nested_field_in_json_or_in_the_meta_part() {
+        let app = spawn_app().await;
+        let d = sample("typo");
+        // The typo is the only problem: the same body without it is stored (checked last).
+        let mut body = serde_json::to_value(&d).unwrap();
+        body["subject"]["heigth"] = json!(1.8);
+        let res = app.post_json("/v1/demonstrations", &body).await;
+        assert_rejected(&app, res, "$.subject.heigth", &["unknown field `heigth`"]).await;
+        let mut body = serde_json::to_value(&d).unwrap();
+        body["object"]["pose"]["rotation"] = json!([1, 0, 0, 0]);
+        let res = app.post_json("/v1/demonstrations", &body).await;
+        assert_rejected(&app, res, "$.object.pose.rotation", &["unknown field"]).await;
+        let mut body = serde_json::to_value(&d).unwrap();
+        body["glove"]["calibraton"] = json!({"gain": vec![1.0; 22], "offset": vec![0.0; 22]});
+        let res = app.post_json("/v1/demonstrations", &body).await;
+        assert_rejected(&app, res, "$.glove.calibraton", &["unknown field"]).await;
+
+        let meta = json!({"subject": d.subject, "object": d.object,
+                          "labels": {"task": "grasp", "trail": 3}});
+        let form = reqwest::multipart::Form::new()
+            .text("meta", meta.to_string())
+            .text("tracker", tracker_to_csv(&d.tracker))
+            .text("glove", glove_to_csv(&d.glove));
+        let res = app
+            .client
+            .post(app.url("/v1/demonstrations"))
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        assert_rejected(&app, res, "meta.labels.trail", &["unknown field `trail`"]).await;
+        let meta = json!({"object": d.object, "labels": d.labels});
+        let form = reqwest::multipart::Form::new()
+            .text("meta", meta.to_string())
+            .text("tracker", tracker_to_csv(&d.tracker))
+            .text("glove", glove_to_csv(&d.glove));
+        let res = app
+            .client
+            .post(app.url("/v1/demonstrations"))
+            .multipart(form)
+            .send()
+            .await
+            .unwrap();
+        assert_rejected(&app, res, "meta.subject", &["missing field `subject`"]).await;
+
+        assert_eq!(upload(&app, &d).await.status(), 201);
+    }
+
+    #[tokio::test]
     async fn a_missing_csv_part() {
         let app = spawn_app().await;
         let d = sample("bad");

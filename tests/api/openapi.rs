@@ -221,6 +221,7 @@ async fn every_request_body_refuses_an_unknown_field_naming_it() {
     let schemas = &doc["components"]["schemas"];
     let resolve = |s: &serde_json::Value| resolve_ref(schemas, s);
     let mut checked = 0;
+    let mut nested = 0;
     let mut open_schemas = Vec::new();
     let mut accepted = Vec::new();
     for (path, ops) in doc["paths"].as_object().unwrap() {
@@ -258,22 +259,45 @@ async fn every_request_body_refuses_an_unknown_field_naming_it() {
                     url = url.replace(&format!("{{{name}}}"), value);
                 }
             }
-            let res = app
-                .client
-                .request(method.to_uppercase().parse().unwrap(), app.url(&url))
-                .json(&serde_json::json!({"zz_not_a_field": 1}))
-                .send()
-                .await
-                .unwrap();
-            let status = res.status().as_u16();
-            let body: serde_json::Value = res.json().await.unwrap_or_default();
-            let named = body["errors"]
-                .as_array()
-                .into_iter()
-                .flatten()
-                .any(|e| e["path"] == "$.zz_not_a_field");
-            if status != 422 || !named {
-                accepted.push(format!("{method} {path}: {status} {body}"));
+            // the top level, then every closed object nested in it: the unknown field alone
+            // inside it, so nothing else in the body can be refused first
+            let mut probes = vec![(
+                serde_json::json!({"zz_not_a_field": 1}),
+                "$.zz_not_a_field".to_owned(),
+            )];
+            let mut seen = Vec::new();
+            nested_probes(schemas, &schema, "$", &mut seen, &mut |body, at| {
+                probes.push((body, format!("{at}.zz_not_a_field")));
+            });
+            for alt in &alternatives {
+                nested_probes(schemas, alt, "$", &mut seen, &mut |body, at| {
+                    probes.push((body, format!("{at}.zz_not_a_field")));
+                });
+            }
+            probes.dedup_by(|a, b| a.1 == b.1);
+            for (probe, expected) in probes {
+                let res = app
+                    .client
+                    .request(method.to_uppercase().parse().unwrap(), app.url(&url))
+                    .json(&probe)
+                    .send()
+                    .await
+                    .unwrap();
+                let status = res.status().as_u16();
+                let body: serde_json::Value = res.json().await.unwrap_or_default();
+                let named = body["errors"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .any(|e| e["path"] == expected.as_str());
+                if status != 422 || !named {
+                    accepted.push(format!(
+                        "{method} {path} {probe} (expected {expected}): {status} {body}"
+                    ));
+                }
+                if expected != "$.zz_not_a_field" {
+                    nested += 1;
+                }
             }
             checked += 1;
         }
@@ -282,6 +306,8 @@ async fn every_request_body_refuses_an_unknown_field_naming_it() {
         checked >= 15,
         "only {checked} request bodies in the document"
     );
+    // the demonstration upload alone has 10 closed nested objects, the robot descriptor 2
+    assert!(nested >= 12, "only {nested} nested closed objects probed");
     assert!(
         accepted.is_empty(),
         "unknown field not refused by name:\n{}",
@@ -291,6 +317,107 @@ async fn every_request_body_refuses_an_unknown_field_naming_it() {
         open_schemas.is_empty(),
         "request bodies the document leaves open: {open_schemas:?}"
     );
+}
+
+/// For each closed object (`additionalProperties: false`) reachable from `schema`'s properties
+/// (through `$ref`, a nullable `oneOf`, array items, and each alternative of a `oneOf` told
+/// apart by a one-value `enum` tag), a body with an unknown field in that object alone and the
+/// JSONPath of that object. `seen` stops recursion through self-referencing schemas.
+fn nested_probes(
+    schemas: &serde_json::Value,
+    schema: &serde_json::Value,
+    at: &str,
+    seen: &mut Vec<String>,
+    emit: &mut dyn FnMut(serde_json::Value, String),
+) {
+    let Some(props) = schema["properties"].as_object() else {
+        return;
+    };
+    for (name, prop) in props {
+        let (target, index) = closed_target(schemas, prop);
+        for (object, tag) in target {
+            let path = format!("{at}.{name}{index}");
+            if seen.contains(&path) || path.matches('.').count() > 6 {
+                continue;
+            }
+            seen.push(path.clone());
+            let mut inner = serde_json::Map::new();
+            if let Some((k, v)) = &tag {
+                inner.insert(k.clone(), v.clone());
+            }
+            let wrap = |inner: serde_json::Value| {
+                let value = if index.is_empty() {
+                    inner
+                } else {
+                    serde_json::json!([inner])
+                };
+                serde_json::json!({ name.as_str(): value })
+            };
+            let mut with_unknown = inner.clone();
+            with_unknown.insert("zz_not_a_field".into(), serde_json::json!(1));
+            emit(wrap(with_unknown.into()), path.clone());
+            nested_probes(schemas, &object, &path, seen, &mut |body, deeper| {
+                let mut body_inner = inner.clone();
+                if let Some(o) = body.as_object() {
+                    body_inner.extend(o.clone());
+                }
+                emit(wrap(body_inner.into()), deeper)
+            });
+        }
+    }
+}
+
+/// The closed objects a property holds (one, or one per tagged alternative, each with its
+/// tag), and `[0]` when they are array items.
+#[allow(clippy::type_complexity)]
+fn closed_target(
+    schemas: &serde_json::Value,
+    prop: &serde_json::Value,
+) -> (
+    Vec<(serde_json::Value, Option<(String, serde_json::Value)>)>,
+    &'static str,
+) {
+    let mut s = resolve_ref(schemas, prop);
+    // a nullable reference: `oneOf: [{type: null}, X]`
+    if let Some(alts) = s["oneOf"].as_array() {
+        let non_null: Vec<_> = alts.iter().filter(|a| a["type"] != "null").collect();
+        if non_null.len() == 1 && alts.len() == 2 {
+            s = resolve_ref(schemas, non_null[0]);
+        }
+    }
+    let mut index = "";
+    let is_array = s["type"] == "array"
+        || s["type"]
+            .as_array()
+            .is_some_and(|t| t.iter().any(|t| t == "array"));
+    if is_array {
+        s = resolve_ref(schemas, &s["items"]);
+        index = "[0]";
+    }
+    if s["additionalProperties"] == false && s["properties"].is_object() {
+        return (vec![(s, None)], index);
+    }
+    let mut out = Vec::new();
+    for alt in s["oneOf"].as_array().into_iter().flatten() {
+        let alt = resolve_ref(schemas, alt);
+        if alt["additionalProperties"] != false {
+            continue;
+        }
+        let tag = alt["properties"].as_object().and_then(|p| {
+            p.iter().find_map(|(k, v)| match v["enum"].as_array() {
+                Some(e)
+                    if e.len() == 1 && alt["required"].as_array()?.contains(&k.clone().into()) =>
+                {
+                    Some((k.clone(), e[0].clone()))
+                }
+                _ => None,
+            })
+        });
+        if tag.is_some() {
+            out.push((alt, tag));
+        }
+    }
+    (out, index)
 }
 
 fn resolve_ref<'a>(

@@ -498,7 +498,7 @@ async fn every_bad_registration_is_422_naming_the_field_and_stores_nothing() {
         "validation",
     )
     .await;
-    assert_eq!(p["errors"][0]["path"], "$.descriptor");
+    assert_eq!(p["errors"][0]["path"], "$.descriptor.fingers");
     assert_eq!(count(&app).await, before, "nothing stored");
 }
 
