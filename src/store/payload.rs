@@ -67,7 +67,7 @@ pub enum ExecutionPayload {
 }
 
 /// What a worker's control-barrier-function safety filter keeps the closed-loop law clear of
-/// (issue 18: [`crate::geometry::barrier`]): the plan's object on its support, its obstacles
+/// (issue 18, `geometry::barrier`): the plan's object on its support, its obstacles
 /// (robot base frame), and the filter's margins and gain.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
