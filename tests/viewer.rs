@@ -324,6 +324,20 @@ async fn open(c: &Client, url: &str) -> Result<Value, String> {
 }
 
 /// The canvas draws something besides the background (in both halves for a mapping).
+/// Opens the 3-D page of the execution `res` (an answer to `POST /v1/executions`) and checks
+/// that it draws.
+async fn open_execution(c: &Client, app: &TestApp, res: reqwest::Response) -> Result<(), String> {
+    if res.status() != 202 {
+        return Err(format!("execution refused: {}", res.text().await.unwrap()));
+    }
+    let id = res.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    open(c, &format!("{}/ui/view/executions/{id}", app.base_url)).await?;
+    assert_draws(c, false).await
+}
+
 async fn assert_draws(c: &Client, both_halves: bool) -> Result<(), String> {
     let s = js(c, SNAPSHOT).await?;
     let total = s["pixels"].as_f64().unwrap();
@@ -479,15 +493,7 @@ async fn visual_toggle(c: &Client, app: &TestApp) -> Result<(), String> {
                     "trajectory": {"joint_names": names, "points": [point(0.0), point(1.0)]}}),
         )
         .await;
-    if res.status() != 202 {
-        return Err(format!("execution refused: {}", res.text().await.unwrap()));
-    }
-    let id = res.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_owned();
-    open(c, &format!("{}/ui/view/executions/{id}", app.base_url)).await?;
-    assert_draws(c, false).await?;
+    open_execution(c, app, res).await?;
     let control = "const s = document.querySelector('.viewer-geometry'); \
                    return {value: s.value, disabled: s.disabled};";
     let state = js(c, control).await?;
@@ -569,15 +575,7 @@ async fn live_execution(c: &Client, app: &TestApp) -> Result<(), String> {
                                    "points": min_jerk(&home, &target, 6.0, 100.0)}}),
         )
         .await;
-    if res.status() != 202 {
-        return Err(format!("execution refused: {}", res.text().await.unwrap()));
-    }
-    let id = res.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_owned();
-    open(c, &format!("{}/ui/view/executions/{id}", app.base_url)).await?;
-    assert_draws(c, false).await?;
+    open_execution(c, app, res).await?;
     let live = |n: u64| async move {
         let deadline = Instant::now() + Duration::from_secs(20);
         loop {

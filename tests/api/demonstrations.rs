@@ -446,32 +446,23 @@ mod rejections {
         let res = app.post_json("/v1/demonstrations", &body).await;
         assert_rejected(&app, res, "$.glove.calibraton", &["unknown field"]).await;
 
+        // the same recording as a multipart upload with the given `meta`
+        let multipart = |meta: Value| {
+            let form = reqwest::multipart::Form::new()
+                .text("meta", meta.to_string())
+                .text("tracker", tracker_to_csv(&d.tracker))
+                .text("glove", glove_to_csv(&d.glove));
+            app.client
+                .post(app.url("/v1/demonstrations"))
+                .multipart(form)
+                .send()
+        };
         let meta = json!({"subject": d.subject, "object": d.object,
                           "labels": {"task": "grasp", "trail": 3}});
-        let form = reqwest::multipart::Form::new()
-            .text("meta", meta.to_string())
-            .text("tracker", tracker_to_csv(&d.tracker))
-            .text("glove", glove_to_csv(&d.glove));
-        let res = app
-            .client
-            .post(app.url("/v1/demonstrations"))
-            .multipart(form)
-            .send()
-            .await
-            .unwrap();
+        let res = multipart(meta).await.unwrap();
         assert_rejected(&app, res, "meta.labels.trail", &["unknown field `trail`"]).await;
         let meta = json!({"object": d.object, "labels": d.labels});
-        let form = reqwest::multipart::Form::new()
-            .text("meta", meta.to_string())
-            .text("tracker", tracker_to_csv(&d.tracker))
-            .text("glove", glove_to_csv(&d.glove));
-        let res = app
-            .client
-            .post(app.url("/v1/demonstrations"))
-            .multipart(form)
-            .send()
-            .await
-            .unwrap();
+        let res = multipart(meta).await.unwrap();
         assert_rejected(&app, res, "meta.subject", &["missing field `subject`"]).await;
 
         assert_eq!(upload(&app, &d).await.status(), 201);
