@@ -84,14 +84,10 @@ pub struct BarrierStep {
     pub active: usize,
     /// Smallest barrier `h_i` of the monitored pairs (m; `f64::INFINITY` with none near).
     pub min_barrier: f64,
-    /// The pair of `min_barrier` (index into [`CollisionChecker::pairs`]).
-    pub pair: Option<usize>,
     /// Smallest exact distance of the monitored pairs (m; `f64::INFINITY` with none near).
     pub min_distance: f64,
-    /// The pair of `min_distance`.
+    /// The pair of `min_distance` (index into [`CollisionChecker::pairs`]).
     pub closest: Option<usize>,
-    /// `‖u − u₀‖` (rad/s).
-    pub correction: f64,
 }
 
 /// The filter of one execution: a checker of the robot in its scene, the goal and each pair's
@@ -111,7 +107,6 @@ pub struct SafetyFilter {
     rhs: Vec<f64>,
     norms: Vec<f64>,
     duals: Vec<f64>,
-    nominal: Vec<f64>,
 }
 
 impl SafetyFilter {
@@ -149,17 +144,12 @@ impl SafetyFilter {
             rhs: vec![0.0; pairs],
             norms: vec![0.0; pairs],
             duals: vec![0.0; pairs],
-            nominal: vec![0.0; nq],
             checker,
         }
     }
 
     pub fn checker(&self) -> &CollisionChecker {
         &self.checker
-    }
-
-    pub fn options(&self) -> &BarrierOptions {
-        &self.opts
     }
 
     /// Replaces the command `u` (the law's, model order) at the measured `q` by the nearest
@@ -186,10 +176,7 @@ impl SafetyFilter {
             // on the table) may come as close as it is there, less a contact's tolerance.
             let target = if g < m { g - CONTACT_SLACK } else { m };
             let h = d.distance - target;
-            if h < step.min_barrier {
-                step.min_barrier = h;
-                step.pair = Some(i);
-            }
+            step.min_barrier = step.min_barrier.min(h);
             if d.distance < step.min_distance {
                 step.min_distance = d.distance;
                 step.closest = Some(i);
@@ -221,7 +208,6 @@ impl SafetyFilter {
         for x in u.iter_mut() {
             *x /= scale;
         }
-        self.nominal.copy_from_slice(u);
         if rows > 0 {
             step.active = project(
                 &self.rows[..rows * nq],
@@ -233,12 +219,6 @@ impl SafetyFilter {
                 self.opts.sweeps,
             );
         }
-        step.correction = u
-            .iter()
-            .zip(&self.nominal)
-            .map(|(a, b)| (a - b).powi(2))
-            .sum::<f64>()
-            .sqrt();
         step
     }
 }
