@@ -363,12 +363,18 @@ impl Hub {
                 Mode::OpenLoop => Capability::OpenLoop,
                 Mode::ClosedLoop => Capability::ClosedLoop,
             };
-            let Some(payload) = repo::payload(&self.0.db, &row.id).await? else {
-                continue;
-            };
             // A law with a scene runs only where the worker filters it (an unfiltered law
-            // could drive the arm into what the plan avoided).
-            let filtered = payload.safety().is_some();
+            // could drive the arm into what the plan avoided). Only a closed-loop payload can
+            // carry a scene, so only that one is read before a worker is picked; a queued
+            // trajectory's points are read once it has a worker.
+            let early = match row.mode {
+                Mode::ClosedLoop => match repo::payload(&self.0.db, &row.id).await? {
+                    Some(p) => Some(p),
+                    None => continue,
+                },
+                Mode::OpenLoop => None,
+            };
+            let filtered = early.as_ref().is_some_and(|p| p.safety().is_some());
             let compatible = |w: &Worker| {
                 w.snapshot.robot == row.robot
                     && w.snapshot.capabilities.contains(&cap)
@@ -435,6 +441,20 @@ impl Hub {
                 {
                     w.snapshot.execution_id = None;
                 }
+            };
+            let payload = match early {
+                Some(p) => p,
+                None => match repo::payload(&self.0.db, &row.id).await {
+                    Ok(Some(p)) => p,
+                    Ok(None) => {
+                        release(self);
+                        continue;
+                    }
+                    Err(e) => {
+                        release(self);
+                        return Err(e);
+                    }
+                },
             };
             if !repo::mark_running(&self.0.db, &row.id, &name).await? {
                 release(self); // cancelled meanwhile
