@@ -198,6 +198,10 @@ struct BridgeArgs {
     /// Largest displacement of a push per joint (rad).
     #[arg(long, default_value_t = 0.08)]
     perturb_magnitude: f64,
+    /// Largest distance (m) a push may carry any link frame once braked; a larger push is
+    /// scaled down. Applies to laws run with a scene (this worker then has the kinematics).
+    #[arg(long)]
+    perturb_max_displacement: Option<f64>,
     /// Seed of the kicks.
     #[arg(long, default_value_t = 7)]
     seed: u64,
@@ -615,6 +619,11 @@ fn bridge(args: BridgeArgs) -> anyhow::Result<()> {
         args.max_acceleration > 0.0 && args.max_acceleration.is_finite(),
         "--max-acceleration must be positive"
     );
+    anyhow::ensure!(
+        args.perturb_max_displacement
+            .is_none_or(|x| x > 0.0 && x.is_finite()),
+        "--perturb-max-displacement must be positive"
+    );
     let system = reachgrasp::store::library::resolve_for_cli(
         &args.sources.robots,
         &args.sources.db,
@@ -648,6 +657,7 @@ fn bridge(args: BridgeArgs) -> anyhow::Result<()> {
     opts.perturb = args.perturb.then_some(Perturbation {
         magnitude: args.perturb_magnitude,
         seed: args.seed,
+        max_displacement: args.perturb_max_displacement,
         ..Perturbation::default()
     });
     let runtime = tokio::runtime::Builder::new_current_thread()

@@ -17,6 +17,7 @@ use super::protocol::{Execute, ExecutionPayload, Feedback, Mode, Outcome, Safety
 use crate::geometry::SceneShape;
 use crate::geometry::barrier::SafetyFilter;
 use crate::grasp::{HandArm, Object, scene_checker};
+use crate::kinematics::{Data, Model, forward_kinematics};
 use crate::motion::{ControlParams, TrajectoryPoint};
 
 /// Default joint acceleration limit (rad/s²) where the system descriptor gives none (URDFs
@@ -131,9 +132,24 @@ impl SimRobot {
     /// displacement `D`). A push moves the arm through space rather than teleporting it, so a
     /// controller (and a safety filter) acts on the way.
     pub fn kick(&mut self, rng: &mut ChaCha8Rng, magnitude: f64) {
+        self.kick_scaled(rng, magnitude, |_, _| 1.0);
+    }
+
+    /// A push as [`kick`](Self::kick) whose drawn displacements `d` (rad per joint) are scaled
+    /// by `scale(q, d)` (clamped to [0, 1]) before they become velocities.
+    pub fn kick_scaled(
+        &mut self,
+        rng: &mut ChaCha8Rng,
+        magnitude: f64,
+        scale: impl FnOnce(&[f64], &[f64]) -> f64,
+    ) {
+        let d: Vec<f64> = (0..self.q.len())
+            .map(|_| rng.random_range(-magnitude..=magnitude))
+            .collect();
+        let s = scale(&self.q, &d).clamp(0.0, 1.0);
         let l = &self.limits;
-        for j in 0..self.q.len() {
-            let d: f64 = rng.random_range(-magnitude..=magnitude);
+        for (j, d) in d.iter().enumerate() {
+            let d = s * d;
             self.qd[j] += d.signum() * (2.0 * l.acceleration[j] * d.abs()).sqrt();
         }
     }
@@ -149,6 +165,12 @@ pub struct Perturbation {
     /// Most kicks per execution (the motion must be allowed to finish).
     pub max_kicks: u32,
     pub seed: u64,
+    /// Largest distance a push may carry any link frame of the robot once braked (m; a push
+    /// drawn larger is scaled down). A push an arm cannot stop within its safety margin is no
+    /// test of a controller; this bounds it in space rather than per joint, where a few
+    /// hundredths of a radian on every joint of a 1 m arm add up to several centimetres at the
+    /// fingertips. Needs the worker's kinematic model (a law with a scene); `None`: per joint.
+    pub max_displacement: Option<f64>,
 }
 
 impl Default for Perturbation {
@@ -158,6 +180,7 @@ impl Default for Perturbation {
             mean_interval: 0.4,
             max_kicks: 4,
             seed: 7,
+            max_displacement: None,
         }
     }
 }
@@ -200,6 +223,10 @@ enum Controller {
     Law {
         params: Box<ControlParams>,
         goal: Vec<f64>,
+        /// Goals the law runs to before `goal`, in turn (an approach's pre-grasp, then the arm
+        /// at the grasp with the hand open), and the one it runs to now (`stages.len()`: `goal`).
+        stages: Vec<Vec<f64>>,
+        stage: usize,
         initial_error: f64,
         /// The safety filter of a law with a scene.
         filter: Option<Box<SafetyFilter>>,
@@ -231,6 +258,36 @@ pub struct Run {
     pub progress: f64,
     perturb: Option<(Perturbation, ChaCha8Rng, u32)>,
     safety: Option<SafetyTrack>,
+}
+
+/// The largest distance any frame of `model` moves when the joints move from `q` by `d`.
+fn link_displacement(model: &Model, q: &[f64], d: &[f64]) -> f64 {
+    let mut data = Data::new(model);
+    forward_kinematics(model, &mut data, q);
+    let before = data.frames().to_vec();
+    let moved: Vec<f64> = q.iter().zip(d).map(|(q, d)| q + d).collect();
+    forward_kinematics(model, &mut data, &moved);
+    before
+        .iter()
+        .zip(data.frames())
+        .map(|(a, b)| (b.translation.vector - a.translation.vector).norm())
+        .fold(0.0, f64::max)
+}
+
+/// Largest joint deviation from an approach stage's goal at which the law moves on to the next
+/// stage (rad): close enough that the opened fingers are where the pre-grasp put them, loose
+/// enough that the law's slow final convergence is not waited for at every stage.
+const STAGE_TOLERANCE: f64 = 0.02;
+
+/// The approach stages of a law run to `goal` from `pre` (the pre-grasp): the pre-grasp
+/// itself, then the arm at the grasp with the hand as open as at the pre-grasp. The hand
+/// closes in the last stage, the run to `goal`.
+fn approach_stages(arm: &[usize], pre: &[f64], goal: &[f64]) -> Vec<Vec<f64>> {
+    let mut arm_in = pre.to_vec();
+    for &j in arm {
+        arm_in[j] = goal[j];
+    }
+    vec![pre.to_vec(), arm_in]
 }
 
 fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
@@ -323,6 +380,7 @@ impl Run {
                 if !goal.iter().all(|x| x.is_finite()) || !inside(goal) {
                     return Err("the goal is not finite or outside the joint limits".into());
                 }
+                let mut stages = Vec::new();
                 let filter = match safety {
                     None => None,
                     Some(spec) => {
@@ -345,6 +403,15 @@ impl Run {
                                     .into(),
                             );
                         }
+                        if let Some(pre) = &spec.pre_grasp {
+                            if pre.len() != n || !pre.iter().all(|x| x.is_finite()) || !inside(pre)
+                            {
+                                return Err(format!(
+                                    "the pre-grasp needs {n} finite values inside the joint limits"
+                                ));
+                            }
+                            stages = approach_stages(&sys.arm_joints, pre, goal);
+                        }
                         let object = spec
                             .object
                             .clone()
@@ -359,13 +426,25 @@ impl Run {
                             .collect::<Result<Vec<_>, _>>()
                             .map_err(|e| format!("the safety scene's obstacles: {e}"))?;
                         let checker = scene_checker(sys, object.as_ref(), &obstacles);
-                        Some(Box::new(SafetyFilter::new(checker, goal, &l.velocity, o)))
+                        let goals: Vec<&[f64]> = stages
+                            .iter()
+                            .map(Vec::as_slice)
+                            .chain([goal.as_slice()])
+                            .collect();
+                        Some(Box::new(SafetyFilter::staged(
+                            checker,
+                            &goals,
+                            &l.velocity,
+                            o,
+                        )))
                     }
                 };
                 Controller::Law {
                     params: Box::new(params.clone()),
                     initial_error: max_abs_diff(&robot.q, goal).max(1e-9),
                     goal: goal.clone(),
+                    stages,
+                    stage: 0,
                     filter,
                 }
             }
@@ -460,10 +539,20 @@ impl Run {
             Controller::Law {
                 params,
                 goal,
+                stages,
+                stage,
                 filter,
                 ..
             } => {
-                params.control(&robot.q, goal, &mut self.command);
+                // An approach stage ends where the law has brought the arm near its goal; the
+                // last one (the grasp) ends the run (below).
+                while *stage < stages.len()
+                    && max_abs_diff(&robot.q, &stages[*stage]) <= STAGE_TOLERANCE
+                {
+                    *stage += 1;
+                }
+                let target = stages.get(*stage).unwrap_or(goal);
+                params.control(&robot.q, target, &mut self.command);
                 if let Some(f) = filter {
                     let step = f.filter(&robot.q, &mut self.command);
                     let track = self.safety.get_or_insert(SafetyTrack {
@@ -485,7 +574,8 @@ impl Run {
                         track.time = self.t;
                     }
                 }
-                self.reference.clone_from(goal);
+                self.reference
+                    .clone_from(stages.get(*stage).unwrap_or(goal));
             }
         }
         robot.step(&self.command, dt);
@@ -495,7 +585,21 @@ impl Run {
             && self.progress < 0.9
             && rng.random_range(0.0..1.0) < dt / p.mean_interval
         {
-            robot.kick(rng, p.magnitude);
+            match (p.max_displacement, &self.controller) {
+                (
+                    Some(max),
+                    Controller::Law {
+                        filter: Some(f), ..
+                    },
+                ) => {
+                    let model = f.checker().robot().model();
+                    robot.kick_scaled(rng, p.magnitude, |q, d| {
+                        let moved = link_displacement(model, q, d);
+                        if moved > max { max / moved } else { 1.0 }
+                    });
+                }
+                _ => robot.kick(rng, p.magnitude),
+            }
             *kicks += 1;
         }
         self.tracking_error = max_abs_diff(&robot.q, &self.reference);
@@ -799,6 +903,54 @@ mod safety_tests {
             assert!(
                 post_d > 0.0 && any > -1e-3,
                 "seed {seed}: {post_d} m from the post, {any} m overall"
+            );
+        }
+    }
+
+    /// A push bounded in space: braked by the servo (zero command at the acceleration limit),
+    /// no link frame ends farther than the bound from where it was, judged by forward
+    /// kinematics of the start and the end state; the same push unbounded carries one farther.
+    #[test]
+    fn a_bounded_push_moves_no_link_frame_farther_than_its_bound() {
+        let sys = wam_ihy();
+        let m = &*sys.model;
+        let n = m.nq();
+        let lim = SimLimits::new(m.lower_limits(), m.upper_limits(), m.velocity_limits(), 4.0);
+        let mut q0 = vec![0.0; n];
+        q0[..7].copy_from_slice(&[0.3, 0.5, 0.0, 1.8, 0.0, 0.4, 0.0]);
+        let frames = |q: &[f64]| {
+            let mut data = Data::new(m);
+            forward_kinematics(m, &mut data, q);
+            data.frames().to_vec()
+        };
+        let before = frames(&q0);
+        let moved = |bound: Option<f64>, seed: u64| {
+            let mut robot = SimRobot::new(lim.clone(), q0.clone());
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            match bound {
+                Some(max) => robot.kick_scaled(&mut rng, 0.05, |q, d| {
+                    max / link_displacement(m, q, d).max(max)
+                }),
+                None => robot.kick(&mut rng, 0.05),
+            }
+            for _ in 0..1000 {
+                robot.hold(0.001);
+            }
+            assert!(robot.qd.iter().all(|v| v.abs() < 1e-9), "stopped");
+            before
+                .iter()
+                .zip(frames(&robot.q))
+                .map(|(a, b)| (b.translation.vector - a.translation.vector).norm())
+                .fold(0.0, f64::max)
+        };
+        for seed in 1..=5 {
+            let free = moved(None, seed);
+            let bounded = moved(Some(0.01), seed);
+            assert!(free > 0.02, "seed {seed}: an unbounded push moved {free} m");
+            // (braking integrated in 1 ms steps overshoots v²/2a by about v·dt/2 per joint)
+            assert!(
+                bounded < 0.0105,
+                "seed {seed}: a bounded push moved {bounded} m"
             );
         }
     }

@@ -357,11 +357,22 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
                 body.obstacles.clone(),
             )
         });
+        let law_scene = closed_loop.then(|| (scene.sys.clone(), scene.object.clone()));
         match super::trajectories::compute(ctx, &request, Some(scene), !closed_loop).await {
             // A motion that collides is kept with the plan for inspection, but the plan is
             // infeasible and nothing is queued.
             Ok((t, clearance)) => {
                 reason = clearance.as_ref().and_then(collision_reason);
+                if let (Some(spec), Some((sys, Some(object)))) = (safety.as_mut(), law_scene) {
+                    spec.pre_grasp = law_pre_grasp(
+                        sys,
+                        object,
+                        obstacles.clone(),
+                        t.goal.clone(),
+                        body.approach_standoff,
+                    )
+                    .await?;
+                }
                 trajectory = Some(t);
             }
             // The grasp is the goal: a goal the model cannot certify (outside its goal region
@@ -578,6 +589,31 @@ pub enum Write {
     Grasp,
     Trajectory,
     Execution,
+}
+
+/// The pre-grasp a closed-loop law runs to first (the palm backed off by the requested standoff,
+/// or the default one, with the hand opened; see [`SafetySpec::pre_grasp`]), or none where no
+/// clear one is found: the law then runs straight to the grasp, as without an approach.
+async fn law_pre_grasp(
+    sys: std::sync::Arc<crate::grasp::HandArm>,
+    object: crate::grasp::Object,
+    obstacles: Vec<crate::geometry::SceneShape>,
+    goal: Vec<f64>,
+    standoff: Option<f64>,
+) -> Result<Option<Vec<f64>>, Error> {
+    let opts = crate::grasp::ApproachOptions {
+        standoff: standoff
+            .filter(|s| *s > 0.0)
+            .unwrap_or(crate::grasp::approach::DEFAULT_STANDOFF),
+        ..Default::default()
+    };
+    tokio::task::spawn_blocking(move || {
+        crate::grasp::pre_grasp(&sys, Some(&object), &obstacles, &goal, &opts)
+            .ok()
+            .map(|p| p.q)
+    })
+    .await
+    .map_err(Error::internal)
 }
 
 /// The one execution payload builder: a stored trajectory to follow (open loop), or the

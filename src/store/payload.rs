@@ -86,6 +86,13 @@ pub struct SafetySpec {
     pub rate: f64,
     /// Deceleration the approach to a barrier is limited to farther out, m/s².
     pub braking_m_s2: f64,
+    /// The grasp's pre-grasp (joint values in the model's order: the palm backed off along the
+    /// approach direction, the hand opened). With it the worker runs the law in three stages,
+    /// as the open-loop trajectory's approach phase moves: to the pre-grasp, then the arm to
+    /// the grasp with the hand still open, then the hand closes. The law's own flow closes the
+    /// hand while the arm is still on its way, through the object.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pre_grasp: Option<Vec<f64>>,
 }
 
 impl SafetySpec {
@@ -102,6 +109,7 @@ impl SafetySpec {
             self_margin_m: o.self_margin,
             rate: o.rate,
             braking_m_s2: o.braking,
+            pre_grasp: None,
         }
     }
 

@@ -500,6 +500,7 @@ async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
         mean_interval: 0.3,
         max_kicks: 4,
         seed: 11,
+        max_displacement: None,
     });
     let mut w = Worker::start(opts);
     w.until(10, |e| *e == WorkerEvent::Connected).await;
@@ -1447,7 +1448,8 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     use reachgrasp::bridge::protocol::Outcome;
     use reachgrasp::geometry::{Category, PathOptions, Polyline};
     use reachgrasp::grasp::{
-        CLOSING_PRESS, HandArm, Object, ObjectSpec, closing_contacts, scene_checker,
+        ApproachOptions, CLOSING_PRESS, HandArm, Object, ObjectSpec, closing_contacts, pre_grasp,
+        scene_checker,
     };
     use reachgrasp::motion::ControlParams;
     use reachgrasp::store::payload::SafetySpec;
@@ -1509,9 +1511,10 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     // the plain law knows nothing of the scene: its flow cuts through the table
     assert!(rest_plain < -0.01, "the plain law's path: {rest_plain} m");
     let safety = SafetySpec::new(Some(ball_spec.clone()), vec![]);
-    // Filtered, the same law keeps out of the table and the ball. It does not arrive: where
-    // its flow closes a finger into the ball, the filter holds the finger and the arm stops
-    // short of the grasp (a boundary equilibrium; the worker's timeout ends the run).
+    // Filtered, the same law keeps out of the table and the ball. Run straight to the grasp it
+    // does not arrive (measured: 0.1 rad short): where its flow closes a finger into the ball,
+    // the filter holds the finger and the arm stops (a boundary equilibrium; the worker's
+    // timeout ends the run).
     let (outcome, path, report) = run_law(&payload(Some(safety.clone())), &q0, None, &sys);
     let (rest, pads) = check(&path);
     let report = report.unwrap();
@@ -1528,13 +1531,50 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
         "{rest} m from the table, the ball and its own links, the pads {pads} m into the ball"
     );
     assert!(report.filtered_periods > 0);
-    // End to end: a closed-loop plan queues the law with its scene; a worker that announces
-    // the filter runs it and the execution record carries the filter's report.
+
+    // Run in the approach's stages (the pre-grasp at the service's default standoff, then the
+    // arm in with the hand open, then the closing), the law arrives, with random pushes on the
+    // way, from the worker's home (every joint 0, the README quickstart's start) and from a
+    // bent-elbow ready pose, both with the hand open. A push is a velocity impulse of up to
+    // 0.05 rad per joint, scaled down where it would carry a link frame more than 10 mm once
+    // braked (half the filter's margin).
+    let pre = pre_grasp(&sys, Some(&object), &[], &goal, &ApproachOptions::default()).unwrap();
+    let mut staged = safety.clone();
+    staged.pre_grasp = Some(pre.q.clone());
+    let home = vec![0.0; n];
+    let mut ready = home.clone();
+    ready[..7].copy_from_slice(&[0.0, 0.5, 0.0, 2.0, 0.0, 0.3, 0.0]);
+    let mut worst = f64::INFINITY;
+    for (name, q_start) in [("home", &home), ("ready", &ready)] {
+        for seed in 1..=10 {
+            let perturb = Perturbation {
+                magnitude: 0.05,
+                seed,
+                max_displacement: Some(0.01),
+                ..Perturbation::default()
+            };
+            let (outcome, path, _) =
+                run_law(&payload(Some(staged.clone())), q_start, Some(perturb), &sys);
+            let (rest, pads) = check(&path);
+            assert_eq!(outcome, Outcome::Succeeded, "{name} seed {seed}");
+            assert!(
+                rest > -1e-3 && pads > -CLOSING_PRESS,
+                "{name} seed {seed}: {rest} m from the table, the ball and its own links, \
+                 the pads {pads} m into the ball"
+            );
+            worst = worst.min(rest);
+        }
+    }
+    println!("staged and pushed: 20 of 20 arrived, closest {worst:.4} m");
+
+    // End to end: a closed-loop plan queues the law with its scene and pre-grasp; a worker that
+    // announces the filter runs it from its home to the grasp, and the execution record
+    // carries the filter's report.
     let mut opts = app.worker("sim-safe");
-    opts.initial = Some(q0.clone());
+    opts.initial = Some(home.clone());
     let mut w = Worker::start(opts);
     w.until(10, |e| *e == WorkerEvent::Connected).await;
-    let mut body = ball(&start);
+    let mut body = ball(&json!("current"));
     body["execute"] = json!(true);
     body["mode"] = json!("closed_loop");
     let res = app.post("/v1/plans", &body).await;
@@ -1546,6 +1586,7 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
             e["state"] != "queued" && e["state"] != "running"
         })
         .await;
+    assert_eq!(done["state"], "succeeded", "{done}");
     let report = &done["tracking"]["safety"];
     assert!(report["periods"].as_u64().unwrap() > 10, "{done}");
     assert!(report["filtered_periods"].as_u64().unwrap() > 0, "{done}");
