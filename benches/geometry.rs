@@ -7,7 +7,9 @@
 //!
 //! Before criterion runs, a report prints per system the shape and pair counts, the median
 //! posture-check time over 2,000 random postures and the exact queries per check, and for the
-//! path check its steps, exact queries and time.
+//! path check its steps, exact queries and time. A second report times the closed-loop safety
+//! filter (`geometry::barrier`) per control period along that reach driven by a proportional
+//! law, at the default influence and at the former 0.3 m.
 
 use std::hint::black_box;
 use std::path::Path;
@@ -17,6 +19,7 @@ use std::time::Instant;
 use criterion::{Criterion, criterion_group};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use reachgrasp::geometry::barrier::{BarrierOptions, SafetyFilter};
 use reachgrasp::geometry::{
     CollisionChecker, ObstacleSpec, PathOptions, Plane, Polyline, RobotGeometry, Scene, SceneShape,
     ShapeSpec,
@@ -140,6 +143,57 @@ fn report() {
     }
 }
 
+/// The safety filter's cost per control period (100 Hz) on the reach of [`reach`] run by the
+/// law `u = 1.5 (q_d − q)` for 3 s: median, p99 and largest time of one `filter` call, and the
+/// constraints it set up per period.
+fn filter_report() {
+    println!();
+    println!(
+        "| system | influence (m) | filter median (µs) | p99 (µs) | max (µs) | constraints / period | periods filtered |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for name in SYSTEMS {
+        let sys = system(name);
+        let m = &sys.model;
+        let n = m.nq();
+        let points = reach(&sys);
+        let (start, goal) = (&points[..n], &points[points.len() - n..]);
+        for influence in [BarrierOptions::default().influence, 0.3] {
+            let checker =
+                CollisionChecker::new(Arc::new(RobotGeometry::from_system(&sys)), scene());
+            let opts = BarrierOptions {
+                influence,
+                ..BarrierOptions::default()
+            };
+            let mut f = SafetyFilter::new(checker, goal, m.velocity_limits(), opts);
+            let mut q = start.to_vec();
+            let mut u = vec![0.0; n];
+            let (mut times, mut constraints, mut filtered) = (Vec::with_capacity(300), 0, 0);
+            for _ in 0..300 {
+                for j in 0..n {
+                    u[j] = 1.5 * (goal[j] - q[j]);
+                }
+                let t = Instant::now();
+                let step = black_box(f.filter(&q, &mut u));
+                times.push(t.elapsed().as_secs_f64());
+                constraints += step.constraints;
+                filtered += usize::from(step.active > 0);
+                for j in 0..n {
+                    q[j] = (q[j] + 0.01 * u[j]).clamp(m.lower_limits()[j], m.upper_limits()[j]);
+                }
+            }
+            times.sort_by(f64::total_cmp);
+            println!(
+                "| {name} | {influence} | {:.0} | {:.0} | {:.0} | {:.1} | {filtered} / 300 |",
+                1e6 * times[times.len() / 2],
+                1e6 * times[times.len() * 99 / 100],
+                1e6 * times[times.len() - 1],
+                constraints as f64 / 300.0,
+            );
+        }
+    }
+}
+
 fn posture(c: &mut Criterion) {
     let mut g = c.benchmark_group("geometry posture check");
     for name in ["wam_t42", "pa10_ob4f"] {
@@ -185,6 +239,7 @@ criterion_group!(benches, posture, path);
 
 fn main() {
     report();
+    filter_report();
     benches();
     Criterion::default().configure_from_args().final_summary();
 }
