@@ -58,6 +58,7 @@ pub enum ShapeSpec {
 pub struct SupportPlane {
     /// Unit normal pointing to the free half-space.
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub normal: [f64; 3],
     /// Plane offset along the normal.
     pub offset: f64,

@@ -195,8 +195,10 @@ impl ObjectShape {
 #[schema(as = DemoPose)]
 pub struct Pose {
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub position: [f64; 3],
     #[schema(min_items = 4, max_items = 4)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub orientation: [f64; 4],
 }
 

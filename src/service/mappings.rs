@@ -92,8 +92,10 @@ pub enum ScaleIn {
 #[serde(deny_unknown_fields)]
 pub struct TransformIn {
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub position: [f64; 3],
     #[schema(min_items = 4, max_items = 4)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub orientation: [f64; 4],
 }
 
@@ -109,14 +111,17 @@ pub struct RegistrationIn {
     pub scale: Option<ScaleIn>,
     /// Robot-frame position of the object's centre (every demonstration of the mapping), m.
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub placement: Option<[f64; 3]>,
     /// Scale of the fingertips relative to the wrist, > 0 (default 1: the subject's hand).
     pub hand_scale: Option<f64>,
     /// The subject's forward axis in the tracker frame (default `[1, 0, 0]`).
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub subject_forward: Option<[f64; 3]>,
     /// The subject's up axis in the tracker frame (default `[0, 0, 1]`).
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub subject_up: Option<[f64; 3]>,
     pub transform: Option<TransformIn>,
 }

@@ -156,3 +156,127 @@ async fn a_bad_mesh_triangle_is_named_in_the_shape_it_came_in() {
     .await;
     assert_eq!(path, "$.mesh");
 }
+
+/// POSTs `body` and expects the single field error `(path, message)` exactly.
+async fn assert_field(app: &TestApp, route: &str, body: Value, path: &str, message: &str) {
+    let got = field_error(app, route, &body).await;
+    assert_eq!(
+        (got.0.as_str(), got.1.as_str()),
+        (path, message),
+        "{route}: {body}"
+    );
+}
+
+/// Objects stored by requests (the seeded ones are always listed).
+async fn stored_objects(app: &TestApp) -> usize {
+    let list: Value = app.get("/v1/objects").await.json().await.unwrap();
+    let items = list.as_array().expect("a list of objects");
+    items.iter().filter(|o| o["seeded"] != true).count()
+}
+
+fn ball(position: Value) -> Value {
+    json!({"name": "b", "shape": {"type": "sphere", "radius": 0.03}, "position": position})
+}
+
+/// A fixed-size array with too many items was left to the JSON reader, whose "trailing
+/// characters" came back as a 400 malformed-JSON; it is a 422 at the array.
+#[tokio::test]
+async fn an_overlong_fixed_size_array_is_named_with_its_item_count() {
+    let app = spawn_app().await;
+    assert_field(
+        &app,
+        "/v1/objects",
+        ball(json!([0.5, 0.0, 0.1, 9.0])),
+        "$.position",
+        "expected 3 items, got 4",
+    )
+    .await;
+    let mut tilted = ball(json!([0.5, 0.0, 0.1]));
+    tilted["orientation"] = json!([1.0, 0.0, 0.0, 0.0, 0.0]);
+    assert_field(
+        &app,
+        "/v1/objects",
+        tilted,
+        "$.orientation",
+        "expected 4 items, got 5",
+    )
+    .await;
+    let mut supported = ball(json!([0.5, 0.0, 0.1]));
+    supported["support"] = json!({"normal": [0.0, 0.0, 1.0, 0.0], "offset": 0.0});
+    assert_field(
+        &app,
+        "/v1/objects",
+        supported,
+        "$.support.normal",
+        "expected 3 items, got 4",
+    )
+    .await;
+    // Short arrays say the same.
+    assert_field(
+        &app,
+        "/v1/objects",
+        ball(json!([0.5, 0.0])),
+        "$.position",
+        "expected 3 items, got 2",
+    )
+    .await;
+    assert_eq!(stored_objects(&app).await, 0);
+
+    assert_field(
+        &app,
+        "/v1/plans",
+        json!({"robot": "wam_ihy", "object_id": "ball", "start": start(),
+               "obstacles": [{"name": "post", "shape": {"type": "sphere", "radius": 0.1},
+                              "position": [0.4, 0.2, 0.3, 0.0]}]}),
+        "$.obstacles[0].position",
+        "expected 3 items, got 4",
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/plans",
+        json!({"robot": "wam_ihy", "object_id": "ball", "start": start(),
+               "elbow_reference": [0.1, 0.2, 0.3, 0.4]}),
+        "$.elbow_reference",
+        "expected 3 items, got 4",
+    )
+    .await;
+    assert_eq!(app.total("/v1/plans").await, 0);
+    assert_field(
+        &app,
+        "/v1/grasps",
+        json!({"robot": "wam_ihy", "object_id": "ball",
+               "task_directions": [{"direction": [0, 0, 1, 0], "kind": "velocity", "goal": "maximize"}]}),
+        "$.task_directions[0].direction",
+        "expected 3 items, got 4",
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/mappings",
+        json!({"robot": "wam_ihy", "demonstrations": ["d"],
+               "registration": {"transform": {"position": [0, 0, 0], "orientation": [1, 0, 0, 0, 0]}}}),
+        "$.registration.transform.orientation",
+        "expected 4 items, got 5",
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/robots/wam_ihy/ik",
+        json!({"position": [0.5, 0.0, 0.3, 1.0]}),
+        "$.position",
+        "expected 3 items, got 4",
+    )
+    .await;
+    // A spread pair `[a, b]` with a third name.
+    assert_field(
+        &app,
+        "/v1/robots",
+        json!({"urdf": "<robot/>", "descriptor": {"name": "x", "spread_pairs": [["a", "b", "c"]]}}),
+        "$.descriptor.spread_pairs[0]",
+        "expected 2 items, got 3",
+    )
+    .await;
+    let jobs: Value = app.get("/v1/jobs").await.json().await.unwrap();
+    assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
+}
