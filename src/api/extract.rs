@@ -44,55 +44,36 @@ fn path_error<'a>(e: &'a (dyn std::error::Error + 'static)) -> Option<&'a PathEr
     None
 }
 
-/// `serde_path_to_error` path as JSONPath: `$`, `$.a.b[2]`.
-fn json_path(path: &serde_path_to_error::Path) -> String {
-    use serde_path_to_error::Segment;
-    let mut out = String::from("$");
-    for seg in path.iter() {
-        match seg {
-            Segment::Seq { index } => out.push_str(&format!("[{index}]")),
-            Segment::Map { key } => {
-                let simple =
-                    !key.is_empty() && key.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
-                if simple {
-                    out.push('.');
-                    out.push_str(key);
-                } else {
-                    out.push_str(&format!("[{key:?}]"));
-                }
-            }
-            Segment::Enum { variant } => {
-                out.push('.');
-                out.push_str(variant);
-            }
-            Segment::Unknown => out.push_str(".?"),
-        }
-    }
-    out
-}
-
 /// The offending field and message of a serde error, naming a missing field itself rather than
 /// its parent object.
 fn field_error(e: &PathError) -> FieldError {
-    let mut path = json_path(e.path());
+    let (path, message) = locate(e);
+    FieldError::new(path, message)
+}
+
+/// The JSONPath (`$`, `$.a.b[2]`) and message of a serde error: below a tagged enum (whose
+/// message carries the rest of the path, `crate::wire::tagged`), at a missing or unknown field
+/// itself rather than its parent object.
+pub(crate) fn locate(e: &PathError) -> (String, String) {
+    let mut path = format!("${}", crate::wire::path_suffix(e.path()));
     let inner = e.inner();
     // serde_json appends " at line L column C"; the path says where, so keep just the message.
     let full = inner.to_string();
-    let message = match full.rfind(" at line ") {
+    let mut message = match full.rfind(" at line ") {
         Some(i) if inner.line() > 0 => full[..i].to_owned(),
         _ => full,
     };
+    if let Some((below, rest)) = crate::wire::split_inner_path(&message) {
+        path.push_str(below);
+        message = rest.to_owned();
+    }
     if let Some(rest) = message.strip_prefix("missing field `")
         && let Some(name) = rest.strip_suffix('`')
     {
-        path = if path == "$" {
-            format!("$.{name}")
-        } else {
-            format!("{path}.{name}")
-        };
+        path.push_str(&crate::wire::key_segment(name));
     }
     path = with_unknown_field(path, &message);
-    FieldError::new(path, message)
+    (path, message)
 }
 
 /// The path of an unknown field, also inside an internally tagged enum: serde buffers such an
@@ -105,12 +86,7 @@ pub(crate) fn with_unknown_field(path: String, message: &str) -> String {
     else {
         return path;
     };
-    let simple = !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
-    let segment = if simple {
-        format!(".{name}")
-    } else {
-        format!("[{name:?}]")
-    };
+    let segment = crate::wire::key_segment(name);
     if path.ends_with(&segment) {
         path
     } else {

@@ -486,3 +486,30 @@ mod rejections {
         assert_rejected(&app, res, "glove", &["missing"]).await;
     }
 }
+
+/// The object's shape is a tagged enum, read from a buffer where its errors lost their path
+/// (`$.object.shape`); its pose holds fixed-size arrays, whose extra items were a 400.
+#[tokio::test]
+async fn a_bad_object_field_is_named_in_an_upload() {
+    let app = spawn_app().await;
+    let mut body = serde_json::to_value(sample("obj")).unwrap();
+    body["object"]["shape"] = json!({"type": "cylinder", "radius": 0.03, "height": "tall"});
+    let res = app.post_json("/v1/demonstrations", &body).await;
+    assert_rejected(
+        &app,
+        res,
+        "$.object.shape.height",
+        &["invalid type: string \"tall\", expected f64"],
+    )
+    .await;
+    let mut body = serde_json::to_value(sample("obj")).unwrap();
+    body["object"]["pose"]["position"] = json!([0.1, 0.2, 0.3, 0.4]);
+    let res = app.post_json("/v1/demonstrations", &body).await;
+    assert_rejected(
+        &app,
+        res,
+        "$.object.pose.position",
+        &["expected 3 items, got 4"],
+    )
+    .await;
+}
