@@ -411,3 +411,47 @@ async fn a_bad_selection_or_scale_of_a_mapping_names_the_field_inside() {
     let jobs: Value = app.get("/v1/jobs").await.json().await.unwrap();
     assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
 }
+
+/// A plain enum given a number was serde_json's syntax error "expected value": a 400
+/// malformed-JSON for a well-formed body.
+#[tokio::test]
+async fn a_number_for_a_named_choice_is_a_422_at_the_field() {
+    let app = spawn_app().await;
+    let message = "invalid type: integer `5`, expected string or map";
+    assert_field(
+        &app,
+        "/v1/grasps",
+        json!({"robot": "wam_ihy", "object_id": "ball", "quality": 5}),
+        "$.quality",
+        message,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/plans",
+        json!({"robot": "wam_ihy", "object_id": "ball", "start": start(), "mode": 5}),
+        "$.mode",
+        message,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/demonstrations/synthetic",
+        json!({"objects": ["ball", 5]}),
+        "$.objects[1]",
+        message,
+    )
+    .await;
+    // A body that is not JSON at all stays a 400.
+    let res = app
+        .client
+        .post(app.url("/v1/grasps"))
+        .header("content-type", "application/json")
+        .body(r#"{"robot": "wam_ihy", "object_id": "ball"} trailing"#)
+        .send()
+        .await
+        .unwrap();
+    assert_problem(res, 400, "malformed-json").await;
+    let jobs: Value = app.get("/v1/jobs").await.json().await.unwrap();
+    assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
+}
