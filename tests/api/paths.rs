@@ -455,3 +455,21 @@ async fn a_number_for_a_named_choice_is_a_422_at_the_field() {
     let jobs: Value = app.get("/v1/jobs").await.json().await.unwrap();
     assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
 }
+
+/// A study count out of range spoke of "the plausible adult range".
+#[tokio::test]
+async fn a_study_count_out_of_range_is_not_an_adult_measurement() {
+    let app = spawn_app().await;
+    let (path, message) = field_error(
+        &app,
+        "/v1/demonstrations/synthetic",
+        &json!({"subjects": 0}),
+    )
+    .await;
+    assert_eq!(path, "$.subjects");
+    assert!(
+        message.contains("outside the range a study allows"),
+        "{message}"
+    );
+    assert!(!message.contains("adult"), "{message}");
+}
