@@ -88,23 +88,7 @@ def _errors(response):
     return errors if isinstance(errors, list) and errors else None
 
 
-def _integral_float(value):
-    return isinstance(value, float) and value.is_integer()
-
-
 def _tolerated(case, response):
-    # The demonstration filter's integer `position` written as N.0 inside the untagged
-    # `demonstrations` (ids or filter): serde reports the whole enum (see "integer written as
-    # N.0" above).
-    if (
-        response.status_code == 422
-        and isinstance(case.body, dict)
-        and isinstance(case.body.get("demonstrations"), dict)
-        and _integral_float(case.body["demonstrations"].get("position"))
-        and b"did not match any variant of untagged enum SelectionIn" in response.content
-    ):
-        return True
-
     # A multipart upload whose generated part names are not the documented parts (schemathesis
     # invents extra parts with control characters in their names): the multipart parser
     # refuses the header, which is a malformed request, not a schema-valid one.

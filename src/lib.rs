@@ -3,7 +3,7 @@
 //!
 //! Pure computation (no I/O, no async, deterministic for a seed): [`kinematics`], [`geometry`], [`human`],
 //! [`mapping`], [`motion`], [`grasp`], [`optim`], [`figures`], and their one parallel map,
-//! [`parallel`]. The service shell around them, in
+//! [`parallel`], and [`wire`], the request-body deserialisation that keeps field paths. The service shell around them, in
 //! layers (see [`service`] for the order and the test that keeps it): [`store`] and
 //! [`shutdown`]; [`jobs`] and [`bridge`]; the use cases in [`service`] with the typed
 //! [`config`]; the edges [`api`], [`dashboard`] and the CLI, wired together by [`app`]. Equation numbers refer to
@@ -28,3 +28,4 @@ pub mod seed;
 pub mod service;
 pub mod shutdown;
 pub mod store;
+pub mod wire;

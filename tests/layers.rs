@@ -20,6 +20,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "optim",
             "figures",
             "parallel",
+            "wire",
         ],
     ),
     ("store", &["store", "shutdown"]),

@@ -408,7 +408,8 @@ fn demonstration_streams(schemas: &mut serde_json::Map<String, Value>) {
 /// combined `urdf` with a `descriptor.wrist_frame` (422 "give either arm_urdf and hand_urdf,
 /// or urdf", "required when the hand is a separate URDF", "required for a combined URDF").
 fn robot_sources(schemas: &mut serde_json::Map<String, Value>) {
-    // Spread pairs are `[a, b]` (a longer array is a 400 "trailing characters").
+    // Spread pairs are `[a, b]` (any other length is a 422 "expected 2 items, got 3" at the
+    // pair, `crate::wire::exact`).
     for (schema, pointer) in [
         ("SystemDescriptor", "/properties/spread_pairs/items"),
         ("RobotDetail", "/properties/spread_pairs/items"),

@@ -107,38 +107,20 @@ pub struct FormMeta {
 fn read_meta(text: &str) -> Result<FormMeta, ApiError> {
     let mut de = serde_json::Deserializer::from_str(text);
     let meta: FormMeta = serde_path_to_error::deserialize(&mut de).map_err(|e| {
-        let path = match e.path().to_string() {
-            p if p == "." => "meta".to_owned(),
-            p => format!("meta.{p}"),
-        };
-        let inner = e.into_inner();
-        if inner.is_syntax() || inner.is_eof() {
-            return ApiError::invalid_field(path, format!("invalid JSON: {inner}"));
+        if e.inner().is_syntax() || e.inner().is_eof() {
+            let path = match e.path().to_string() {
+                p if p == "." => "meta".to_owned(),
+                p => format!("meta.{p}"),
+            };
+            return ApiError::invalid_field(path, format!("invalid JSON: {}", e.inner()));
         }
-        let message = strip_position(&inner);
-        // A missing field is named itself, not its parent object.
-        let path = match message
-            .strip_prefix("missing field `")
-            .and_then(|rest| rest.strip_suffix('`'))
-        {
-            Some(name) => format!("{path}.{name}"),
-            None => path,
-        };
-        let path = super::extract::with_unknown_field(path, &message);
-        ApiError::invalid_field(path, message)
+        // The part's own fields below `meta`, as a JSON body's below `$`.
+        let (path, message) = super::extract::locate(&e);
+        ApiError::invalid_field(format!("meta{}", &path[1..]), message)
     })?;
     de.end()
         .map_err(|e| ApiError::invalid_field("meta", format!("invalid JSON: {e}")))?;
     Ok(meta)
-}
-
-/// serde_json's message without " at line L column C" (the path says where).
-fn strip_position(e: &serde_json::Error) -> String {
-    let full = e.to_string();
-    match full.rfind(" at line ") {
-        Some(i) if e.line() > 0 => full[..i].to_owned(),
-        _ => full,
-    }
 }
 
 /// Key figures of an ingested demonstration.

@@ -1,18 +1,66 @@
 //! Extractors whose rejections are [`ApiError`]s (problem+json), replacing axum's plain-text
 //! ones. Handlers use these instead of `axum::Json`, `axum::extract::{Path, Query}`.
 
+use axum::body::Bytes;
 use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
-use axum::extract::{FromRequest, FromRequestParts};
+use axum::extract::{FromRequest, FromRequestParts, Request};
+use axum::http::{HeaderMap, header};
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
+use serde::de::DeserializeOwned;
 
 use super::error::{ApiError, FieldError};
 
 /// JSON body (request) or JSON response; malformed input becomes problem+json with the JSONPath
 /// of the offending field.
-#[derive(Debug, Clone, Copy, Default, FromRequest)]
-#[from_request(via(axum::Json), rejection(ApiError))]
+#[derive(Debug, Clone, Copy, Default)]
 pub struct Json<T>(pub T);
+
+impl<T: DeserializeOwned, S: Send + Sync> FromRequest<S> for Json<T> {
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, state: &S) -> Result<Self, ApiError> {
+        if !json_content_type(req.headers()) {
+            return Err(missing_json_content_type());
+        }
+        let bytes = Bytes::from_request(req, state)
+            .await
+            .map_err(|e| ApiError::from(JsonRejection::from(e)))?;
+        match axum::Json::<T>::from_bytes(&bytes) {
+            Ok(axum::Json(value)) => Ok(Json(value)),
+            Err(JsonRejection::JsonSyntaxError(e)) => Err(shape_error::<T>(&bytes)
+                .unwrap_or_else(|| JsonRejection::JsonSyntaxError(e).into())),
+            Err(rejection) => Err(rejection.into()),
+        }
+    }
+}
+
+/// What axum's own `Json` accepts: `application/json` or `application/*+json`, any parameters.
+fn json_content_type(headers: &HeaderMap) -> bool {
+    headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<mime::Mime>().ok())
+        .is_some_and(|m| {
+            m.type_() == "application"
+                && (m.subtype() == "json" || m.suffix().is_some_and(|s| s == "json"))
+        })
+}
+
+fn missing_json_content_type() -> ApiError {
+    ApiError::unsupported_media_type("expected a body with `Content-Type: application/json`")
+}
+
+/// The 422 of a body that is valid JSON but which the JSON reader refused as a syntax error
+/// while reading it as `T`: a wrong type for a plain enum (serde_json's "expected value") or
+/// an array longer than a fixed size ("trailing characters") are its own syntax errors, though
+/// the request is well-formed. Read from a parsed `Value`, the same mistakes are data errors
+/// at their field's path. `None` when the body is not valid JSON after all.
+fn shape_error<T: DeserializeOwned>(bytes: &[u8]) -> Option<ApiError> {
+    let value: serde_json::Value = serde_json::from_slice(bytes).ok()?;
+    let e = serde_path_to_error::deserialize::<_, T>(value).err()?;
+    Some(ApiError::validation(vec![field_error(&e)]))
+}
 
 impl<T: Serialize> IntoResponse for Json<T> {
     fn into_response(self) -> Response {
@@ -44,55 +92,36 @@ fn path_error<'a>(e: &'a (dyn std::error::Error + 'static)) -> Option<&'a PathEr
     None
 }
 
-/// `serde_path_to_error` path as JSONPath: `$`, `$.a.b[2]`.
-fn json_path(path: &serde_path_to_error::Path) -> String {
-    use serde_path_to_error::Segment;
-    let mut out = String::from("$");
-    for seg in path.iter() {
-        match seg {
-            Segment::Seq { index } => out.push_str(&format!("[{index}]")),
-            Segment::Map { key } => {
-                let simple =
-                    !key.is_empty() && key.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
-                if simple {
-                    out.push('.');
-                    out.push_str(key);
-                } else {
-                    out.push_str(&format!("[{key:?}]"));
-                }
-            }
-            Segment::Enum { variant } => {
-                out.push('.');
-                out.push_str(variant);
-            }
-            Segment::Unknown => out.push_str(".?"),
-        }
-    }
-    out
-}
-
 /// The offending field and message of a serde error, naming a missing field itself rather than
 /// its parent object.
 fn field_error(e: &PathError) -> FieldError {
-    let mut path = json_path(e.path());
+    let (path, message) = locate(e);
+    FieldError::new(path, message)
+}
+
+/// The JSONPath (`$`, `$.a.b[2]`) and message of a serde error: below a tagged enum (whose
+/// message carries the rest of the path, `crate::wire::tagged`), at a missing or unknown field
+/// itself rather than its parent object.
+pub(crate) fn locate(e: &PathError) -> (String, String) {
+    let mut path = format!("${}", crate::wire::path_suffix(e.path()));
     let inner = e.inner();
     // serde_json appends " at line L column C"; the path says where, so keep just the message.
     let full = inner.to_string();
-    let message = match full.rfind(" at line ") {
+    let mut message = match full.rfind(" at line ") {
         Some(i) if inner.line() > 0 => full[..i].to_owned(),
         _ => full,
     };
+    if let Some((below, rest)) = crate::wire::split_inner_path(&message) {
+        path.push_str(below);
+        message = rest.to_owned();
+    }
     if let Some(rest) = message.strip_prefix("missing field `")
         && let Some(name) = rest.strip_suffix('`')
     {
-        path = if path == "$" {
-            format!("$.{name}")
-        } else {
-            format!("{path}.{name}")
-        };
+        path.push_str(&crate::wire::key_segment(name));
     }
     path = with_unknown_field(path, &message);
-    FieldError::new(path, message)
+    (path, message)
 }
 
 /// The path of an unknown field, also inside an internally tagged enum: serde buffers such an
@@ -105,12 +134,7 @@ pub(crate) fn with_unknown_field(path: String, message: &str) -> String {
     else {
         return path;
     };
-    let simple = !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
-    let segment = if simple {
-        format!(".{name}")
-    } else {
-        format!("[{name:?}]")
-    };
+    let segment = crate::wire::key_segment(name);
     if path.ends_with(&segment) {
         path
     } else {
@@ -135,9 +159,7 @@ impl From<JsonRejection> for ApiError {
                 };
                 ApiError::malformed_json(detail, errors)
             }
-            JsonRejection::MissingJsonContentType(_) => ApiError::unsupported_media_type(
-                "expected a body with `Content-Type: application/json`",
-            ),
+            JsonRejection::MissingJsonContentType(_) => missing_json_content_type(),
             JsonRejection::BytesRejection(e) => {
                 if e.status() == axum::http::StatusCode::PAYLOAD_TOO_LARGE {
                     ApiError::payload_too_large(

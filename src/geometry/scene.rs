@@ -20,10 +20,12 @@ pub struct ObstacleSpec {
     pub shape: ShapeSpec,
     /// Position of the shape's origin in the robot base frame, metres (within ±1000 m).
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub position: [f64; 3],
     /// Orientation quaternion `[w, x, y, z]` (normalised on validation).
     #[serde(default = "identity_quaternion")]
     #[schema(min_items = 4, max_items = 4)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub orientation: [f64; 4],
 }
 

@@ -16,7 +16,7 @@ use super::GeometryError;
 pub const MAX_MESH_TRIANGLES: usize = 100_000;
 
 /// Geometry of an object, in its own frame.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum ShapeSpec {
     /// A ball.
@@ -53,11 +53,66 @@ pub enum ShapeSpec {
     },
 }
 
+/// Read through [`ShapeWire`] so that a bad field names its own path (`$.shape.radius`): a
+/// derived internally tagged enum is buffered and its errors stop at `$.shape`.
+impl<'de> Deserialize<'de> for ShapeSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::wire::tagged(d, "type", "a shape object with a `type`").map(ShapeWire::into)
+    }
+}
+
+/// [`ShapeSpec`] externally tagged (`{"sphere": {"radius": 0.1}}`), as [`crate::wire::tagged`]
+/// reads it.
+#[derive(Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum ShapeWire {
+    Sphere {
+        radius: f64,
+    },
+    Cylinder {
+        radius: f64,
+        height: f64,
+    },
+    Box {
+        #[serde(deserialize_with = "crate::wire::exact")]
+        size: [f64; 3],
+    },
+    Capsule {
+        radius: f64,
+        length: f64,
+    },
+    Mesh {
+        #[serde(deserialize_with = "crate::wire::exact")]
+        vertices: Vec<[f64; 3]>,
+        #[serde(deserialize_with = "crate::wire::exact")]
+        triangles: Vec<[u32; 3]>,
+    },
+}
+
+impl From<ShapeWire> for ShapeSpec {
+    fn from(w: ShapeWire) -> Self {
+        match w {
+            ShapeWire::Sphere { radius } => ShapeSpec::Sphere { radius },
+            ShapeWire::Cylinder { radius, height } => ShapeSpec::Cylinder { radius, height },
+            ShapeWire::Box { size } => ShapeSpec::Box { size },
+            ShapeWire::Capsule { radius, length } => ShapeSpec::Capsule { radius, length },
+            ShapeWire::Mesh {
+                vertices,
+                triangles,
+            } => ShapeSpec::Mesh {
+                vertices,
+                triangles,
+            },
+        }
+    }
+}
+
 /// A horizontal-or-not plane the object rests on: points `x` with `normal · x = offset` (world).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct SupportPlane {
     /// Unit normal pointing to the free half-space.
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub normal: [f64; 3],
     /// Plane offset along the normal.
     pub offset: f64,

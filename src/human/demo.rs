@@ -104,7 +104,7 @@ impl Subject {
 
 /// Object geometry in its own frame (cylinder and capsule axes along `z`, centred at the origin).
 /// Every length is 0.0001 to 2 m.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, utoipa::ToSchema)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
 pub enum ObjectShape {
     Sphere {
@@ -128,6 +128,50 @@ pub enum ObjectShape {
         #[schema(minimum = 0.0001, maximum = 2.0)]
         height: f64,
     },
+}
+
+/// Read through [`ObjectShapeWire`] so that a bad field names its own path
+/// (`$.object.shape.radius`): a derived internally tagged enum is buffered and its errors stop
+/// at `$.object.shape`.
+impl<'de> Deserialize<'de> for ObjectShape {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        crate::wire::tagged(d, "type", "a shape object with a `type`").map(ObjectShapeWire::into)
+    }
+}
+
+/// [`ObjectShape`] externally tagged (`{"sphere": {"radius": 0.1}}`), as
+/// [`crate::wire::tagged`] reads it.
+#[derive(Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+enum ObjectShapeWire {
+    Sphere {
+        radius: f64,
+    },
+    Cylinder {
+        radius: f64,
+        height: f64,
+    },
+    Box {
+        #[serde(deserialize_with = "crate::wire::exact")]
+        size: [f64; 3],
+    },
+    Capsule {
+        radius: f64,
+        height: f64,
+    },
+}
+
+impl From<ObjectShapeWire> for ObjectShape {
+    fn from(w: ObjectShapeWire) -> Self {
+        match w {
+            ObjectShapeWire::Sphere { radius } => ObjectShape::Sphere { radius },
+            ObjectShapeWire::Cylinder { radius, height } => {
+                ObjectShape::Cylinder { radius, height }
+            }
+            ObjectShapeWire::Box { size } => ObjectShape::Box { size },
+            ObjectShapeWire::Capsule { radius, height } => ObjectShape::Capsule { radius, height },
+        }
+    }
 }
 
 impl ObjectShape {
@@ -195,8 +239,10 @@ impl ObjectShape {
 #[schema(as = DemoPose)]
 pub struct Pose {
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub position: [f64; 3],
     #[schema(min_items = 4, max_items = 4)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub orientation: [f64; 4],
 }
 

@@ -30,7 +30,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::anthropometry::{HandDims, check_range};
+use super::anthropometry::HandDims;
 use super::demo::{
     DemonstrationInput, GloveStream, Handedness, Labels, ObjectShape, ObjectSpec, Pose, Subject,
     SyncOptions, TrackerStream,
@@ -216,13 +216,24 @@ const GLOVE_SIGMA: f64 = 0.5 * std::f64::consts::PI / 180.0;
 
 impl StudyConfig {
     pub fn validate(&self) -> Result<(), HumanError> {
-        let count =
-            |field: &str, v: usize, max: usize| check_range(field, v as f64, 1.0, max as f64);
+        // Not `check_range`: its message speaks of adult body measurements.
+        let allowed = |field: &str, value: f64, lo: f64, hi: f64| {
+            if (lo..=hi).contains(&value) {
+                Ok(())
+            } else {
+                Err(HumanError::InvalidParameter {
+                    field: field.into(),
+                    value,
+                    reason: "outside the range a study allows",
+                })
+            }
+        };
+        let count = |field: &str, v: usize, max: usize| allowed(field, v as f64, 1.0, max as f64);
         count("subjects", self.subjects, MAX_SUBJECTS)?;
         count("positions", self.positions, POSITIONS)?;
         count("trials", self.trials, MAX_TRIALS)?;
         count("objects", self.objects.len(), ObjectKind::ALL.len())?;
-        check_range("rate_hz", self.rate_hz, 1.0, 1000.0)?;
+        allowed("rate_hz", self.rate_hz, 1.0, 1000.0)?;
         let n = self.len();
         if n > MAX_DEMONSTRATIONS {
             return Err(HumanError::InvalidParameter {

@@ -47,6 +47,7 @@ pub struct SystemDescriptor {
     pub thumb: String,
     /// Spread ordering, eq. 28: each `[a, b]` requires `value(a) <= value(b)`.
     #[serde(default)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub spread_pairs: Vec<[String; 2]>,
     /// Frames whose origins are the "robot joint positions" of eq. 4 (shoulder and end effector
     /// excluded).
@@ -62,10 +63,12 @@ pub struct Mount {
     /// Translation, metres (default zero).
     #[serde(default)]
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub xyz: [f64; 3],
     /// Fixed-axis roll, pitch, yaw (URDF convention), radians (default zero).
     #[serde(default)]
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub rpy: [f64; 3],
 }
 

@@ -18,18 +18,20 @@ fn not_found(id: &str) -> Error {
 }
 
 /// Ingests and stores a demonstration. With an `external_id` already stored, nothing is
-/// ingested and the stored record comes back with `false` (not created).
+/// stored and the stored record comes back with `false` (not created), but only for a valid
+/// upload: the ingest validates first, so that a bad body is the same 422 whether or not its
+/// id is known.
 pub async fn upload(
     ctx: &Context,
     input: DemonstrationInput,
 ) -> Result<(DemonstrationRow, bool), Error> {
-    if let Some(ext) = &input.labels.external_id {
+    let demo = ingest_blocking(input).await?;
+    if let Some(ext) = &demo.labels.external_id {
         let mut conn = ctx.db.acquire().await?;
         if let Some(row) = repo::get_by_external_id(&mut conn, ext).await? {
             return Ok((row, false));
         }
     }
-    let demo = ingest_blocking(input).await?;
     let id = Uuid::new_v4().to_string();
     let mut tx = crate::store::begin_write(&ctx.db).await?;
     match repo::insert(&mut tx, &id, None, &demo, &now()).await {

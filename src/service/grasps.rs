@@ -53,9 +53,11 @@ pub struct ObjectIn {
     pub mesh: Option<MeshIn>,
     /// Centroid position (m, robot base frame).
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub position: [f64; 3],
     /// Orientation quaternion `[w, x, y, z]` (default identity).
     #[schema(min_items = 4, max_items = 4)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub orientation: Option<[f64; 4]>,
     /// Support plane the object rests on. Default: the table the robot stands at (the plane
     /// `z = 0`, normal `+z`) when the object is on or above it (its lowest point at most 2 mm
@@ -68,6 +70,7 @@ pub struct ObjectIn {
 #[serde(deny_unknown_fields)]
 pub struct TaskDirectionIn {
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub direction: [f64; 3],
     pub kind: Transmission,
     pub goal: Goal,
@@ -104,6 +107,7 @@ pub struct GraspIn {
     pub seed: Option<u64>,
     /// Human elbow reference for the anthropomorphism term D (m, world).
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub elbow_reference: Option<[f64; 3]>,
 }
 

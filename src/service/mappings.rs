@@ -37,12 +37,42 @@ pub const DEFAULT_DEMO_PAGE: u32 = 10;
 pub const MAX_DEMO_PAGE: u32 = 100;
 
 /// Which demonstrations to map: a list of ids, or a filter (every given field must match).
-#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, ToSchema)]
 #[serde(untagged)]
 pub enum SelectionIn {
     /// Demonstration ids, mapped in this order.
     Ids(Vec<String>),
     Filter(DemoFilterIn),
+}
+
+/// By hand rather than untagged, so that a bad id or filter field is reported at its own path
+/// (`$.demonstrations.subject`) instead of "did not match any variant" at the selection.
+impl<'de> Deserialize<'de> for SelectionIn {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Selection;
+        impl<'de> serde::de::Visitor<'de> for Selection {
+            type Value = SelectionIn;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a list of demonstration ids or a filter object")
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                seq: A,
+            ) -> Result<SelectionIn, A::Error> {
+                // The same access: each item's index stays on the error path.
+                Vec::deserialize(serde::de::value::SeqAccessDeserializer::new(seq))
+                    .map(SelectionIn::Ids)
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                map: A,
+            ) -> Result<SelectionIn, A::Error> {
+                DemoFilterIn::deserialize(serde::de::value::MapAccessDeserializer::new(map))
+                    .map(SelectionIn::Filter)
+            }
+        }
+        d.deserialize_any(Selection)
+    }
 }
 
 /// A filter over the stored demonstrations (oldest first).
@@ -80,11 +110,38 @@ pub struct WeightsIn {
 
 /// Scale of the human arm transport (horizontal, about the object): a positive number, or
 /// `"auto"` (robot reach / human reach). With `transform`: the uniform scale of the similarity.
-#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+#[derive(Debug, Clone, Serialize, ToSchema)]
 #[serde(untagged)]
 pub enum ScaleIn {
     Factor(f64),
     Named(String),
+}
+
+/// By hand rather than untagged, so that a wrong value says what is expected instead of "did
+/// not match any variant of untagged enum ScaleIn".
+impl<'de> Deserialize<'de> for ScaleIn {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Scale;
+        impl serde::de::Visitor<'_> for Scale {
+            type Value = ScaleIn;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a positive number or \"auto\"")
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<ScaleIn, E> {
+                Ok(ScaleIn::Factor(v))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<ScaleIn, E> {
+                Ok(ScaleIn::Factor(v as f64))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<ScaleIn, E> {
+                Ok(ScaleIn::Factor(v as f64))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<ScaleIn, E> {
+                Ok(ScaleIn::Named(v.to_owned()))
+            }
+        }
+        d.deserialize_any(Scale)
+    }
 }
 
 /// A rigid transform: position (m) and orientation `[w, x, y, z]`.
@@ -92,8 +149,10 @@ pub enum ScaleIn {
 #[serde(deny_unknown_fields)]
 pub struct TransformIn {
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub position: [f64; 3],
     #[schema(min_items = 4, max_items = 4)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub orientation: [f64; 4],
 }
 
@@ -109,14 +168,17 @@ pub struct RegistrationIn {
     pub scale: Option<ScaleIn>,
     /// Robot-frame position of the object's centre (every demonstration of the mapping), m.
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub placement: Option<[f64; 3]>,
     /// Scale of the fingertips relative to the wrist, > 0 (default 1: the subject's hand).
     pub hand_scale: Option<f64>,
     /// The subject's forward axis in the tracker frame (default `[1, 0, 0]`).
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub subject_forward: Option<[f64; 3]>,
     /// The subject's up axis in the tracker frame (default `[0, 0, 1]`).
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub subject_up: Option<[f64; 3]>,
     pub transform: Option<TransformIn>,
 }

@@ -128,6 +128,7 @@ struct PlanWire {
     starts: Option<usize>,
     max_starts: Option<usize>,
     seed: Option<u64>,
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     elbow_reference: Option<[f64; 3]>,
     start: StartIn,
     model: Option<String>,

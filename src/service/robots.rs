@@ -259,6 +259,7 @@ pub struct JacobianRequest {
     /// Point rigidly attached to the frame, in frame coordinates (default the origin); each
     /// coordinate within ±1000 m.
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub point: Option<[f64; 3]>,
 }
 
@@ -290,6 +291,7 @@ pub struct ManipulabilityRequest {
     pub positions: Vec<f64>,
     pub frame: String,
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub point: Option<[f64; 3]>,
     /// Rows of the Jacobian to analyse (default `linear`).
     pub task: Option<TaskRows>,
@@ -637,12 +639,15 @@ pub struct IkRequest {
     pub frame: Option<String>,
     /// Point rigidly attached to the frame, in frame coordinates (default the origin).
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub point: Option<[f64; 3]>,
     /// Target position of the point, metres, world frame; each coordinate within ±1000 m.
     #[schema(min_items = 3, max_items = 3)]
+    #[serde(deserialize_with = "crate::wire::exact")]
     pub position: [f64; 3],
     /// Target orientation `[w, x, y, z]`; omit for a position-only target.
     #[schema(min_items = 4, max_items = 4)]
+    #[serde(default, deserialize_with = "crate::wire::exact")]
     pub orientation: Option<[f64; 4]>,
     /// Start configuration (default: mid-range); joints not named keep mid-range values.
     pub seed: Option<SeedDto>,

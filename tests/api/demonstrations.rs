@@ -486,3 +486,64 @@ mod rejections {
         assert_rejected(&app, res, "glove", &["missing"]).await;
     }
 }
+
+/// A bad upload whose `external_id` was already stored came back 200 with the stored record,
+/// unvalidated: it is the same 422 as without a known id, and the stored record stays.
+#[tokio::test]
+async fn a_bad_upload_with_a_known_external_id_is_refused_as_without_it() {
+    let app = spawn_app().await;
+    let stored: Value = upload(&app, &sample("lab-known"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    let mut bad = sample("lab-known");
+    bad.tracker.t[10] = bad.tracker.t[9];
+    let known = assert_problem(upload(&app, &bad).await, 422, "validation").await;
+    assert_eq!(known["errors"][0]["path"], "$.tracker.t[10]", "{known}");
+    bad.labels.external_id = Some("lab-unknown".into());
+    let unknown = assert_problem(upload(&app, &bad).await, 422, "validation").await;
+    assert_eq!(known["errors"], unknown["errors"]);
+    // An object out of range, and a short row in the CSV form.
+    let mut bad = sample("lab-known");
+    bad.object.shape = reachgrasp::human::ObjectShape::Sphere { radius: 5.0 };
+    let p = assert_problem(upload(&app, &bad).await, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.object.shape.radius", "{p}");
+    let mut bad = sample("lab-known");
+    bad.tracker.elbow[6].pop();
+    let p = assert_problem(upload_csv(&app, &bad).await, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.tracker.row[6]", "{p}");
+    assert_eq!(total(&app).await, 1);
+    // A valid re-upload still answers the stored record.
+    let res = upload(&app, &sample("lab-known")).await;
+    assert_eq!(res.status(), 200);
+    let again: Value = res.json().await.unwrap();
+    assert_eq!(again, stored);
+}
+
+/// The object's shape is a tagged enum, read from a buffer where its errors lost their path
+/// (`$.object.shape`); its pose holds fixed-size arrays, whose extra items were a 400.
+#[tokio::test]
+async fn a_bad_object_field_is_named_in_an_upload() {
+    let app = spawn_app().await;
+    let mut body = serde_json::to_value(sample("obj")).unwrap();
+    body["object"]["shape"] = json!({"type": "cylinder", "radius": 0.03, "height": "tall"});
+    let res = app.post_json("/v1/demonstrations", &body).await;
+    assert_rejected(
+        &app,
+        res,
+        "$.object.shape.height",
+        &["invalid type: string \"tall\", expected f64"],
+    )
+    .await;
+    let mut body = serde_json::to_value(sample("obj")).unwrap();
+    body["object"]["pose"]["position"] = json!([0.1, 0.2, 0.3, 0.4]);
+    let res = app.post_json("/v1/demonstrations", &body).await;
+    assert_rejected(
+        &app,
+        res,
+        "$.object.pose.position",
+        &["expected 3 items, got 4"],
+    )
+    .await;
+}

@@ -156,3 +156,320 @@ async fn a_bad_mesh_triangle_is_named_in_the_shape_it_came_in() {
     .await;
     assert_eq!(path, "$.mesh");
 }
+
+/// POSTs `body` and expects the single field error `(path, message)` exactly.
+async fn assert_field(app: &TestApp, route: &str, body: Value, path: &str, message: &str) {
+    let got = field_error(app, route, &body).await;
+    assert_eq!(
+        (got.0.as_str(), got.1.as_str()),
+        (path, message),
+        "{route}: {body}"
+    );
+}
+
+/// Objects stored by requests (the seeded ones are always listed).
+async fn stored_objects(app: &TestApp) -> usize {
+    let list: Value = app.get("/v1/objects").await.json().await.unwrap();
+    let items = list.as_array().expect("a list of objects");
+    items.iter().filter(|o| o["seeded"] != true).count()
+}
+
+fn ball(position: Value) -> Value {
+    json!({"name": "b", "shape": {"type": "sphere", "radius": 0.03}, "position": position})
+}
+
+/// A fixed-size array with too many items was left to the JSON reader, whose "trailing
+/// characters" came back as a 400 malformed-JSON; it is a 422 at the array.
+#[tokio::test]
+async fn an_overlong_fixed_size_array_is_named_with_its_item_count() {
+    let app = spawn_app().await;
+    assert_field(
+        &app,
+        "/v1/objects",
+        ball(json!([0.5, 0.0, 0.1, 9.0])),
+        "$.position",
+        "expected 3 items, got 4",
+    )
+    .await;
+    let mut tilted = ball(json!([0.5, 0.0, 0.1]));
+    tilted["orientation"] = json!([1.0, 0.0, 0.0, 0.0, 0.0]);
+    assert_field(
+        &app,
+        "/v1/objects",
+        tilted,
+        "$.orientation",
+        "expected 4 items, got 5",
+    )
+    .await;
+    let mut supported = ball(json!([0.5, 0.0, 0.1]));
+    supported["support"] = json!({"normal": [0.0, 0.0, 1.0, 0.0], "offset": 0.0});
+    assert_field(
+        &app,
+        "/v1/objects",
+        supported,
+        "$.support.normal",
+        "expected 3 items, got 4",
+    )
+    .await;
+    // Inside a shape, and as the item of a list.
+    let tetra = json!({"name": "t", "position": [0.5, 0.0, 0.1],
+        "shape": {"type": "mesh", "vertices": [[0, 0, 0], [0.1, 0, 0, 0], [0, 0.1, 0], [0, 0, 0.1]],
+                  "triangles": [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]}});
+    assert_field(
+        &app,
+        "/v1/objects",
+        tetra,
+        "$.shape.vertices[1]",
+        "expected 3 items, got 4",
+    )
+    .await;
+    // Short arrays say the same.
+    assert_field(
+        &app,
+        "/v1/objects",
+        ball(json!([0.5, 0.0])),
+        "$.position",
+        "expected 3 items, got 2",
+    )
+    .await;
+    assert_eq!(stored_objects(&app).await, 0);
+
+    assert_field(
+        &app,
+        "/v1/plans",
+        json!({"robot": "wam_ihy", "object_id": "ball", "start": start(),
+               "obstacles": [{"name": "post", "shape": {"type": "sphere", "radius": 0.1},
+                              "position": [0.4, 0.2, 0.3, 0.0]}]}),
+        "$.obstacles[0].position",
+        "expected 3 items, got 4",
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/plans",
+        json!({"robot": "wam_ihy", "object_id": "ball", "start": start(),
+               "elbow_reference": [0.1, 0.2, 0.3, 0.4]}),
+        "$.elbow_reference",
+        "expected 3 items, got 4",
+    )
+    .await;
+    assert_eq!(app.total("/v1/plans").await, 0);
+    assert_field(
+        &app,
+        "/v1/grasps",
+        json!({"robot": "wam_ihy", "object_id": "ball",
+               "task_directions": [{"direction": [0, 0, 1, 0], "kind": "velocity", "goal": "maximize"}]}),
+        "$.task_directions[0].direction",
+        "expected 3 items, got 4",
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/mappings",
+        json!({"robot": "wam_ihy", "demonstrations": ["d"],
+               "registration": {"transform": {"position": [0, 0, 0], "orientation": [1, 0, 0, 0, 0]}}}),
+        "$.registration.transform.orientation",
+        "expected 4 items, got 5",
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/robots/wam_ihy/ik",
+        json!({"position": [0.5, 0.0, 0.3, 1.0]}),
+        "$.position",
+        "expected 3 items, got 4",
+    )
+    .await;
+    // A spread pair `[a, b]` with a third name.
+    assert_field(
+        &app,
+        "/v1/robots",
+        json!({"urdf": "<robot/>", "descriptor": {"name": "x", "spread_pairs": [["a", "b", "c"]]}}),
+        "$.descriptor.spread_pairs[0]",
+        "expected 2 items, got 3",
+    )
+    .await;
+    let jobs: Value = app.get("/v1/jobs").await.json().await.unwrap();
+    assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
+}
+
+/// serde reads an internally tagged shape from a buffer, where the path was lost: every
+/// error inside a shape was reported at the shape itself.
+#[tokio::test]
+async fn a_bad_field_inside_a_shape_is_named_below_the_shape() {
+    let app = spawn_app().await;
+    let big = "invalid type: string \"big\", expected f64";
+    let mut object = ball(json!([0.5, 0.0, 0.1]));
+    object["shape"] = json!({"type": "sphere", "radius": "big"});
+    assert_field(&app, "/v1/objects", object.clone(), "$.shape.radius", big).await;
+    // The tag after the field (as a client that sorts its keys sends it).
+    let mut sorted = object.clone();
+    sorted["shape"] = json!({"radius": "big", "type": "sphere"});
+    assert_field(&app, "/v1/objects", sorted, "$.shape.radius", big).await;
+    let mut mesh = object.clone();
+    mesh["shape"] = json!({"type": "mesh", "vertices": [[0, 0, "x"]], "triangles": []});
+    assert_field(
+        &app,
+        "/v1/objects",
+        mesh,
+        "$.shape.vertices[0][2]",
+        "invalid type: string \"x\", expected f64",
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/objects",
+        json!({"name": "b", "position": [0.5, 0.0, 0.1],
+               "shape": {"type": "box", "size": [0.1, 0.1, 0.1, 0.1]}}),
+        "$.shape.size",
+        "expected 3 items, got 4",
+    )
+    .await;
+    // A repeated key is still refused, at the key.
+    let res = app
+        .client
+        .post(app.url("/v1/objects"))
+        .header("content-type", "application/json")
+        .body(
+            r#"{"name": "b", "position": [0.5, 0.0, 0.1],
+                "shape": {"type": "sphere", "radius": 0.1, "radius": 0.2}}"#,
+        )
+        .send()
+        .await
+        .unwrap();
+    let p = assert_problem(res, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.shape.radius", "{p}");
+    assert_eq!(p["errors"][0]["message"], "duplicate field `radius`", "{p}");
+    assert_eq!(stored_objects(&app).await, 0);
+
+    assert_field(
+        &app,
+        "/v1/grasps",
+        json!({"robot": "wam_ihy", "object": object.clone()}),
+        "$.object.shape.radius",
+        big,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/grasps/batch",
+        json!({"robot": "wam_ihy", "items": [{"object_id": "ball"}, {"object": object.clone()}]}),
+        "$.items[1].object.shape.radius",
+        big,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/plans",
+        json!({"robot": "wam_ihy", "object": object, "start": start()}),
+        "$.object.shape.radius",
+        big,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/plans",
+        json!({"robot": "wam_ihy", "object_id": "ball", "start": start(),
+               "obstacles": [{"name": "post", "position": [0.4, 0.2, 0.3],
+                              "shape": {"type": "cylinder", "radius": 0.05, "height": "tall"}}]}),
+        "$.obstacles[0].shape.height",
+        "invalid type: string \"tall\", expected f64",
+    )
+    .await;
+    assert_eq!(app.total("/v1/plans").await, 0);
+}
+
+/// An untagged selection or scale said "did not match any variant" at the field that holds it.
+#[tokio::test]
+async fn a_bad_selection_or_scale_of_a_mapping_names_the_field_inside() {
+    let app = spawn_app().await;
+    let expected_string = "invalid type: integer `5`, expected a string";
+    assert_field(
+        &app,
+        "/v1/mappings",
+        json!({"robot": "wam_ihy", "demonstrations": {"subject": 5}}),
+        "$.demonstrations.subject",
+        expected_string,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/mappings",
+        json!({"robot": "wam_ihy", "demonstrations": ["d1", 5]}),
+        "$.demonstrations[1]",
+        expected_string,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/mappings",
+        json!({"robot": "wam_ihy", "demonstrations": ["d1"], "registration": {"scale": [2]}}),
+        "$.registration.scale",
+        "invalid type: sequence, expected a positive number or \"auto\"",
+    )
+    .await;
+    let jobs: Value = app.get("/v1/jobs").await.json().await.unwrap();
+    assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
+}
+
+/// A plain enum given a number was serde_json's syntax error "expected value": a 400
+/// malformed-JSON for a well-formed body.
+#[tokio::test]
+async fn a_number_for_a_named_choice_is_a_422_at_the_field() {
+    let app = spawn_app().await;
+    let message = "invalid type: integer `5`, expected string or map";
+    assert_field(
+        &app,
+        "/v1/grasps",
+        json!({"robot": "wam_ihy", "object_id": "ball", "quality": 5}),
+        "$.quality",
+        message,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/plans",
+        json!({"robot": "wam_ihy", "object_id": "ball", "start": start(), "mode": 5}),
+        "$.mode",
+        message,
+    )
+    .await;
+    assert_field(
+        &app,
+        "/v1/demonstrations/synthetic",
+        json!({"objects": ["ball", 5]}),
+        "$.objects[1]",
+        message,
+    )
+    .await;
+    // A body that is not JSON at all stays a 400.
+    let res = app
+        .client
+        .post(app.url("/v1/grasps"))
+        .header("content-type", "application/json")
+        .body(r#"{"robot": "wam_ihy", "object_id": "ball"} trailing"#)
+        .send()
+        .await
+        .unwrap();
+    assert_problem(res, 400, "malformed-json").await;
+    let jobs: Value = app.get("/v1/jobs").await.json().await.unwrap();
+    assert_eq!(jobs["items"].as_array().map(Vec::len), Some(0));
+}
+
+/// A study count out of range spoke of "the plausible adult range".
+#[tokio::test]
+async fn a_study_count_out_of_range_is_not_an_adult_measurement() {
+    let app = spawn_app().await;
+    let (path, message) = field_error(
+        &app,
+        "/v1/demonstrations/synthetic",
+        &json!({"subjects": 0}),
+    )
+    .await;
+    assert_eq!(path, "$.subjects");
+    assert!(
+        message.contains("outside the range a study allows"),
+        "{message}"
+    );
+    assert!(!message.contains("adult"), "{message}");
+}
