@@ -99,6 +99,15 @@ fn field_error(e: &PathError) -> FieldError {
     FieldError::new(path, message)
 }
 
+/// A request document read outside HTTP (the CLI's request files), its error in the API's
+/// terms: "`$.object.shape.radius`: invalid type ...".
+pub fn from_value<T: DeserializeOwned>(value: serde_json::Value) -> Result<T, String> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let (path, message) = locate(&e);
+        format!("{path}: {message}")
+    })
+}
+
 /// The JSONPath (`$`, `$.a.b[2]`) and message of a serde error: below a tagged enum (whose
 /// message carries the rest of the path, `crate::wire::tagged`), at a missing or unknown field
 /// itself rather than its parent object.
