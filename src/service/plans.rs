@@ -328,6 +328,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     });
     let mut trajectory = None;
     let mut safety = None;
+    let mut law_check = None;
     if reason.is_none() {
         let (joint_names, positions) = result
             .q_arm
@@ -359,6 +360,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             )
         });
         let law_scene = closed_loop.then(|| (scene.sys.clone(), scene.object.clone()));
+        law_check = law_scene.clone();
         match super::trajectories::compute(ctx, &request, Some(scene), !closed_loop).await {
             // A motion that collides is kept with the plan for inspection, but the plan is
             // infeasible and nothing is queued.
@@ -390,7 +392,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     }
     let trajectory_s = t0.elapsed().as_secs_f64() - grasp_s;
 
-    let execution = match (body.execute, &trajectory) {
+    let mut execution = match (body.execute, &trajectory) {
         (true, Some(_)) if reason.is_none() => {
             let mode = body.mode.unwrap_or(Mode::OpenLoop);
             let law = match mode {
@@ -413,6 +415,35 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         }
         _ => None,
     };
+    // A closed-loop law is run here first, as the reference worker runs it (its stages, its
+    // safety filter, no pushes): a law that stops short of the grasp is no plan to queue.
+    if let (
+        Some(ExecutionRequest {
+            law: Some((model, params)),
+            safety: Some(spec),
+            ..
+        }),
+        Some(t),
+        Some((sys, _)),
+    ) = (&execution, &trajectory, &law_check)
+    {
+        let payload = ExecutionPayload::Model {
+            model_id: model.clone(),
+            params: params.clone(),
+            goal: t.goal.clone(),
+            safety: Some(Box::new(spec.clone())),
+        };
+        let (sys, names, start) = (sys.clone(), t.joint_names.clone(), t.start.clone());
+        let short =
+            tokio::task::spawn_blocking(move || simulate_law(&sys, &names, &start, payload))
+                .await
+                .map_err(Error::internal)?
+                .map_err(|e| Error::internal(anyhow::anyhow!("simulating the law: {e}")))?;
+        if let Some(why) = short {
+            reason = Some(why);
+            execution = None;
+        }
+    }
     let timings = PlanTimings {
         grasp_s,
         trajectory_s,
@@ -615,6 +646,60 @@ async fn law_pre_grasp(
     })
     .await
     .map_err(Error::internal)
+}
+
+/// Runs a closed-loop payload on the reference worker's simulated robot from `start` (at its
+/// default acceleration limit, no pushes): `None` when it arrives, else why not, in a plan's
+/// terms.
+fn simulate_law(
+    sys: &crate::grasp::HandArm,
+    joint_names: &[String],
+    start: &[f64],
+    payload: ExecutionPayload,
+) -> Result<Option<String>, String> {
+    use crate::bridge::protocol::{Execute, Outcome};
+    use crate::bridge::sim::{DEFAULT_ACCELERATION_LIMIT, Run, RunOptions, SimLimits, SimRobot};
+    let m = &*sys.model;
+    let limits = SimLimits::new(
+        m.lower_limits(),
+        m.upper_limits(),
+        m.velocity_limits(),
+        DEFAULT_ACCELERATION_LIMIT,
+    );
+    let mut robot = SimRobot::new(limits, start.to_vec());
+    let execute = Execute {
+        execution_id: String::new(),
+        mode: Mode::ClosedLoop,
+        payload,
+    };
+    let opts = RunOptions::default();
+    let mut run = Run::new(&execute, joint_names, &robot, opts, None, Some(sys))?;
+    let dt = 0.01;
+    // (bounded: the run ends failed at its convergence timeout)
+    let (outcome, why) = loop {
+        if let Some(done) = run.tick(&mut robot, dt) {
+            break done;
+        }
+    };
+    if outcome == Outcome::Succeeded {
+        return Ok(None);
+    }
+    let closest = run
+        .safety_report()
+        .and_then(|r| match (r.link, r.other, r.min_distance_m, r.time_s) {
+            (Some(link), Some(other), Some(d), Some(t)) => Some(format!(
+                "; its closest pair: '{link}' {:.1} mm from '{other}' at t = {t:.2} s",
+                1e3 * d
+            )),
+            _ => None,
+        })
+        .unwrap_or_default();
+    Ok(Some(format!(
+        "closed loop: the model's law, run from the start through its safety filter as the \
+         reference worker runs it ({DEFAULT_ACCELERATION_LIMIT} rad/s², no pushes), does not \
+         arrive: {}{closest}; plan it open loop, or from another start",
+        why.unwrap_or_else(|| "it stopped".into())
+    )))
 }
 
 /// The one execution payload builder: a stored trajectory to follow (open loop), or the

@@ -1567,6 +1567,21 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     }
     println!("staged and pushed: 20 of 20 arrived, closest {worst:.4} m");
 
+    // A closed-loop plan runs its law before it queues it: from the demonstrated start (the
+    // thumb across the palm) the hand's flow opens a finger into the thumb, the filter holds
+    // it, and the plan says so instead of queueing a run that cannot arrive.
+    let mut body = ball(&start);
+    body["execute"] = json!(true);
+    body["mode"] = json!("closed_loop");
+    let res = app.post("/v1/plans", &body).await;
+    assert_eq!(res.status(), 201);
+    let plan: Value = res.json().await.unwrap();
+    let why = plan["reason"].as_str().unwrap_or_default();
+    assert_eq!(plan["feasible"], false, "{plan}");
+    assert!(why.contains("does not arrive"), "{why}");
+    assert!(plan["execution_id"].is_null(), "{plan}");
+    println!("{why} ({})", plan["timings"]);
+
     // End to end: a closed-loop plan queues the law with its scene and pre-grasp; a worker that
     // announces the filter runs it from its home to the grasp, and the execution record
     // carries the filter's report.
@@ -1574,12 +1589,14 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     opts.initial = Some(home.clone());
     let mut w = Worker::start(opts);
     w.until(10, |e| *e == WorkerEvent::Connected).await;
-    let mut body = ball(&json!("current"));
+    let mut body = ball(&json!({"joint_names": m.joint_names(), "positions": home}));
     body["execute"] = json!(true);
     body["mode"] = json!("closed_loop");
     let res = app.post("/v1/plans", &body).await;
-    assert_eq!(res.status(), 201);
+    let status = res.status();
     let plan: Value = res.json().await.unwrap();
+    assert_eq!(status, 201, "{plan}");
+    println!("closed-loop plan from home: {}", plan["timings"]);
     let id = plan["execution_id"].as_str().expect("queued").to_owned();
     let done = app
         .wait(&id, 60, |e| {
