@@ -47,6 +47,10 @@ TOLERATED = [
     # Cross-field rule of the grasp start rounds (each 1..64 is in the schema): `max_starts`
     # is at least `starts`.
     ("start rounds rule", r"^\$\.max_starts$", r"^must be between starts \(\d+\) and 64"),
+    # Cross-field rule of a synthetic study's size (each count has its range in the schema):
+    # subjects x positions x trials (x objects in a full factorial) is at most 5000
+    # demonstrations, reported at `trials`.
+    ("study size rule", r"^\$\.trials$", r"^the study would exceed \d+ demonstrations"),
     # Cross-field rules of the IK options (an orientation weight needs an orientation target;
     # the two weights cannot both be 0).
     ("IK option rule", r"^\$\.(orientation|position)_weight$", r"(needs an orientation target|"
