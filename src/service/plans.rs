@@ -328,7 +328,8 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     });
     let mut trajectory = None;
     let mut safety = None;
-    let mut law_check = None;
+    // (the system a closed-loop law is simulated on before it is queued)
+    let mut law_system = None;
     if reason.is_none() {
         let (joint_names, positions) = result
             .q_arm
@@ -360,7 +361,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             )
         });
         let law_scene = closed_loop.then(|| (scene.sys.clone(), scene.object.clone()));
-        law_check = law_scene.clone();
+        law_system = closed_loop.then(|| scene.sys.clone());
         match super::trajectories::compute(ctx, &request, Some(scene), !closed_loop).await {
             // A motion that collides is kept with the plan for inspection, but the plan is
             // infeasible and nothing is queued.
@@ -424,8 +425,8 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             ..
         }),
         Some(t),
-        Some((sys, _)),
-    ) = (&execution, &trajectory, &law_check)
+        Some(sys),
+    ) = (&execution, &trajectory, &law_system)
     {
         let payload = ExecutionPayload::Model {
             model_id: model.clone(),

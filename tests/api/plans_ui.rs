@@ -170,11 +170,13 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     }
 
     // An execution a plan queued is drawn in the plan's scene whatever its mode: the closed
-    // loop's payload is the model's law, with no trajectory to find the object through.
+    // loop's payload is the model's law, with no trajectory to find the object through. (From
+    // the hand-open zero posture: from the demonstrated start, the thumb across the palm, the
+    // law does not arrive and the plan queues nothing.)
     let res = app
         .post_json(
             "/v1/plans",
-            &json!({"robot": ROBOT, "object_id": BALL, "start": start, "execute": true,
+            &json!({"robot": ROBOT, "object_id": BALL, "start": "zero", "execute": true,
                     "mode": "closed_loop",
                     "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]}),
         )
