@@ -413,7 +413,7 @@ fn grasp(robots: &std::path::Path, body: serde_json::Value) -> anyhow::Result<()
             let bar = progress_bar(items.len(), "grasps")?;
             let mut results = Vec::with_capacity(items.len());
             for (i, item) in items.into_iter().enumerate() {
-                let body: GraspIn = reachgrasp::api::extract::from_value(item)
+                let body: GraspIn = reachgrasp::wire::from_value(item)
                     .map_err(|e| anyhow::anyhow!("request {i}: {e}"))?;
                 let r = grasp_offline(robots, &body)
                     .map_err(|e| failure(e).context(format!("request {i}")))?;
@@ -424,8 +424,7 @@ fn grasp(robots: &std::path::Path, body: serde_json::Value) -> anyhow::Result<()
             serde_json::to_string_pretty(&results)?
         }
         one => {
-            let body: GraspIn =
-                reachgrasp::api::extract::from_value(one).map_err(anyhow::Error::msg)?;
+            let body: GraspIn = reachgrasp::wire::from_value(one).map_err(anyhow::Error::msg)?;
             serde_json::to_string_pretty(&grasp_offline(robots, &body).map_err(failure)?)?
         }
     };
@@ -439,7 +438,7 @@ fn plan(sources: Sources, request: &std::path::Path) -> anyhow::Result<()> {
         .with_context(|| format!("cannot read {}", request.display()))?;
     let value: serde_json::Value = serde_json::from_str(&text)
         .with_context(|| format!("{} is not JSON", request.display()))?;
-    let body: reachgrasp::service::plans::PlanIn = reachgrasp::api::extract::from_value(value)
+    let body: reachgrasp::service::plans::PlanIn = reachgrasp::wire::from_value(value)
         .map_err(|e| anyhow::anyhow!("{} is not a plan request: {e}", request.display()))?;
     anyhow::ensure!(
         sources.db.is_file(),
@@ -572,7 +571,7 @@ fn map(args: MapArgs) -> anyhow::Result<()> {
     let mut demos = Vec::with_capacity(docs.len());
     for (i, doc) in docs.into_iter().enumerate() {
         // The upload document of `POST /v1/demonstrations` is the ingest input itself.
-        let input: DemonstrationInput = reachgrasp::api::extract::from_value(doc)
+        let input: DemonstrationInput = reachgrasp::wire::from_value(doc)
             .map_err(|e| anyhow::anyhow!("demonstration {i} is not an upload document: {e}"))?;
         let demo = ingest(&input).with_context(|| format!("demonstration {i}"))?;
         let labels = DemoLabels {

@@ -245,6 +245,58 @@ fn unexpected(v: &Value) -> de::Unexpected<'_> {
     }
 }
 
+/// A request document read outside HTTP (the CLI's request files), its error in the API's
+/// terms: "`$.object.shape.radius`: invalid type ...".
+pub fn from_value<T: de::DeserializeOwned>(value: serde_json::Value) -> Result<T, String> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let (path, message) = locate(&e);
+        format!("{path}: {message}")
+    })
+}
+
+/// The JSONPath (`$`, `$.a.b[2]`) and message of a serde error: below a tagged enum (whose
+/// message carries the rest of the path, `tagged`), at a missing or unknown field
+/// itself rather than its parent object.
+pub fn locate(e: &serde_path_to_error::Error<serde_json::Error>) -> (String, String) {
+    let mut path = format!("${}", path_suffix(e.path()));
+    let inner = e.inner();
+    // serde_json appends " at line L column C"; the path says where, so keep just the message.
+    let full = inner.to_string();
+    let mut message = match full.rfind(" at line ") {
+        Some(i) if inner.line() > 0 => full[..i].to_owned(),
+        _ => full,
+    };
+    if let Some((below, rest)) = split_inner_path(&message) {
+        path.push_str(below);
+        message = rest.to_owned();
+    }
+    if let Some(rest) = message.strip_prefix("missing field `")
+        && let Some(name) = rest.strip_suffix('`')
+    {
+        path.push_str(&key_segment(name));
+    }
+    path = with_unknown_field(path, &message);
+    (path, message)
+}
+
+/// The path of an unknown field, also inside an internally tagged enum: serde buffers such an
+/// enum's content and reads the variant from the buffer, so the tracked path stops at the
+/// enum (`$.object.shape`) while the message names the field.
+fn with_unknown_field(path: String, message: &str) -> String {
+    let Some(name) = message
+        .strip_prefix("unknown field `")
+        .and_then(|rest| rest.split('`').next())
+    else {
+        return path;
+    };
+    let segment = key_segment(name);
+    if path.ends_with(&segment) {
+        path
+    } else {
+        format!("{path}{segment}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
