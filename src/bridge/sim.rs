@@ -14,8 +14,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::protocol::{Execute, ExecutionPayload, Feedback, Mode, Outcome, SafetyReport};
-use crate::geometry::SceneShape;
 use crate::geometry::barrier::SafetyFilter;
+use crate::geometry::{CollisionChecker, PathOptions, Polyline, SceneShape};
 use crate::grasp::{HandArm, Object, scene_checker};
 use crate::kinematics::{Data, Model, forward_kinematics};
 use crate::motion::{ControlParams, TrajectoryPoint};
@@ -223,8 +223,10 @@ enum Controller {
     Law {
         params: Box<ControlParams>,
         goal: Vec<f64>,
-        /// Goals the law runs to before `goal`, in turn (an approach's pre-grasp, then the arm
-        /// at the grasp with the hand open), and the one it runs to now (`stages.len()`: `goal`).
+        /// Goals the law runs to before `goal`, in turn (from a closed hand: the arm at the
+        /// pre-grasp with the hand as it is, then the hand opened a joint at a time; then an
+        /// approach's pre-grasp, then the arm at the grasp with the hand open), and the one it
+        /// runs to now (`stages.len()`: `goal`).
         stages: Vec<Vec<f64>>,
         stage: usize,
         initial_error: f64,
@@ -279,15 +281,88 @@ fn link_displacement(model: &Model, q: &[f64], d: &[f64]) -> f64 {
 /// enough that the law's slow final convergence is not waited for at every stage.
 const STAGE_TOLERANCE: f64 = 0.02;
 
-/// The approach stages of a law run to `goal` from `pre` (the pre-grasp): the pre-grasp
-/// itself, then the arm at the grasp with the hand as open as at the pre-grasp. The hand
-/// closes in the last stage, the run to `goal`.
-fn approach_stages(arm: &[usize], pre: &[f64], goal: &[f64]) -> Vec<Vec<f64>> {
+/// The approach stages of a law run to `goal` from `pre` (the pre-grasp), starting at `start`:
+/// the pre-grasp itself, then the arm at the grasp with the hand as open as at the pre-grasp.
+/// The hand closes in the last stage, the run to `goal`.
+///
+/// Before them, where the hand opening at once from `start` to its pre-grasp posture would
+/// sweep a link into another or into the scene ([`opening_clear`]), the arm first carries the
+/// hand unchanged to the pre-grasp, and the hand opens there one joint at a time, in an order
+/// whose every move is clear (greedy, lowest joint index first). Why: the demonstrations start
+/// with the hand closed on the table, the thumb across the palm; opened there, a finger sweeps
+/// into the table or the thumb, the filter holds it and the law rests there (a boundary
+/// equilibrium) for good.
+fn approach_stages(
+    sys: &HandArm,
+    checker: &CollisionChecker,
+    start: &[f64],
+    pre: &[f64],
+    goal: &[f64],
+) -> Vec<Vec<f64>> {
+    let arm = &sys.arm_joints;
+    let mut stages = Vec::new();
+    let mut open = start.to_vec();
+    for (j, q) in open.iter_mut().enumerate() {
+        if !arm.contains(&j) {
+            *q = pre[j];
+        }
+    }
+    if max_abs_diff(&open, start) > STAGE_TOLERANCE && !opening_clear(checker, start, &open) {
+        // The arm first carries the hand as it is to the pre-grasp (a closed hand resting on
+        // the table cannot open there), then the hand opens one joint at a time, each joint
+        // whose own move is clear, until all are open or none can move (the pre-grasp stage
+        // then opens the rest together).
+        let mut at = pre.to_vec();
+        for (j, q) in at.iter_mut().enumerate() {
+            if !arm.contains(&j) {
+                *q = start[j];
+            }
+        }
+        stages.push(at.clone());
+        let mut left: Vec<usize> = (0..start.len())
+            .filter(|&j| !arm.contains(&j) && (start[j] - pre[j]).abs() > STAGE_TOLERANCE)
+            .collect();
+        while let Some(k) = left.iter().position(|&j| {
+            let mut next = at.clone();
+            next[j] = pre[j];
+            opening_clear(checker, &at, &next)
+        }) {
+            let j = left.remove(k);
+            at[j] = pre[j];
+            if !left.is_empty() {
+                stages.push(at.clone());
+            }
+        }
+    }
     let mut arm_in = pre.to_vec();
     for &j in arm {
         arm_in[j] = goal[j];
     }
-    vec![pre.to_vec(), arm_in]
+    stages.extend([pre.to_vec(), arm_in]);
+    stages
+}
+
+/// The straight joint-space move from `a` to `b` keeps every watched pair apart, or no deeper
+/// than at `a` where `a` already touches (a closed hand's fingertips on each other; exact,
+/// continuous, 0.5 mm tolerance, a step budget).
+fn opening_clear(checker: &CollisionChecker, a: &[f64], b: &[f64]) -> bool {
+    let n = a.len();
+    let mut data = checker.data();
+    checker.update(&mut data, a);
+    let at_a = (0..checker.pairs().len())
+        .filter(|&i| !checker.is_allowed(i))
+        .map(|i| checker.pair_distance(&mut data, i).distance)
+        .fold(0.0, f64::min);
+    let path = [a, b].concat();
+    let report = checker.check_path(
+        &mut data,
+        &Polyline::new(&path, n),
+        &PathOptions {
+            tolerance: 5e-4,
+            max_steps: 20_000,
+        },
+    );
+    report.complete && report.distance() >= at_a - 1e-4
 }
 
 fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
@@ -403,15 +478,6 @@ impl Run {
                                     .into(),
                             );
                         }
-                        if let Some(pre) = &spec.pre_grasp {
-                            if pre.len() != n || !pre.iter().all(|x| x.is_finite()) || !inside(pre)
-                            {
-                                return Err(format!(
-                                    "the pre-grasp needs {n} finite values inside the joint limits"
-                                ));
-                            }
-                            stages = approach_stages(&sys.arm_joints, pre, goal);
-                        }
                         let object = spec
                             .object
                             .clone()
@@ -426,6 +492,15 @@ impl Run {
                             .collect::<Result<Vec<_>, _>>()
                             .map_err(|e| format!("the safety scene's obstacles: {e}"))?;
                         let checker = scene_checker(sys, object.as_ref(), &obstacles);
+                        if let Some(pre) = &spec.pre_grasp {
+                            if pre.len() != n || !pre.iter().all(|x| x.is_finite()) || !inside(pre)
+                            {
+                                return Err(format!(
+                                    "the pre-grasp needs {n} finite values inside the joint limits"
+                                ));
+                            }
+                            stages = approach_stages(sys, &checker, &robot.q, pre, goal);
+                        }
                         let goals: Vec<&[f64]> = stages
                             .iter()
                             .map(Vec::as_slice)
