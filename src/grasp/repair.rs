@@ -336,3 +336,102 @@ impl Eval<'_> {
         Ok(())
     }
 }
+
+/// Palm steps of the exact polish, coarse to fine: (translation m, rotation rad).
+const POLISH_STEPS: [(f64, f64); 3] = [(4e-3, 0.08), (2e-3, 0.04), (1e-3, 0.02)];
+/// Candidate postures one polish may judge (each a palm IK, a contact repair and a verdict).
+pub(super) const POLISH_BUDGET: usize = 48;
+
+impl Eval<'_> {
+    /// A deterministic pattern search on the exact verdict around a repaired posture that fails
+    /// it: the palm is translated along and rotated about the world axes (about the fingertips'
+    /// centroid), each candidate placed again by [`Self::repair`] and kept when its verdict is
+    /// closer to passing ([`Verdict::violation`]), with steps halving down to 1 mm / 0.02 rad.
+    ///
+    /// Why: the optimiser's contact spheres sit inside the pads, several millimetres short of the
+    /// fingertip's end, so on a thin object (the 8 mm pencil on the table) its answers touch
+    /// with the pad's end edge, a few degrees beyond the verdict's cone, or just graze another
+    /// link; nothing in the sphere model can see this, the exact geometry can. Returns whether
+    /// the verdict at the updated `u` passes and its violation; `u` is only ever replaced by a
+    /// better candidate.
+    pub(super) fn polish(&mut self, u: &mut [f64]) -> (bool, f64, Option<String>) {
+        let (passed, mut best) = self.exact_score(u);
+        let mut note = None;
+        if passed {
+            return (true, 0.0, note);
+        }
+        let n = u.len();
+        let mut cand = vec![0.0; n];
+        let mut budget = POLISH_BUDGET;
+        'levels: for &(dt, dr) in &POLISH_STEPS {
+            let mut improved = true;
+            while improved {
+                improved = false;
+                for axis in 0..6 {
+                    for sign in [1.0, -1.0] {
+                        if budget == 0 {
+                            break 'levels;
+                        }
+                        budget -= 1;
+                        cand.copy_from_slice(u);
+                        if !self.move_palm(&mut cand, axis, sign * if axis < 3 { dt } else { dr }) {
+                            continue;
+                        }
+                        let cand_note = self.repair(&mut cand);
+                        let (passed, score) = self.exact_score(&cand);
+                        if passed || score < best {
+                            best = score;
+                            u.copy_from_slice(&cand);
+                            note = cand_note;
+                            improved = true;
+                            if passed {
+                                return (true, 0.0, note);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        (false, best, note)
+    }
+
+    /// Move the palm of posture `cand` by `delta` along world axis `axis` (0-2, m) or about world
+    /// axis `axis − 3` through the fingertips' centroid (rad), through the arm's IK; false when
+    /// the IK does not reach the moved pose.
+    fn move_palm(&mut self, cand: &mut [f64], axis: usize, delta: f64) -> bool {
+        self.set_q(cand);
+        self.fresh = false;
+        let model = &*self.sys.model;
+        forward_kinematics(model, &mut self.fd_data, &self.q);
+        let mut target = *self.fd_data.frame(self.sys.palm);
+        if axis < 3 {
+            target.translation.vector[axis] += delta;
+        } else {
+            let m = self.sys.fingers.len() as f64;
+            let pivot = self
+                .sys
+                .fingers
+                .iter()
+                .map(|f| f.contact_point(&self.fd_data).coords)
+                .sum::<nalgebra::Vector3<f64>>()
+                / m;
+            let mut w = nalgebra::Vector3::zeros();
+            w[axis - 3] = delta;
+            let r = nalgebra::UnitQuaternion::from_scaled_axis(w);
+            let p = target.translation.vector - pivot;
+            target.translation.vector = pivot + r * p;
+            target.rotation = r * target.rotation;
+        }
+        dls_ik(self.sys, &mut self.fd_data, &mut self.q, &target, None);
+        forward_kinematics(model, &mut self.fd_data, &self.q);
+        let at = self.fd_data.frame(self.sys.palm);
+        let reached = (at.translation.vector - target.translation.vector).norm() < 5e-4
+            && (at.rotation.inverse() * target.rotation).angle() < 5e-3;
+        if reached {
+            for (k, &i) in self.sel.iter().enumerate() {
+                cand[k] = self.q[i];
+            }
+        }
+        reached
+    }
+}
