@@ -1453,6 +1453,9 @@ fn probe_fingertip_reachability() {
                 ("arm-hand + clearance", |r: &Reach| r.clear),
                 ("hand at the mapped wrist", |r: &Reach| r.hand),
             ] {
+                if !hand_too && what.starts_with("hand") {
+                    continue;
+                }
                 let ok: Vec<&Reach> = reach.iter().filter(|r| pick(r) <= 1e-3).collect();
                 let errs: Vec<f64> = ok.iter().flat_map(|r| r.errors.iter().copied()).collect();
                 let (med, p95) = if errs.is_empty() {
