@@ -2,7 +2,9 @@
 //! demonstration's registered scene (the exact support/object clearance penalty active).
 //!
 //! Reports frames/s of `Mapper::solve_next` over a synthetic demonstration (target ≥ 5,000), of
-//! a whole `Mapper::map` (first frame, every later frame and the exact clearance metrics), and,
+//! a whole `Mapper::map` (first frame by the multi-start, every later frame and the exact
+//! clearance metrics), of a whole `Mapper::map_from` (what a batch does for every demonstration
+//! but its first: the first frame solved locally from another subject's first posture), and,
 //! once, checks the warm-started objective of the median frame against a reference solve (tight
 //! tolerance, several starts): printed as a relative gap (target ≤ 1 %).
 
@@ -30,6 +32,12 @@ fn bench(c: &mut Criterion) {
         ..StudyConfig::default()
     };
     let demo = ingest(&generate_study(&cfg).unwrap()[0]).unwrap();
+    // Another subject's demonstration: the batch reference of the `map_from` figure.
+    let two = StudyConfig {
+        subjects: 2,
+        ..cfg.clone()
+    };
+    let other = ingest(&generate_study(&two).unwrap()[1]).unwrap();
     let frames = demo.frames;
     let spec = RegistrationSpec::default().for_object(Some(human_object(&demo.object)));
     let reg = registration_for(&frames, &spec, &anchor).unwrap();
@@ -101,6 +109,21 @@ fn bench(c: &mut Criterion) {
     group.throughput(Throughput::Elements(frames.len() as u64));
     group.bench_function("wam_ihy_whole_demonstration_with_clearance_metrics", |b| {
         b.iter(|| std::hint::black_box(whole.map(&frames, &spec, &anchor).unwrap().metrics.len()))
+    });
+    let other_spec = RegistrationSpec::default().for_object(Some(human_object(&other.object)));
+    let reference = whole
+        .start_reference(&other.frames, &other_spec, &anchor)
+        .unwrap();
+    group.bench_function("wam_ihy_whole_demonstration_from_a_batch_reference", |b| {
+        b.iter(|| {
+            std::hint::black_box(
+                whole
+                    .map_from(&frames, &spec, &anchor, &reference)
+                    .unwrap()
+                    .metrics
+                    .len(),
+            )
+        })
     });
     group.finish();
 }

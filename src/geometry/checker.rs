@@ -208,6 +208,12 @@ impl CheckData {
     pub fn kinematics(&self) -> &Data {
         &self.kin
     }
+    /// Exchanges the FK placements with `kin` (built for the same model): lend placements
+    /// computed elsewhere to [`CollisionChecker::for_each_within_posed`] and take them back
+    /// after, without copying or recomputing them.
+    pub fn swap_kinematics(&mut self, kin: &mut Data) {
+        std::mem::swap(&mut self.kin, kin);
+    }
 }
 
 /// Robot geometry + scene + allowed contacts: every pair to check, resolved once.
@@ -220,6 +226,9 @@ pub struct CollisionChecker {
     acm: AllowedContacts,
     /// Per shape: offset of its chain in `CheckData::suffix` (chain length + 1 entries).
     pub(crate) suffix_offset: Vec<usize>,
+    /// Per shape: its bounding sphere's centre in its link frame, so the broad phase of
+    /// [`Self::for_each_within_posed`] places one point per shape instead of a whole pose.
+    local_centers: Vec<Point3<f64>>,
 }
 
 impl CollisionChecker {
@@ -275,6 +284,7 @@ impl CollisionChecker {
         }
         suffix_offset.push(off);
         let allowed = vec![false; pairs.len()];
+        let local_centers = shapes.iter().map(|s| s.origin * s.solid.center).collect();
         CollisionChecker {
             robot,
             scene,
@@ -282,6 +292,7 @@ impl CollisionChecker {
             allowed,
             acm: AllowedContacts::none(),
             suffix_offset,
+            local_centers,
         }
     }
 
@@ -317,6 +328,14 @@ impl CollisionChecker {
 
     pub fn is_allowed(&self, pair: usize) -> bool {
         self.allowed[pair]
+    }
+
+    /// Indices of the non-allowed pairs of the given categories: resolved once, so a hot loop
+    /// ([`Self::for_each_within_posed`]) visits only the pairs it asks about.
+    pub fn pairs_in(&self, categories: &[Category]) -> Vec<usize> {
+        (0..self.pairs.len())
+            .filter(|&i| !self.allowed[i] && categories.contains(&self.pairs[i].category))
+            .collect()
     }
 
     /// Scratch for this checker (one per worker thread).
@@ -528,6 +547,60 @@ impl CollisionChecker {
                 || self.sphere_bound(data, i) >= cutoff
             {
                 continue;
+            }
+            let d = self.pair_distance(data, i);
+            if d.distance < cutoff {
+                f(i, &d);
+            }
+        }
+    }
+
+    /// [`Self::for_each_within`] over the listed pairs (from [`Self::pairs_in`]) at the FK
+    /// placements already in `data` ([`CheckData::swap_kinematics`]: a caller that has just run
+    /// forward kinematics at `q` lends them instead of running it again). The same exact
+    /// distances, the same pairs: a pair is skipped only when its bounding spheres are `cutoff`
+    /// or more apart (a lower bound on its signed distance), and only the shapes of the pairs
+    /// that pass are posed. Afterwards `data`'s shape poses are current for those shapes only.
+    pub fn for_each_within_posed(
+        &self,
+        data: &mut CheckData,
+        cutoff: f64,
+        pairs: &[usize],
+        mut f: impl FnMut(usize, &SignedDistance),
+    ) {
+        let shapes = self.robot.shapes();
+        let center =
+            |data: &CheckData, i: usize| data.kin.frame(shapes[i].frame) * self.local_centers[i];
+        for &i in pairs {
+            let p = &self.pairs[i];
+            let s = &shapes[p.shape];
+            let c = center(data, p.shape);
+            let bound = match p.other {
+                Target::Object => {
+                    let o = self
+                        .scene
+                        .object
+                        .as_ref()
+                        .expect("object pair without object");
+                    (c - o.center).norm() - s.solid.bound - o.solid.bound
+                }
+                Target::Support => {
+                    self.scene.support.expect("support pair").height(&c) - s.solid.bound
+                }
+                Target::Obstacle(k) => {
+                    let o = &self.scene.obstacles[k];
+                    (c - o.center).norm() - s.solid.bound - o.solid.bound
+                }
+                Target::Shape(j) => {
+                    (c - center(data, j)).norm() - s.solid.bound - shapes[j].solid.bound
+                }
+            };
+            if bound >= cutoff {
+                continue;
+            }
+            data.poses[p.shape] = data.kin.frame(s.frame) * s.origin;
+            if let Target::Shape(j) = p.other {
+                data.poses[j] = data.kin.frame(shapes[j].frame) * shapes[j].origin;
             }
             let d = self.pair_distance(data, i);
             if d.distance < cutoff {

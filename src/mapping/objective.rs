@@ -481,6 +481,12 @@ impl Evaluator {
         self.arm_jac_valid = false;
     }
 
+    /// The FK placements of the last updated point, lent to the clearance penalty (which swaps
+    /// them into its collision scratch and back, so they come back unchanged).
+    pub(crate) fn kinematics_mut(&mut self) -> &mut Data {
+        &mut self.data
+    }
+
     fn update_arm_jacobians(&mut self) {
         let Some(arm) = self.mm.arm else { return };
         if self.arm_jac_valid {

@@ -69,11 +69,11 @@ impl Mapper {
     /// The clearance penalty and metrics of the next frames act in this registration's scene
     /// (with [`MappingModel::geometry`]).
     pub fn set_scene(&mut self, reg: &Registration) {
-        let nq = self.eval.nq();
+        let model = &self.eval.model().model;
         self.clearance = self.geometry.as_ref().map(|g| {
             let checker = CollisionChecker::new(g.clone(), scene_of(reg))
                 .with_allowed(&standing_contacts(g, &reg.up));
-            Clearance::new(checker, nq)
+            Clearance::new(checker, model)
         });
     }
 
