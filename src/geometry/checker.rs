@@ -394,9 +394,15 @@ impl CollisionChecker {
 
     /// Broad-phase lower bound of a pair's signed distance at the last update.
     pub(crate) fn sphere_bound(&self, data: &CheckData, pair: usize) -> f64 {
+        self.bound_at(pair, |i| data.centers[i])
+    }
+
+    /// A pair's bounding spheres' gap, each robot shape's sphere centred at `center(shape)`: a
+    /// lower bound on its signed distance.
+    fn bound_at(&self, pair: usize, center: impl Fn(usize) -> Point3<f64>) -> f64 {
         let p = &self.pairs[pair];
-        let s = &self.robot.shapes()[p.shape];
-        let (c, r) = (&data.centers[p.shape], s.solid.bound);
+        let shapes = self.robot.shapes();
+        let (c, r) = (center(p.shape), shapes[p.shape].solid.bound);
         match p.other {
             Target::Object => {
                 let o = self
@@ -406,14 +412,12 @@ impl CollisionChecker {
                     .expect("object pair without object");
                 (c - o.center).norm() - r - o.solid.bound
             }
-            Target::Support => self.scene.support.expect("support pair").height(c) - r,
+            Target::Support => self.scene.support.expect("support pair").height(&c) - r,
             Target::Obstacle(k) => {
                 let o = &self.scene.obstacles[k];
                 (c - o.center).norm() - r - o.solid.bound
             }
-            Target::Shape(j) => {
-                (c - data.centers[j]).norm() - r - self.robot.shapes()[j].solid.bound
-            }
+            Target::Shape(j) => (c - center(j)).norm() - r - shapes[j].solid.bound,
         }
     }
 
@@ -574,27 +578,7 @@ impl CollisionChecker {
         for &i in pairs {
             let p = &self.pairs[i];
             let s = &shapes[p.shape];
-            let c = center(data, p.shape);
-            let bound = match p.other {
-                Target::Object => {
-                    let o = self
-                        .scene
-                        .object
-                        .as_ref()
-                        .expect("object pair without object");
-                    (c - o.center).norm() - s.solid.bound - o.solid.bound
-                }
-                Target::Support => {
-                    self.scene.support.expect("support pair").height(&c) - s.solid.bound
-                }
-                Target::Obstacle(k) => {
-                    let o = &self.scene.obstacles[k];
-                    (c - o.center).norm() - s.solid.bound - o.solid.bound
-                }
-                Target::Shape(j) => {
-                    (c - center(data, j)).norm() - s.solid.bound - shapes[j].solid.bound
-                }
-            };
+            let bound = self.bound_at(i, |k| center(data, k));
             if bound >= cutoff {
                 continue;
             }
