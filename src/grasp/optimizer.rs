@@ -1500,7 +1500,6 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
     } else {
         std::f64::consts::FRAC_PI_2
     };
-
     if start >= 2 * candidates.len() {
         approach = (approach
             + Vector3::new(
@@ -1603,6 +1602,7 @@ fn dls_ik(
     }
 }
 
+#[derive(Clone)]
 struct StartOutcome {
     start: usize,
     u: Vec<f64>,
@@ -1781,16 +1781,7 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
                 req.threads.clamp(1, order.len()),
                 || (),
                 |_, k| {
-                    let o = &more[order[k]];
-                    let mut p = StartOutcome {
-                        start: o.start,
-                        u: o.u.clone(),
-                        timed_out: o.timed_out,
-                        report: o.report.clone(),
-                        feasible: o.feasible,
-                        score: o.score,
-                        note: o.note.clone(),
-                    };
+                    let mut p = more[order[k]].clone();
                     polish_start(sys, req, &mut p);
                     p
                 },

@@ -1428,19 +1428,28 @@ fn survey_claim_b_alignment() {
     }
 }
 
-/// The wam_t42 system and a request to lift the seeded bottle at (0.5, 0) along z.
-fn wam_t42_bottle_lift() -> (HandArm, GraspRequest) {
+/// The wam_t42 system and a request for one task direction on a seeded object at (0.5, 0).
+fn wam_t42_request(
+    object: &str,
+    direction: Vector3<f64>,
+    kind: Transmission,
+) -> (HandArm, GraspRequest) {
     let systems = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems");
     let s = crate::kinematics::System::from_file(&systems.join("wam_t42.toml")).unwrap();
     let sys = HandArm::from_system(&s).unwrap();
-    let obj = Object::new(crate::grasp::objects::seeded_object("bottle", 0.5, 0.0, 0.0).unwrap())
-        .unwrap();
+    let obj =
+        Object::new(crate::grasp::objects::seeded_object(object, 0.5, 0.0, 0.0).unwrap()).unwrap();
     let req = GraspRequest::new(
         obj,
-        vec![dir(Vector3::z(), Transmission::Force)],
+        vec![dir(direction, kind)],
         QualityMeasure::CentroidDistance,
     );
     (sys, req)
+}
+
+/// The wam_t42 system and a request to lift the seeded bottle at (0.5, 0) along z.
+fn wam_t42_bottle_lift() -> (HandArm, GraspRequest) {
+    wam_t42_request("bottle", Vector3::z(), Transmission::Force)
 }
 
 /// While no start is exactly feasible the search runs further rounds (4, then 8 more, ...) up to
@@ -1907,16 +1916,7 @@ fn point_box(p: &Vector3<f64>, he: &Vector3<f64>) -> (f64, Vector3<f64>) {
 /// more than 1 mm into the pencil or under the table (its corners).
 #[test]
 fn pencil_grasp_touches_with_both_pads() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("robots/systems/wam_t42.toml");
-    let s = crate::kinematics::System::from_file(&path).unwrap();
-    let sys = HandArm::from_system(&s).unwrap();
-    let obj = Object::new(crate::grasp::objects::seeded_object("pencil", 0.5, 0.0, 0.0).unwrap())
-        .unwrap();
-    let req = GraspRequest::new(
-        obj,
-        vec![dir(Vector3::x(), Transmission::Velocity)],
-        QualityMeasure::CentroidDistance,
-    );
+    let (sys, req) = wam_t42_request("pencil", Vector3::x(), Transmission::Velocity);
     let r = plan_grasp(&sys, &req).unwrap();
     assert!(r.feasible, "{:?}", r.reason);
     let model = &*sys.model;
