@@ -530,16 +530,34 @@ pub struct GraspResult {
 struct Eval<'a> {
     sys: &'a HandArm,
     req: &'a GraspRequest,
+    layout: Layout,
+    kin: KinState,
+    exact: ExactGeometry,
+    scratch: Scratch,
+}
+
+/// What the system and the request fix for the whole run: read by every evaluation, written by
+/// none, so it can be borrowed freely while the state below is mutated.
+struct Layout {
     /// `u[k]` is `q[sel[k]]`.
     sel: Vec<usize>,
     na: usize,
-    q: Vec<f64>,
-    data: Data,
-    fd_data: Data,
-    last_u: Vec<f64>,
-    fresh: bool,
     /// Rank of each arm column along the chain (base = 0), for ∂J/∂q.
     arm_rank: Vec<usize>,
+    n_spread: usize,
+    plane: bool,
+    /// Finger pairs `(i, j)`, `i < j`, whose contact spheres must stay disjoint.
+    pairs: Vec<(usize, usize)>,
+    rho: f64,
+}
+
+/// The sphere model's kinematics at the last `u`: valid as a whole or not at all (`fresh`,
+/// `last_u`), so cost, gradient, residuals and Jacobian share one FK pass.
+struct KinState {
+    q: Vec<f64>,
+    data: Data,
+    last_u: Vec<f64>,
+    fresh: bool,
     palm_j: Matrix6xX<f64>,
     jv_arm: Matrix3xX<f64>,
     dj: Vec<Matrix3xX<f64>>,
@@ -557,8 +575,11 @@ struct Eval<'a> {
     /// a central difference), for the pad-cone rows' gradient.
     tip_hn: Vec<Vector3<f64>>,
     elbow_p: Point3<f64>,
-    /// Exact geometry for the verdict: every link against the object, the support and every
-    /// non-adjacent link.
+}
+
+/// Exact geometry for the verdict and the repair, which judge the real links rather than the
+/// optimiser's spheres: every link against the object, the support and every non-adjacent link.
+struct ExactGeometry {
     checker: CollisionChecker,
     cd: CheckData,
     /// Per finger: its links' and pads' object pairs and its flexion coordinate.
@@ -571,19 +592,110 @@ struct Eval<'a> {
     q_saved: Vec<f64>,
     /// Per finger: the exact distance of its pad to the object at the last verdict.
     pads: Vec<Option<SignedDistance>>,
+}
+
+/// Buffers the evaluations overwrite before reading, kept to spare the hot loops allocations;
+/// nothing in them survives a call, so they never make the cached state stale.
+struct Scratch {
+    /// FK off the cached point (GC's finite differences, seeding, the repair's palm moves),
+    /// so `KinState::data` stays valid.
+    fd_data: Data,
     tmp_j: Matrix6xX<f64>,
     hand_gj: Matrix6xX<f64>,
     point_grad: Vec<Vector3<f64>>,
     grad_q: Vec<f64>,
     grad_arm: Vec<f64>,
-    rho: f64,
-    n_spread: usize,
-    plane: bool,
-    /// Finger pairs `(i, j)`, `i < j`, whose contact spheres must stay disjoint.
-    pairs: Vec<(usize, usize)>,
     /// `y − c` of a goal region (scratch, the largest region's dimension).
     region_diff: Vec<f64>,
 }
+
+impl KinState {
+    /// `q[sel[k]] = u[k]`.
+    fn set_q(&mut self, sel: &[usize], u: &[f64]) {
+        for (k, &i) in sel.iter().enumerate() {
+            self.q[i] = u[k];
+        }
+    }
+
+    /// FK, Jacobians and surface queries at `u`; false (and nothing done) when `u` is unchanged.
+    fn update(&mut self, sys: &HandArm, req: &GraspRequest, layout: &Layout, u: &[f64]) -> bool {
+        if self.fresh && self.last_u == u {
+            return false;
+        }
+        self.last_u.clear();
+        self.last_u.extend_from_slice(u);
+        self.fresh = true;
+        self.set_q(&layout.sel, u);
+        let model = &*sys.model;
+        forward_kinematics(model, &mut self.data, &self.q);
+        frame_jacobian(
+            model,
+            &self.data,
+            sys.palm,
+            &Vector3::zeros(),
+            &mut self.palm_j,
+        );
+        for (i, f) in sys.fingers.iter().enumerate() {
+            self.tip_p[i] = f.contact_point(&self.data);
+            self.tip_z[i] = self.data.frame(f.tip).rotation * f.pad_normal;
+            self.tip_q[i] = req.object.query(&self.tip_p[i]);
+            let h = 1e-5;
+            let np = req.object.query(&(self.tip_p[i] + self.tip_z[i] * h));
+            let nm = req.object.query(&(self.tip_p[i] - self.tip_z[i] * h));
+            self.tip_hn[i] = (np.normal - nm.normal) / (2.0 * h);
+            frame_jacobian(model, &self.data, f.tip, &f.tip_offset, &mut self.tip_j[i]);
+        }
+        // Link-sphere Jacobians are not formed here: their constraints enter the solver only
+        // through `J_vᵀ d` with `d` zero for every sphere clear of the object and plane, so
+        // `jacobian_t` applies them lazily (most of the spheres, most of the time).
+        for (i, s) in sys.link_spheres.iter().enumerate() {
+            self.s_p[i] = self.data.frame(s.frame) * Point3::from(s.center);
+            self.s_q[i] = req.object.query(&self.s_p[i]);
+        }
+        if layout.plane {
+            for (p, c) in self.cover_p.iter_mut().zip(&sys.support_cover) {
+                *p = self.data.frame(c.frame) * Point3::from(c.center);
+            }
+        }
+        if let Some(e) = sys.elbow {
+            self.elbow_p = Point3::from(self.data.frame(e).translation.vector);
+        }
+        // Arm translational Jacobian at the grasp frame and its partial derivatives. For a
+        // serial chain of revolute joints with world axes z and columns J_j = z_j × (p − p_j):
+        // ∂J_j/∂q_i = z_i × J_j when joint i precedes j (or i = j), z_j × J_i otherwise.
+        for (a, &qa) in sys.arm_joints.iter().enumerate() {
+            for r in 0..3 {
+                self.jv_arm[(r, a)] = self.palm_j[(r, qa)];
+            }
+        }
+        for i in 0..layout.na {
+            let zi = self
+                .palm_j
+                .fixed_view::<3, 1>(3, sys.arm_joints[i])
+                .into_owned();
+            for j in 0..layout.na {
+                let zj = self
+                    .palm_j
+                    .fixed_view::<3, 1>(3, sys.arm_joints[j])
+                    .into_owned();
+                let col = if layout.arm_rank[i] <= layout.arm_rank[j] {
+                    zi.cross(&self.jv_arm.column(j))
+                } else {
+                    zj.cross(&self.jv_arm.column(i))
+                };
+                self.dj[i].set_column(j, &col);
+            }
+        }
+        true
+    }
+
+    /// Pad-cone excess of finger `i`: `cos(PAD_CONE_OPT_DEG) + n_pad · n_out` (> 0: the pad
+    /// normal is outside the cone around the inward surface normal).
+    fn pad_excess(&self, i: usize) -> f64 {
+        PAD_CONE_OPT_DEG.to_radians().cos() + self.tip_z[i].dot(&self.tip_q[i].normal)
+    }
+}
+
 /// The grasp's scene for the exact checker: the object and its support half-space.
 fn grasp_checker(sys: &HandArm, req: &GraspRequest) -> CollisionChecker {
     grasp_checker_for(sys, &req.object)
@@ -628,71 +740,79 @@ impl<'a> Eval<'a> {
         Eval {
             sys,
             req,
-            sel,
-            na,
-            q: model.neutral(),
-            data: Data::new(model),
-            fd_data: Data::new(model),
-            last_u: Vec::new(),
-            fresh: false,
-            arm_rank,
-            palm_j: Matrix6xX::zeros(nq),
-            jv_arm: Matrix3xX::zeros(na),
-            dj: vec![Matrix3xX::zeros(na); na],
-            tip_p: vec![Point3::origin(); m],
-            tip_q: vec![
-                SurfaceQuery {
-                    signed_distance: 0.0,
-                    point: Point3::origin(),
-                    normal: Vector3::z()
-                };
-                m
-            ],
-            tip_j: vec![Matrix6xX::zeros(nq); m],
-            s_p: vec![Point3::origin(); s],
-            s_q: vec![
-                SurfaceQuery {
-                    signed_distance: 0.0,
-                    point: Point3::origin(),
-                    normal: Vector3::z()
-                };
-                s
-            ],
-            cover_p: vec![Point3::origin(); sys.support_cover.len()],
-            tip_z: vec![Vector3::z(); m],
-            tip_hn: vec![Vector3::zeros(); m],
-            elbow_p: Point3::origin(),
-            checker,
-            cd,
-            fingers_geo,
-            body_pairs,
-            finger_support,
-            q_saved: model.neutral(),
-            pads: vec![None; m],
-            tmp_j: Matrix6xX::zeros(nq),
-            hand_gj: Matrix6xX::zeros(sys.hand_joints.len()),
-            point_grad: vec![Vector3::zeros(); m],
-            grad_q: vec![0.0; nq],
-            grad_arm: vec![0.0; na],
-            rho: req.object.bounding_radius(),
-            n_spread: sys.spread_pairs.len(),
-            plane: req.object.support().is_some(),
-            pairs: (0..m)
-                .flat_map(|i| (i + 1..m).map(move |j| (i, j)))
-                .collect(),
-            region_diff: vec![
-                0.0;
-                req.goal_regions
-                    .iter()
-                    .map(|g| g.center.len())
-                    .max()
-                    .unwrap_or(0)
-            ],
+            layout: Layout {
+                sel,
+                na,
+                arm_rank,
+                n_spread: sys.spread_pairs.len(),
+                plane: req.object.support().is_some(),
+                pairs: (0..m)
+                    .flat_map(|i| (i + 1..m).map(move |j| (i, j)))
+                    .collect(),
+                rho: req.object.bounding_radius(),
+            },
+            kin: KinState {
+                q: model.neutral(),
+                data: Data::new(model),
+                last_u: Vec::new(),
+                fresh: false,
+                palm_j: Matrix6xX::zeros(nq),
+                jv_arm: Matrix3xX::zeros(na),
+                dj: vec![Matrix3xX::zeros(na); na],
+                tip_p: vec![Point3::origin(); m],
+                tip_q: vec![
+                    SurfaceQuery {
+                        signed_distance: 0.0,
+                        point: Point3::origin(),
+                        normal: Vector3::z()
+                    };
+                    m
+                ],
+                tip_j: vec![Matrix6xX::zeros(nq); m],
+                s_p: vec![Point3::origin(); s],
+                s_q: vec![
+                    SurfaceQuery {
+                        signed_distance: 0.0,
+                        point: Point3::origin(),
+                        normal: Vector3::z()
+                    };
+                    s
+                ],
+                cover_p: vec![Point3::origin(); sys.support_cover.len()],
+                tip_z: vec![Vector3::z(); m],
+                tip_hn: vec![Vector3::zeros(); m],
+                elbow_p: Point3::origin(),
+            },
+            exact: ExactGeometry {
+                checker,
+                cd,
+                fingers_geo,
+                body_pairs,
+                finger_support,
+                q_saved: model.neutral(),
+                pads: vec![None; m],
+            },
+            scratch: Scratch {
+                fd_data: Data::new(model),
+                tmp_j: Matrix6xX::zeros(nq),
+                hand_gj: Matrix6xX::zeros(sys.hand_joints.len()),
+                point_grad: vec![Vector3::zeros(); m],
+                grad_q: vec![0.0; nq],
+                grad_arm: vec![0.0; na],
+                region_diff: vec![
+                    0.0;
+                    req.goal_regions
+                        .iter()
+                        .map(|g| g.center.len())
+                        .max()
+                        .unwrap_or(0)
+                ],
+            },
         }
     }
 
     fn n(&self) -> usize {
-        self.sel.len()
+        self.layout.sel.len()
     }
 
     fn n_eq(&self) -> usize {
@@ -703,11 +823,11 @@ impl<'a> Eval<'a> {
         let s = self.sys.link_spheres.len();
         let c = self.sys.support_cover.len();
         let m = self.sys.fingers.len();
-        self.n_spread
+        self.layout.n_spread
             + s
-            + if self.plane { c } else { 0 }
-            + if self.plane { m } else { 0 }
-            + self.pairs.len()
+            + if self.layout.plane { c } else { 0 }
+            + if self.layout.plane { m } else { 0 }
+            + self.layout.pairs.len()
             + self.sys.link_pairs.len()
             + self.req.goal_regions.len()
     }
@@ -723,12 +843,12 @@ impl<'a> Eval<'a> {
     fn pad_row(&self) -> usize {
         let s = self.sys.link_spheres.len();
         let c = self.sys.support_cover.len();
-        self.n_eq() + self.n_spread + s + if self.plane { c } else { 0 }
+        self.n_eq() + self.layout.n_spread + s + if self.layout.plane { c } else { 0 }
     }
 
     /// Index of the first fingertip-pair row in the residual vector.
     fn pair_row(&self) -> usize {
-        self.link_pair_row() - self.pairs.len()
+        self.link_pair_row() - self.layout.pairs.len()
     }
 
     /// Index of the first link-pair row.
@@ -739,101 +859,36 @@ impl<'a> Eval<'a> {
     /// World centre and radius of the other sphere of a link pair.
     fn partner(&self, pair: LinkPair) -> (usize, Point3<f64>, f64) {
         match pair {
-            LinkPair::Links(a, b) => (a, self.s_p[b], self.sys.link_spheres[b].radius),
-            LinkPair::Tip(a, f) => (a, self.tip_p[f], self.sys.fingers[f].radius),
+            LinkPair::Links(a, b) => (a, self.kin.s_p[b], self.sys.link_spheres[b].radius),
+            LinkPair::Tip(a, f) => (a, self.kin.tip_p[f], self.sys.fingers[f].radius),
         }
     }
 
     fn set_q(&mut self, u: &[f64]) {
-        for (k, &i) in self.sel.iter().enumerate() {
-            self.q[i] = u[k];
-        }
+        self.kin.set_q(&self.layout.sel, u);
     }
 
     /// FK, Jacobians and surface queries at `u` (skipped when `u` is unchanged).
     fn update(&mut self, u: &[f64]) {
-        if self.fresh && self.last_u == u {
-            return;
-        }
-        self.last_u.clear();
-        self.last_u.extend_from_slice(u);
-        self.fresh = true;
-        self.set_q(u);
-        let model = &*self.sys.model;
-        forward_kinematics(model, &mut self.data, &self.q);
-        frame_jacobian(
-            model,
-            &self.data,
-            self.sys.palm,
-            &Vector3::zeros(),
-            &mut self.palm_j,
-        );
-        for (i, f) in self.sys.fingers.iter().enumerate() {
-            self.tip_p[i] = f.contact_point(&self.data);
-            self.tip_z[i] = self.data.frame(f.tip).rotation * f.pad_normal;
-            self.tip_q[i] = self.req.object.query(&self.tip_p[i]);
-            let h = 1e-5;
-            let np = self.req.object.query(&(self.tip_p[i] + self.tip_z[i] * h));
-            let nm = self.req.object.query(&(self.tip_p[i] - self.tip_z[i] * h));
-            self.tip_hn[i] = (np.normal - nm.normal) / (2.0 * h);
-            frame_jacobian(model, &self.data, f.tip, &f.tip_offset, &mut self.tip_j[i]);
-        }
-        // Link-sphere Jacobians are not formed here: their constraints enter the solver only
-        // through `J_vᵀ d` with `d` zero for every sphere clear of the object and plane, so
-        // `jacobian_t` applies them lazily (most of the spheres, most of the time).
-        for (i, s) in self.sys.link_spheres.iter().enumerate() {
-            self.s_p[i] = self.data.frame(s.frame) * Point3::from(s.center);
-            self.s_q[i] = self.req.object.query(&self.s_p[i]);
-        }
-        if self.plane {
-            for (p, c) in self.cover_p.iter_mut().zip(&self.sys.support_cover) {
-                *p = self.data.frame(c.frame) * Point3::from(c.center);
-            }
-        }
-        if let Some(e) = self.sys.elbow {
-            self.elbow_p = Point3::from(self.data.frame(e).translation.vector);
-        }
-        self.checker.update(&mut self.cd, &self.q);
-        // Arm translational Jacobian at the grasp frame and its partial derivatives. For a
-        // serial chain of revolute joints with world axes z and columns J_j = z_j × (p − p_j):
-        // ∂J_j/∂q_i = z_i × J_j when joint i precedes j (or i = j), z_j × J_i otherwise.
-        for (a, &qa) in self.sys.arm_joints.iter().enumerate() {
-            for r in 0..3 {
-                self.jv_arm[(r, a)] = self.palm_j[(r, qa)];
-            }
-        }
-        for i in 0..self.na {
-            let zi = self
-                .palm_j
-                .fixed_view::<3, 1>(3, self.sys.arm_joints[i])
-                .into_owned();
-            for j in 0..self.na {
-                let zj = self
-                    .palm_j
-                    .fixed_view::<3, 1>(3, self.sys.arm_joints[j])
-                    .into_owned();
-                let col = if self.arm_rank[i] <= self.arm_rank[j] {
-                    zi.cross(&self.jv_arm.column(j))
-                } else {
-                    zj.cross(&self.jv_arm.column(i))
-                };
-                self.dj[i].set_column(j, &col);
-            }
+        if self.kin.update(self.sys, self.req, &self.layout, u) {
+            self.exact.checker.update(&mut self.exact.cd, &self.kin.q);
         }
     }
 
     fn quality_surrogate(&self) -> f64 {
         match self.req.quality {
             QualityMeasure::CentroidDistance => {
-                indexes::q_dc(&self.tip_p, &self.req.object.centroid()) / self.rho
+                indexes::q_dc(&self.kin.tip_p, &self.req.object.centroid()) / self.layout.rho
             }
-            QualityMeasure::PolygonArea => -indexes::q_agp(&self.tip_p) / (self.rho * self.rho),
+            QualityMeasure::PolygonArea => {
+                -indexes::q_agp(&self.kin.tip_p) / (self.layout.rho * self.layout.rho)
+            }
         }
     }
 
     fn elbow_term(&self) -> f64 {
         match (&self.req.elbow_reference, self.sys.elbow) {
-            (Some(r), Some(_)) => (self.elbow_p - r).norm_squared(),
+            (Some(r), Some(_)) => (self.kin.elbow_p - r).norm_squared(),
             _ => 0.0,
         }
     }
@@ -843,7 +898,7 @@ impl<'a> Eval<'a> {
         let w = self.req.weights;
         let mut c = 0.0;
         if w.tc > 0.0 {
-            let m = indexes::transmission_matrix(&self.jv_arm);
+            let m = indexes::transmission_matrix(&self.kin.jv_arm);
             c += w.tc * indexes::compatibility_index(&m, &self.req.task);
         }
         if w.gc > 0.0 {
@@ -851,9 +906,9 @@ impl<'a> Eval<'a> {
                 * hand_gc(
                     self.sys,
                     self.req,
-                    &self.data,
-                    &mut self.tmp_j,
-                    &mut self.hand_gj,
+                    &self.kin.data,
+                    &mut self.scratch.tmp_j,
+                    &mut self.scratch.hand_gj,
                 )
                 .0;
         }
@@ -866,89 +921,87 @@ impl<'a> Eval<'a> {
         c + PAD_WEIGHT * self.pad_penalty()
     }
 
-    /// Pad-cone excess of finger `i`: `cos(PAD_CONE_OPT_DEG) + n_pad · n_out` (> 0: the pad
-    /// normal is outside the cone around the inward surface normal).
-    fn pad_excess(&self, i: usize) -> f64 {
-        PAD_CONE_OPT_DEG.to_radians().cos() + self.tip_z[i].dot(&self.tip_q[i].normal)
-    }
-
     /// `Σ max(0, excess)²`: zero inside the cone, C¹.
     fn pad_penalty(&self) -> f64 {
         (0..self.sys.fingers.len())
-            .map(|i| self.pad_excess(i).max(0.0).powi(2))
+            .map(|i| self.kin.pad_excess(i).max(0.0).powi(2))
             .sum()
     }
 
     fn gradient(&mut self, u: &[f64], g: &mut [f64]) {
         self.update(u);
         let w = self.req.weights;
-        self.grad_q.iter_mut().for_each(|x| *x = 0.0);
+        self.scratch.grad_q.iter_mut().for_each(|x| *x = 0.0);
         if w.q > 0.0 {
             let cg = self.req.object.centroid();
             let scale = match self.req.quality {
                 QualityMeasure::CentroidDistance => {
-                    indexes::q_dc_point_gradient(&self.tip_p, &cg, &mut self.point_grad);
-                    w.q / self.rho
+                    indexes::q_dc_point_gradient(
+                        &self.kin.tip_p,
+                        &cg,
+                        &mut self.scratch.point_grad,
+                    );
+                    w.q / self.layout.rho
                 }
                 QualityMeasure::PolygonArea => {
-                    indexes::q_agp_point_gradient(&self.tip_p, &mut self.point_grad);
-                    -w.q / (self.rho * self.rho)
+                    indexes::q_agp_point_gradient(&self.kin.tip_p, &mut self.scratch.point_grad);
+                    -w.q / (self.layout.rho * self.layout.rho)
                 }
             };
-            for (i, pg) in self.point_grad.iter().enumerate() {
-                add_point_gradient(&mut self.grad_q, &self.tip_j[i], &(pg * scale));
+            for (i, pg) in self.scratch.point_grad.iter().enumerate() {
+                add_point_gradient(&mut self.scratch.grad_q, &self.kin.tip_j[i], &(pg * scale));
             }
         }
         if w.d > 0.0
             && let (Some(r), Some(frame)) = (&self.req.elbow_reference, self.sys.elbow)
         {
-            let e = (self.elbow_p - r) * (2.0 * w.d);
+            let e = (self.kin.elbow_p - r) * (2.0 * w.d);
             add_point_jacobian_transpose(
                 &self.sys.model,
-                &self.data,
+                &self.kin.data,
                 frame,
                 &Vector3::zeros(),
                 &e,
-                &mut self.grad_q,
+                &mut self.scratch.grad_q,
             );
         }
         if w.tc > 0.0 {
             indexes::compatibility_index_gradient(
-                &self.jv_arm,
-                &self.dj,
+                &self.kin.jv_arm,
+                &self.kin.dj,
                 &self.req.task,
-                &mut self.grad_arm,
+                &mut self.scratch.grad_arm,
             );
             for (a, &qa) in self.sys.arm_joints.iter().enumerate() {
-                self.grad_q[qa] += w.tc * self.grad_arm[a];
+                self.scratch.grad_q[qa] += w.tc * self.scratch.grad_arm[a];
             }
         }
         // Pad penalty: ∂(n_pad · n_out)/∂q_k = ω_k · (n_pad × n_out) + (H n_pad) · v_k (ω, v
         // the tip's angular and linear Jacobian columns, H the symmetric Hessian of the signed
         // distance).
         for i in 0..self.sys.fingers.len() {
-            let e = self.pad_excess(i);
+            let e = self.kin.pad_excess(i);
             if e <= 0.0 {
                 continue;
             }
             let s = 2.0 * PAD_WEIGHT * e;
-            let wv = self.tip_z[i].cross(&self.tip_q[i].normal) * s;
-            let v = self.tip_hn[i] * s;
-            let j = &self.tip_j[i];
-            for (c, g) in self.grad_q.iter_mut().enumerate() {
+            let wv = self.kin.tip_z[i].cross(&self.kin.tip_q[i].normal) * s;
+            let v = self.kin.tip_hn[i] * s;
+            let j = &self.kin.tip_j[i];
+            for (c, g) in self.scratch.grad_q.iter_mut().enumerate() {
                 *g += j[(3, c)] * wv.x + j[(4, c)] * wv.y + j[(5, c)] * wv.z;
                 *g += j[(0, c)] * v.x + j[(1, c)] * v.y + j[(2, c)] * v.z;
             }
         }
-        for (k, &i) in self.sel.iter().enumerate() {
-            g[k] = self.grad_q[i];
+        for (k, &i) in self.layout.sel.iter().enumerate() {
+            g[k] = self.scratch.grad_q[i];
         }
         if w.gc > 0.0 {
             // GC goes through the pseudo-inverse of the grasp matrix, whose derivative has no
             // compact closed form when G is rank-deficient (two-finger hands); its gradient is
             // taken by central differences on a separate scratch Data (2n extra FK passes).
             let h = 1e-6;
-            let mut up = self.last_u.clone();
+            let mut up = self.kin.last_u.clone();
             for k in 0..self.n() {
                 let x = up[k];
                 up[k] = x + h;
@@ -962,68 +1015,68 @@ impl<'a> Eval<'a> {
     }
 
     fn gc_at(&mut self, u: &[f64]) -> f64 {
-        for (k, &i) in self.sel.iter().enumerate() {
-            self.q[i] = u[k];
+        for (k, &i) in self.layout.sel.iter().enumerate() {
+            self.kin.q[i] = u[k];
         }
-        forward_kinematics(&self.sys.model, &mut self.fd_data, &self.q);
+        forward_kinematics(&self.sys.model, &mut self.scratch.fd_data, &self.kin.q);
         let v = hand_gc(
             self.sys,
             self.req,
-            &self.fd_data,
-            &mut self.tmp_j,
-            &mut self.hand_gj,
+            &self.scratch.fd_data,
+            &mut self.scratch.tmp_j,
+            &mut self.scratch.hand_gj,
         )
         .0;
         // restore q of the cached point
-        let last = std::mem::take(&mut self.last_u);
+        let last = std::mem::take(&mut self.kin.last_u);
         self.set_q(&last);
-        self.last_u = last;
+        self.kin.last_u = last;
         v
     }
 
     fn residuals(&mut self, u: &[f64], r: &mut [f64]) {
         self.update(u);
         let m = self.n_eq();
-        for ((ri, tq), f) in r.iter_mut().zip(&self.tip_q).zip(&self.sys.fingers) {
+        for ((ri, tq), f) in r.iter_mut().zip(&self.kin.tip_q).zip(&self.sys.fingers) {
             *ri = tq.signed_distance - f.radius;
         }
         let mut k = m;
         for sp in &self.sys.spread_pairs {
-            r[k] = sp.lower.at(&self.q) - sp.upper.at(&self.q);
+            r[k] = sp.lower.at(&self.kin.q) - sp.upper.at(&self.kin.q);
             k += 1;
         }
         for (i, s) in self.sys.link_spheres.iter().enumerate() {
-            r[k] = s.radius - self.s_q[i].signed_distance;
+            r[k] = s.radius - self.kin.s_q[i].signed_distance;
             k += 1;
         }
         if let Some(pl) = self.req.object.support() {
-            for (c, p) in self.sys.support_cover.iter().zip(&self.cover_p) {
+            for (c, p) in self.sys.support_cover.iter().zip(&self.kin.cover_p) {
                 r[k] = c.radius - pl.signed_distance(p);
                 k += 1;
             }
         }
         if let Some(pl) = self.req.object.support() {
             for (i, f) in self.sys.fingers.iter().enumerate() {
-                r[k] = f.radius - pl.signed_distance(&self.tip_p[i]);
+                r[k] = f.radius - pl.signed_distance(&self.kin.tip_p[i]);
                 k += 1;
             }
         }
-        for &(i, j) in &self.pairs {
+        for &(i, j) in &self.layout.pairs {
             let (fi, fj) = (&self.sys.fingers[i], &self.sys.fingers[j]);
-            r[k] =
-                fi.radius + fj.radius + FINGER_CLEARANCE - (self.tip_p[i] - self.tip_p[j]).norm();
+            r[k] = fi.radius + fj.radius + FINGER_CLEARANCE
+                - (self.kin.tip_p[i] - self.kin.tip_p[j]).norm();
             k += 1;
         }
         for &pair in &self.sys.link_pairs {
             let (a, c, rb) = self.partner(pair);
-            r[k] =
-                self.sys.link_spheres[a].radius + rb + FINGER_CLEARANCE - (self.s_p[a] - c).norm();
+            r[k] = self.sys.link_spheres[a].radius + rb + FINGER_CLEARANCE
+                - (self.kin.s_p[a] - c).norm();
             k += 1;
         }
         // (‖y − c‖² − (m r)²) / 2r: about the distance past the margin near the boundary, smooth
         // at the centre.
         for g in &self.req.goal_regions {
-            let dist = g.distance(&self.q, &mut self.region_diff);
+            let dist = g.distance(&self.kin.q, &mut self.scratch.region_diff);
             let rm = GOAL_REGION_MARGIN * g.radius;
             r[k] = (dist * dist - rm * rm) / (2.0 * g.radius);
             k += 1;
@@ -1032,34 +1085,34 @@ impl<'a> Eval<'a> {
 
     fn jacobian_t(&mut self, u: &[f64], d: &[f64], out: &mut [f64]) {
         self.update(u);
-        self.grad_q.iter_mut().for_each(|x| *x = 0.0);
+        self.scratch.grad_q.iter_mut().for_each(|x| *x = 0.0);
         let m = self.n_eq();
         for (i, di) in d.iter().enumerate().take(m) {
             add_point_gradient(
-                &mut self.grad_q,
-                &self.tip_j[i],
-                &(self.tip_q[i].normal * *di),
+                &mut self.scratch.grad_q,
+                &self.kin.tip_j[i],
+                &(self.kin.tip_q[i].normal * *di),
             );
         }
         let mut k = m;
         for sp in &self.sys.spread_pairs {
-            self.grad_q[sp.lower.q_index] += sp.lower.multiplier * d[k];
-            self.grad_q[sp.upper.q_index] -= sp.upper.multiplier * d[k];
+            self.scratch.grad_q[sp.lower.q_index] += sp.lower.multiplier * d[k];
+            self.scratch.grad_q[sp.upper.q_index] -= sp.upper.multiplier * d[k];
             k += 1;
         }
         let model = &*self.sys.model;
         let n_spheres = self.sys.link_spheres.len();
         let plane = self.req.object.support().map(|pl| Vector3::from(pl.normal));
         for (i, s) in self.sys.link_spheres.iter().enumerate() {
-            let v = self.s_q[i].normal * -d[k + i];
+            let v = self.kin.s_q[i].normal * -d[k + i];
             if v != Vector3::zeros() {
                 add_point_jacobian_transpose(
                     model,
-                    &self.data,
+                    &self.kin.data,
                     s.frame,
                     &s.center,
                     &v,
-                    &mut self.grad_q,
+                    &mut self.scratch.grad_q,
                 );
             }
         }
@@ -1070,11 +1123,11 @@ impl<'a> Eval<'a> {
                 if di != 0.0 {
                     add_point_jacobian_transpose(
                         model,
-                        &self.data,
+                        &self.kin.data,
                         c.frame,
                         &c.center,
                         &(n * -di),
-                        &mut self.grad_q,
+                        &mut self.scratch.grad_q,
                     );
                 }
             }
@@ -1084,23 +1137,23 @@ impl<'a> Eval<'a> {
             for i in 0..self.sys.fingers.len() {
                 let di = d[k0 + i];
                 if di != 0.0 {
-                    add_point_gradient(&mut self.grad_q, &self.tip_j[i], &(n * -di));
+                    add_point_gradient(&mut self.scratch.grad_q, &self.kin.tip_j[i], &(n * -di));
                 }
             }
         }
         // ∂(−‖c_i − c_j‖)/∂q = −eᵀ (J_i − J_j), e the unit vector from c_j to c_i; at
         // coincident centres the row has no gradient and contributes none.
         let k0 = self.pair_row();
-        for (p, &(i, j)) in self.pairs.iter().enumerate() {
+        for (p, &(i, j)) in self.layout.pairs.iter().enumerate() {
             let dp = d[k0 + p];
             if dp == 0.0 {
                 continue;
             }
-            let Some(e) = (self.tip_p[i] - self.tip_p[j]).try_normalize(1e-12) else {
+            let Some(e) = (self.kin.tip_p[i] - self.kin.tip_p[j]).try_normalize(1e-12) else {
                 continue;
             };
-            add_point_gradient(&mut self.grad_q, &self.tip_j[i], &(e * -dp));
-            add_point_gradient(&mut self.grad_q, &self.tip_j[j], &(e * dp));
+            add_point_gradient(&mut self.scratch.grad_q, &self.kin.tip_j[i], &(e * -dp));
+            add_point_gradient(&mut self.scratch.grad_q, &self.kin.tip_j[j], &(e * dp));
         }
         // Link pairs the same way; their rows are zero in `d` while the spheres are clear, so
         // the link Jacobians are applied only for active pairs.
@@ -1111,32 +1164,32 @@ impl<'a> Eval<'a> {
                 continue;
             }
             let (a, c, _) = self.partner(pair);
-            let Some(e) = (self.s_p[a] - c).try_normalize(1e-12) else {
+            let Some(e) = (self.kin.s_p[a] - c).try_normalize(1e-12) else {
                 continue;
             };
             let sa = &self.sys.link_spheres[a];
             add_point_jacobian_transpose(
                 model,
-                &self.data,
+                &self.kin.data,
                 sa.frame,
                 &sa.center,
                 &(e * -dp),
-                &mut self.grad_q,
+                &mut self.scratch.grad_q,
             );
             match pair {
                 LinkPair::Links(_, b) => {
                     let sb = &self.sys.link_spheres[b];
                     add_point_jacobian_transpose(
                         model,
-                        &self.data,
+                        &self.kin.data,
                         sb.frame,
                         &sb.center,
                         &(e * dp),
-                        &mut self.grad_q,
+                        &mut self.scratch.grad_q,
                     );
                 }
                 LinkPair::Tip(_, f) => {
-                    add_point_gradient(&mut self.grad_q, &self.tip_j[f], &(e * dp));
+                    add_point_gradient(&mut self.scratch.grad_q, &self.kin.tip_j[f], &(e * dp));
                 }
             }
         }
@@ -1146,16 +1199,20 @@ impl<'a> Eval<'a> {
             if dp == 0.0 {
                 continue;
             }
-            g.distance(&self.q, &mut self.region_diff);
+            g.distance(&self.kin.q, &mut self.scratch.region_diff);
             let dim = g.center.len();
             for (gi, &j) in g.joints.iter().enumerate() {
                 let row = &g.components[gi * dim..(gi + 1) * dim];
-                let v: f64 = row.iter().zip(&self.region_diff).map(|(w, y)| w * y).sum();
-                self.grad_q[j] += dp * v / g.radius;
+                let v: f64 = row
+                    .iter()
+                    .zip(&self.scratch.region_diff)
+                    .map(|(w, y)| w * y)
+                    .sum();
+                self.scratch.grad_q[j] += dp * v / g.radius;
             }
         }
-        for (k, &i) in self.sel.iter().enumerate() {
-            out[k] = self.grad_q[i];
+        for (k, &i) in self.layout.sel.iter().enumerate() {
+            out[k] = self.scratch.grad_q[i];
         }
     }
 }
@@ -1165,6 +1222,34 @@ impl Eval<'_> {
     /// finger's pad against the object.
     fn clearance(&mut self, u: &[f64]) -> Clearance {
         self.update(u);
+        self.exact.clearance_at_update()
+    }
+
+    /// Signed distance of finger `i`'s pad from the object surface (m): exact between its pad
+    /// links and the object, or the contact sphere's (eq. 27) for a finger without pad shapes.
+    fn pad_distance(&self, i: usize) -> f64 {
+        self.exact.pads[i].map_or(
+            self.kin.tip_q[i].signed_distance - self.sys.fingers[i].radius,
+            |d| d.distance,
+        )
+    }
+
+    /// Angle between finger `i`'s pad normal and the inward surface normal at its contact, deg
+    /// (the exact contact's normal, pointing from the pad into the object; the contact sphere's
+    /// without pad shapes).
+    fn pad_angle_deg(&self, i: usize) -> f64 {
+        let inward = self.exact.pads[i].map_or(-self.kin.tip_q[i].normal, |d| d.normal);
+        inward
+            .dot(&self.kin.tip_z[i])
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees()
+    }
+}
+
+impl ExactGeometry {
+    /// Every pair at the checker's last update, and each finger's pad against the object.
+    fn clearance_at_update(&mut self) -> Clearance {
         let c = self.checker.clearance_at_update(&mut self.cd);
         for f in 0..self.pads.len() {
             let mut best: Option<SignedDistance> = None;
@@ -1178,27 +1263,6 @@ impl Eval<'_> {
             self.pads[f] = best;
         }
         c
-    }
-
-    /// Signed distance of finger `i`'s pad from the object surface (m): exact between its pad
-    /// links and the object, or the contact sphere's (eq. 27) for a finger without pad shapes.
-    fn pad_distance(&self, i: usize) -> f64 {
-        self.pads[i].map_or(
-            self.tip_q[i].signed_distance - self.sys.fingers[i].radius,
-            |d| d.distance,
-        )
-    }
-
-    /// Angle between finger `i`'s pad normal and the inward surface normal at its contact, deg
-    /// (the exact contact's normal, pointing from the pad into the object; the contact sphere's
-    /// without pad shapes).
-    fn pad_angle_deg(&self, i: usize) -> f64 {
-        let inward = self.pads[i].map_or(-self.tip_q[i].normal, |d| d.normal);
-        inward
-            .dot(&self.tip_z[i])
-            .clamp(-1.0, 1.0)
-            .acos()
-            .to_degrees()
     }
 }
 
@@ -1257,7 +1321,7 @@ impl Eval<'_> {
             .sys
             .spread_pairs
             .iter()
-            .map(|sp| sp.lower.at(&self.q) - sp.upper.at(&self.q))
+            .map(|sp| sp.lower.at(&self.kin.q) - sp.upper.at(&self.kin.q))
             .fold(f64::NEG_INFINITY, f64::max);
         Verdict {
             object: clearance.category_distance(Category::Object),
@@ -1274,7 +1338,7 @@ impl Eval<'_> {
     fn verdict_reason(&self, v: &Verdict) -> Option<String> {
         let pair = |c: Category| {
             v.clearance.category(c).map(|cl| {
-                let l = self.checker.label(cl.pair);
+                let l = self.exact.checker.label(cl.pair);
                 (l.link, l.other, -cl.distance.distance * 1e3)
             })
         };
@@ -1649,7 +1713,7 @@ fn run_start_with(
     {
         let mut e = eval.borrow_mut();
         let e = &mut *e;
-        seed_start(sys, req, start, &mut e.fd_data, &mut u);
+        seed_start(sys, req, start, &mut e.scratch.fd_data, &mut u);
     }
     let (lo, hi) = bounds(sys);
     let problem = Problem::new(
@@ -1944,7 +2008,7 @@ pub(crate) fn describe(
         .iter()
         .map(|&i| NamedJoint {
             name: names[i].clone(),
-            value: e.q[i],
+            value: e.kin.q[i],
         })
         .collect();
     let q_hand = sys
@@ -1952,19 +2016,19 @@ pub(crate) fn describe(
         .iter()
         .map(|&i| NamedJoint {
             name: names[i].clone(),
-            value: e.q[i],
+            value: e.kin.q[i],
         })
         .collect();
     // Contacts where the pads touch: the exact witness point on the object, its outward normal
     // and the pad's signed distance (the contact sphere's for a finger without pad shapes).
-    let cps = contact_points(sys, &req.object, &e.data);
+    let cps = contact_points(sys, &req.object, &e.kin.data);
     let contacts: Vec<Contact> = sys
         .fingers
         .iter()
         .zip(&cps)
         .enumerate()
         .map(|(i, (f, (p, q)))| {
-            let (p, n) = e.pads[i].map_or((*p, q.normal), |d| (d.point_b, -d.normal));
+            let (p, n) = e.exact.pads[i].map_or((*p, q.normal), |d| (d.point_b, -d.normal));
             Contact {
                 finger: f.name.clone(),
                 point: [p.x, p.y, p.z],
@@ -1977,7 +2041,7 @@ pub(crate) fn describe(
     let points: Vec<Point3<f64>> = contacts.iter().map(|c| Point3::from(c.point)).collect();
     let label = |c: Category| {
         v.clearance.category(c).map(|cl| {
-            let l = e.checker.label(cl.pair);
+            let l = e.exact.checker.label(cl.pair);
             match c {
                 Category::SelfCollision => format!("{} / {}", l.link, l.other),
                 _ => l.link,
@@ -1998,13 +2062,13 @@ pub(crate) fn describe(
         max_pad_angle_deg: v.pad_angle.0,
     };
     let exact_reason = e.verdict_reason(&v);
-    let m_arm = indexes::transmission_matrix(&e.jv_arm);
+    let m_arm = indexes::transmission_matrix(&e.kin.jv_arm);
     let mut tmp = Matrix6xX::zeros(model.nq());
     let mut gj = Matrix6xX::zeros(sys.hand_joints.len());
-    let (gc, m_hand) = hand_gc(sys, req, &e.data, &mut tmp, &mut gj);
+    let (gc, m_hand) = hand_gc(sys, req, &e.kin.data, &mut tmp, &mut gj);
     let mut arm6 = Matrix6xX::zeros(sys.arm_joints.len());
     for (a, &qa) in sys.arm_joints.iter().enumerate() {
-        arm6.set_column(a, &e.palm_j.column(qa));
+        arm6.set_column(a, &e.kin.palm_j.column(qa));
     }
     let ns = sys.spread_pairs.len();
     let s = sys.link_spheres.len();
@@ -2041,9 +2105,10 @@ pub(crate) fn describe(
             let driver = model.joint(&m.joint)?.actuation?;
             let act = j.actuation?;
             // The joint's value as the model applies it vs. the declared coupling (eq. 26).
-            let applied = act.multiplier * e.q[act.q_index] + act.offset;
-            let declared =
-                m.multiplier * (driver.multiplier * e.q[driver.q_index] + driver.offset) + m.offset;
+            let applied = act.multiplier * e.kin.q[act.q_index] + act.offset;
+            let declared = m.multiplier
+                * (driver.multiplier * e.kin.q[driver.q_index] + driver.offset)
+                + m.offset;
             Some((applied - declared).abs())
         })
         .fold(0.0, f64::max);

@@ -396,16 +396,22 @@ fn allocation_free_hand_object_jacobian_equals_the_pseudo_inverse_form() {
     let u = [0.2, 0.6, -0.3, 1.1, 0.4, 0.5, -0.2, 0.3, 0.25];
     e.update(&u);
     let nh = sys.hand_joints.len();
-    let (_, m_fast) = hand_gc(&sys, &req, &e.data, &mut e.tmp_j, &mut Matrix6xX::zeros(nh));
-    let cps = contact_points(&sys, &req.object, &e.data);
+    let (_, m_fast) = hand_gc(
+        &sys,
+        &req,
+        &e.kin.data,
+        &mut e.scratch.tmp_j,
+        &mut Matrix6xX::zeros(nh),
+    );
+    let cps = contact_points(&sys, &req.object, &e.kin.data);
     let pts: Vec<Point3<f64>> = cps.iter().map(|c| c.0).collect();
     let mut g = nalgebra::DMatrix::zeros(6, 3 * pts.len());
     indexes::grasp_matrix(&pts, &req.object.centroid(), &mut g);
     let mut jh = nalgebra::DMatrix::zeros(3 * pts.len(), nh);
     let mut j = Matrix6xX::zeros(sys.model.nq());
     for (i, f) in sys.fingers.iter().enumerate() {
-        let local = e.data.frame(f.tip).inverse_transform_point(&pts[i]);
-        frame_jacobian(&sys.model, &e.data, f.tip, &local.coords, &mut j);
+        let local = e.kin.data.frame(f.tip).inverse_transform_point(&pts[i]);
+        frame_jacobian(&sys.model, &e.kin.data, f.tip, &local.coords, &mut j);
         for (h, &qh) in sys.hand_joints.iter().enumerate() {
             for r in 0..3 {
                 jh[(3 * i + r, h)] = j[(r, qh)];

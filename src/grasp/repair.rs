@@ -23,7 +23,7 @@ use crate::kinematics::{Data, forward_kinematics};
 
 use crate::grasp::system::HandArm;
 
-use super::{Eval, dls_ik, finite_or};
+use super::{Eval, ExactGeometry, dls_ik, finite_or};
 
 /// Deepest a finger may sit in the object after placement (m); half the verdict's tolerance.
 const BAND_LO: f64 = -5e-4;
@@ -152,7 +152,7 @@ pub(super) fn finger_geometry(
     (fingers, body, finger_support)
 }
 
-impl Eval<'_> {
+impl ExactGeometry {
     /// Smallest exact distance of any of `pairs` at the checker's last update (m).
     fn min_distance(&mut self, pairs_of: impl Fn(&Self) -> &[usize]) -> Option<SignedDistance> {
         let mut best: Option<SignedDistance> = None;
@@ -165,13 +165,16 @@ impl Eval<'_> {
         }
         best
     }
+}
 
+impl Eval<'_> {
     /// Exact distance of finger `f`'s deepest link to the object with its flexion coordinate
-    /// at `s` (the rest of `self.q` unchanged).
+    /// at `s` (the rest of `self.kin.q` unchanged).
     fn finger_gap(&mut self, f: usize, qi: usize, s: f64) -> f64 {
-        self.q[qi] = s;
-        self.checker.update(&mut self.cd, &self.q);
-        self.min_distance(|e| &e.fingers_geo[f].links)
+        self.kin.q[qi] = s;
+        self.exact.checker.update(&mut self.exact.cd, &self.kin.q);
+        self.exact
+            .min_distance(|x| &x.fingers_geo[f].links)
             .map_or(f64::INFINITY, |d| d.distance)
     }
 
@@ -179,7 +182,7 @@ impl Eval<'_> {
     /// updated in place; the returned note says which finger could not be placed, if any.
     pub(super) fn repair(&mut self, u: &mut [f64]) -> Option<String> {
         self.set_q(u);
-        self.fresh = false;
+        self.kin.fresh = false;
         let mut note = None;
         // A finger placed on the object may press into the table (the contact spheres keep the
         // pad centres above it, not the phalanx corners): lift the hand by that depth and place
@@ -192,18 +195,19 @@ impl Eval<'_> {
                     note.get_or_insert(msg);
                 }
             }
-            self.checker.update(&mut self.cd, &self.q);
+            self.exact.checker.update(&mut self.exact.cd, &self.kin.q);
             let deepest = self
-                .min_distance(|e| &e.finger_support)
+                .exact
+                .min_distance(|x| &x.finger_support)
                 .map_or(f64::INFINITY, |d| d.distance);
             if deepest >= BAND_LO {
                 break;
             }
         }
-        for (k, &i) in self.sel.iter().enumerate() {
-            u[k] = self.q[i];
+        for (k, &i) in self.layout.sel.iter().enumerate() {
+            u[k] = self.kin.q[i];
         }
-        self.fresh = false;
+        self.kin.fresh = false;
         note
     }
 
@@ -211,9 +215,9 @@ impl Eval<'_> {
     /// along the exact penetration normal.
     fn back_off(&mut self) {
         for _ in 0..BACK_OFF_ROUNDS {
-            self.checker.update(&mut self.cd, &self.q);
-            let body = self.min_distance(|e| &e.body_pairs);
-            let fingers = self.min_distance(|e| &e.finger_support);
+            self.exact.checker.update(&mut self.exact.cd, &self.kin.q);
+            let body = self.exact.min_distance(|x| &x.body_pairs);
+            let fingers = self.exact.min_distance(|x| &x.finger_support);
             let Some(d) = [body, fingers]
                 .into_iter()
                 .flatten()
@@ -226,14 +230,14 @@ impl Eval<'_> {
             }
             // `normal` points from the robot's link into the other member: move against it.
             let shift = d.normal * (d.distance - 1e-3);
-            forward_kinematics(&self.sys.model, &mut self.fd_data, &self.q);
-            let mut target = *self.fd_data.frame(self.sys.palm);
+            forward_kinematics(&self.sys.model, &mut self.scratch.fd_data, &self.kin.q);
+            let mut target = *self.scratch.fd_data.frame(self.sys.palm);
             target.translation.vector += shift;
-            self.q_saved.clone_from(&self.q);
+            self.exact.q_saved.clone_from(&self.kin.q);
             // A plan's grasp keeps to its goal region: the self-motion is pulled towards the
             // regions' centre while the palm backs off.
             let rest = (!self.req.goal_regions.is_empty()).then(|| {
-                let mut rest = self.q.clone();
+                let mut rest = self.kin.q.clone();
                 for g in &self.req.goal_regions {
                     for (&j, c) in g.joints.iter().zip(g.centre()) {
                         rest[j] = c;
@@ -243,19 +247,19 @@ impl Eval<'_> {
             });
             dls_ik(
                 self.sys,
-                &mut self.fd_data,
-                &mut self.q,
+                &mut self.scratch.fd_data,
+                &mut self.kin.q,
                 &target,
                 rest.as_deref(),
             );
             // The seeding IK is a heuristic: keep its answer only where it reached the shifted
             // palm pose (within 1 mm, 0.01 rad); at joint limits it may wander off instead.
-            forward_kinematics(&self.sys.model, &mut self.fd_data, &self.q);
-            let at = self.fd_data.frame(self.sys.palm);
+            forward_kinematics(&self.sys.model, &mut self.scratch.fd_data, &self.kin.q);
+            let at = self.scratch.fd_data.frame(self.sys.palm);
             let reached = (at.translation.vector - target.translation.vector).norm() < 1e-3
                 && (at.rotation.inverse() * target.rotation).angle() < 1e-2;
             if !reached {
-                self.q.clone_from(&self.q_saved);
+                self.kin.q.clone_from(&self.exact.q_saved);
                 return;
             }
         }
@@ -264,14 +268,14 @@ impl Eval<'_> {
     /// Move finger `f` along its flexion coordinate until its deepest link touches the object
     /// within the contact band.
     fn place_finger(&mut self, f: usize) -> Result<(), String> {
-        let Some((qi, close)) = self.fingers_geo[f].flex else {
+        let Some((qi, close)) = self.exact.fingers_geo[f].flex else {
             return Ok(());
         };
         let model = &*self.sys.model;
         let lo = finite_or(model.lower_limits()[qi], -10.0);
         let hi = finite_or(model.upper_limits()[qi], 10.0);
         let name = self.sys.fingers[f].name.clone();
-        let s0 = self.q[qi];
+        let s0 = self.kin.q[qi];
         let g0 = self.finger_gap(f, qi, s0);
         if (BAND_LO..=BAND_HI).contains(&g0) {
             return Ok(());
@@ -304,8 +308,8 @@ impl Eval<'_> {
             walk(self, -close).or_else(|| walk(self, close))
         };
         let Some((mut a, mut b)) = bracket else {
-            let s_end = self.q[qi];
-            self.q[qi] = s0;
+            let s_end = self.kin.q[qi];
+            self.kin.q[qi] = s0;
             return Err(if g0 > BAND_HI {
                 format!(
                     "finger '{name}' cannot close onto the object: its links stay {:.1} mm away \
@@ -320,7 +324,7 @@ impl Eval<'_> {
             });
         };
         if a == b {
-            self.q[qi] = a;
+            self.kin.q[qi] = a;
             return Ok(());
         }
         for _ in 0..BISECTIONS {
@@ -332,7 +336,7 @@ impl Eval<'_> {
             }
             if g > BAND_HI { a = m } else { b = m }
         }
-        self.q[qi] = a;
+        self.kin.q[qi] = a;
         Ok(())
     }
 }
@@ -400,10 +404,10 @@ impl Eval<'_> {
     /// the IK does not reach the moved pose.
     fn move_palm(&mut self, cand: &mut [f64], axis: usize, delta: f64) -> bool {
         self.set_q(cand);
-        self.fresh = false;
+        self.kin.fresh = false;
         let model = &*self.sys.model;
-        forward_kinematics(model, &mut self.fd_data, &self.q);
-        let mut target = *self.fd_data.frame(self.sys.palm);
+        forward_kinematics(model, &mut self.scratch.fd_data, &self.kin.q);
+        let mut target = *self.scratch.fd_data.frame(self.sys.palm);
         if axis < 3 {
             target.translation.vector[axis] += delta;
         } else {
@@ -412,7 +416,7 @@ impl Eval<'_> {
                 .sys
                 .fingers
                 .iter()
-                .map(|f| f.contact_point(&self.fd_data).coords)
+                .map(|f| f.contact_point(&self.scratch.fd_data).coords)
                 .sum::<nalgebra::Vector3<f64>>()
                 / m;
             let mut w = nalgebra::Vector3::zeros();
@@ -422,14 +426,20 @@ impl Eval<'_> {
             target.translation.vector = pivot + r * p;
             target.rotation = r * target.rotation;
         }
-        dls_ik(self.sys, &mut self.fd_data, &mut self.q, &target, None);
-        forward_kinematics(model, &mut self.fd_data, &self.q);
-        let at = self.fd_data.frame(self.sys.palm);
+        dls_ik(
+            self.sys,
+            &mut self.scratch.fd_data,
+            &mut self.kin.q,
+            &target,
+            None,
+        );
+        forward_kinematics(model, &mut self.scratch.fd_data, &self.kin.q);
+        let at = self.scratch.fd_data.frame(self.sys.palm);
         let reached = (at.translation.vector - target.translation.vector).norm() < 5e-4
             && (at.rotation.inverse() * target.rotation).angle() < 5e-3;
         if reached {
-            for (k, &i) in self.sel.iter().enumerate() {
-                cand[k] = self.q[i];
+            for (k, &i) in self.layout.sel.iter().enumerate() {
+                cand[k] = self.kin.q[i];
             }
         }
         reached
