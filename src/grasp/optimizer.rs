@@ -737,6 +737,12 @@ impl<'a> Eval<'a> {
         let checker = grasp_checker(sys, req);
         let cd = checker.data();
         let (fingers_geo, body_pairs, finger_support) = repair::finger_geometry(sys, &checker);
+        // Placeholder until the first update queries the object.
+        let no_query = SurfaceQuery {
+            signed_distance: 0.0,
+            point: Point3::origin(),
+            normal: Vector3::z(),
+        };
         Eval {
             sys,
             req,
@@ -760,24 +766,10 @@ impl<'a> Eval<'a> {
                 jv_arm: Matrix3xX::zeros(na),
                 dj: vec![Matrix3xX::zeros(na); na],
                 tip_p: vec![Point3::origin(); m],
-                tip_q: vec![
-                    SurfaceQuery {
-                        signed_distance: 0.0,
-                        point: Point3::origin(),
-                        normal: Vector3::z()
-                    };
-                    m
-                ],
+                tip_q: vec![no_query; m],
                 tip_j: vec![Matrix6xX::zeros(nq); m],
                 s_p: vec![Point3::origin(); s],
-                s_q: vec![
-                    SurfaceQuery {
-                        signed_distance: 0.0,
-                        point: Point3::origin(),
-                        normal: Vector3::z()
-                    };
-                    s
-                ],
+                s_q: vec![no_query; s],
                 cover_p: vec![Point3::origin(); sys.support_cover.len()],
                 tip_z: vec![Vector3::z(); m],
                 tip_hn: vec![Vector3::zeros(); m],
@@ -1015,9 +1007,7 @@ impl<'a> Eval<'a> {
     }
 
     fn gc_at(&mut self, u: &[f64]) -> f64 {
-        for (k, &i) in self.layout.sel.iter().enumerate() {
-            self.kin.q[i] = u[k];
-        }
+        self.kin.set_q(&self.layout.sel, u);
         forward_kinematics(&self.sys.model, &mut self.scratch.fd_data, &self.kin.q);
         let v = hand_gc(
             self.sys,
