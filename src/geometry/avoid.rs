@@ -37,6 +37,11 @@ pub struct AvoidOptions {
     pub self_margin: f64,
     /// Progress over which a target ramps from an end's clearance to the margin.
     pub ramp: f64,
+    /// Progress from the start over which the target stays at the start's own clearance
+    /// before its ramp begins: a departure from a held object opens the hand before the arm
+    /// backs off, and a target rising meanwhile would move the arm while the fingers still
+    /// wrap the object (measured: a wam_ihy thumb pushed 2.9 mm into the ball). 0: none.
+    pub hold_start: f64,
     /// Added to the ramps towards the ends (m; the targets never exceed the margin).
     pub buffer: f64,
     /// Gaussian width of the spread of a correction, in configurations.
@@ -59,6 +64,7 @@ impl Default for AvoidOptions {
             margin: 0.02,
             self_margin: 0.002,
             ramp: 0.2,
+            hold_start: 0.0,
             buffer: 0.003,
             spread: 3.0,
             rounds: 40,
@@ -210,7 +216,8 @@ pub fn refine(
         // the buffer, being mostly the fixed end; they use up the round budget, measured as
         // better than a buffer that vanishes at the end: 72 against 64 of 82 plans clear.)
         let ramp = |d: f64, u: f64| d + (m - d) * (u / opts.ramp).min(1.0) + opts.buffer;
-        m.min(ramp(ends[0][c], x)).min(ramp(ends[1][c], 1.0 - x))
+        m.min(ramp(ends[0][c], (x - opts.hold_start).max(0.0)))
+            .min(ramp(ends[1][c], 1.0 - x))
     };
     let given: Vec<f64> = ctrl.to_vec();
     let mut report = AvoidReport::default();

@@ -332,6 +332,65 @@ pub fn shape_path(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, pre: &
     }
 }
 
+/// Share of the progress the departure from a held object takes ([`shape_departure`]).
+pub const DEPARTURE_SHARE: f64 = 0.15;
+
+/// Reshapes a path sampled at progress `xs` (rows of `nq`, first row the start, last the goal)
+/// whose start holds the object (the end of a previous plan: the pads on it) into a departure,
+/// the approach's closing run backwards: over the first [`DEPARTURE_SHARE`] of the progress
+/// the hand joints open to the start's own pre-grasp `dep` over the first 60 % of it, while the
+/// arm joints stay, then back off to it over the last 60 % (overlapping by a fifth); the
+/// humanlike path follows over the rest of the progress with an offset that carries its start
+/// from the start to `dep` and fades out smoothly, so the goal is unchanged. Why: run from a
+/// held object as it is, the humanlike path moves the arm while the fingers still wrap the
+/// object, and a finger is dragged through it (measured: a wam_ihy thumb 2.6 mm into the ball
+/// on the README quickstart's second plan).
+pub fn shape_departure(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, dep: &PreGrasp) {
+    let rows = xs.len();
+    assert_eq!(
+        path.len(),
+        rows * nq,
+        "path rows do not match the progress samples"
+    );
+    let original = path.to_vec();
+    let start = original[..nq].to_vec();
+    let s = DEPARTURE_SHARE;
+    let smooth = |t: f64| {
+        let t = t.clamp(0.0, 1.0);
+        t * t * (3.0 - 2.0 * t)
+    };
+    let mut is_hand = vec![false; nq];
+    for &h in &sys.hand_joints {
+        is_hand[h] = true;
+    }
+    for (k, &x) in xs.iter().enumerate() {
+        let row = &mut path[k * nq..(k + 1) * nq];
+        if x < s {
+            let z = x / s;
+            let (hand, arm) = (smooth(z / 0.6), smooth((z - 0.4) / 0.6));
+            for j in 0..nq {
+                let f = if is_hand[j] { hand } else { arm };
+                row[j] = start[j] + f * (dep.q[j] - start[j]);
+            }
+        } else {
+            let y = (x - s) / (1.0 - s);
+            let b = 1.0 - smooth(y);
+            let i = xs.partition_point(|&v| v <= y).clamp(1, rows - 1);
+            let (x0, x1) = (xs[i - 1], xs[i]);
+            let w = if x1 > x0 {
+                ((y - x0) / (x1 - x0)).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            for j in 0..nq {
+                let a = original[(i - 1) * nq + j];
+                let c = original[i * nq + j];
+                row[j] = a + w * (c - a) + b * (dep.q[j] - start[j]);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use nalgebra::{Isometry3, Point3, Vector3};
@@ -459,6 +518,64 @@ mod tests {
         assert!(clear.is_ok());
         let why = pre_grasp(&sys, Some(&ball(centre, 0.012)), &[wall], &goal, &opts).unwrap_err();
         assert!(why.contains("'wall'"), "{why}");
+    }
+
+    /// From a held ball (the fingertips on it: its radius is their closed-form distance from
+    /// the centroid), the departure opens the hand before the arm moves, reaches the start's
+    /// pre-grasp at its share, never comes nearer the ball than the start (closed-form
+    /// distance, fine steps), and leaves the rest of the path's end unchanged.
+    #[test]
+    fn the_departure_from_a_held_ball_opens_the_hand_first_and_never_nears_the_ball() {
+        let sys = test_system();
+        let nq = sys.model.nq();
+        // the fingers half as flexed as the approach tests' grasp: a ball of a few centimetres
+        let (mut held, _, _) = grasp_scene(&sys);
+        for &h in &sys.hand_joints {
+            held[h] = 0.3;
+        }
+        let mut data = Data::new(&sys.model);
+        forward_kinematics(&sys.model, &mut data, &held);
+        let centre = sys
+            .fingers
+            .iter()
+            .map(|f| f.contact_point(&data).coords)
+            .sum::<Vector3<f64>>()
+            / 2.0;
+        let r = ball_distance(&sys, &held, centre, 0.0);
+        assert!(r > 1e-3, "{r}");
+        let object = ball(centre, r);
+        let dep = pre_grasp(&sys, Some(&object), &[], &held, &ApproachOptions::default()).unwrap();
+        let mut goal = held.clone();
+        goal[sys.model.q_index("j1").unwrap()] += 0.8;
+        let xs: Vec<f64> = (0..=400).map(|k| k as f64 / 400.0).collect();
+        let line = |y: f64| -> Vec<f64> {
+            held.iter()
+                .zip(&goal)
+                .map(|(a, b)| a + y * (b - a))
+                .collect()
+        };
+        let mut path: Vec<f64> = xs.iter().flat_map(|&x| line(x)).collect();
+        shape_departure(&mut path, &xs, nq, &sys, &dep);
+        let row = |k: usize| &path[k * nq..(k + 1) * nq];
+        assert_eq!(row(0), &held[..]);
+        assert_eq!(row(400), &goal[..]);
+        assert_eq!(row(60), &dep.q[..], "at the departure's share (0.15)");
+        let at_start = ball_distance(&sys, &held, centre, r);
+        assert!(at_start.abs() < 1e-9, "{at_start}");
+        for (k, &x) in xs.iter().enumerate().take(61) {
+            let q = row(k);
+            if x <= 0.4 * DEPARTURE_SHARE {
+                // only the hand moves
+                for j in (0..nq).filter(|j| !sys.hand_joints.contains(j)) {
+                    assert_eq!(q[j], held[j], "x {x} joint {j}");
+                }
+            }
+            let d = ball_distance(&sys, q, centre, r);
+            assert!(d >= at_start - 1e-9, "x {x}: {d} m");
+        }
+        // the hand is open (away from the ball) by the time the arm starts to move
+        let k = (0.4 * DEPARTURE_SHARE * 400.0).round() as usize;
+        assert!(ball_distance(&sys, row(k), centre, r) > 1e-3);
     }
 
     #[test]

@@ -102,13 +102,15 @@ pub fn scene_checker(
 
 /// Moves the control configurations of a path (rows of `sys.model.nq()` values) the least
 /// amount needed for its points `curve` to keep the default margins from the object, its
-/// support, `obstacles` and the robot's own links ([`crate::geometry::avoid`]).
+/// support, `obstacles` and the robot's own links ([`crate::geometry::avoid`]); over the first
+/// `hold_start` of the progress (a departure) the targets stay at the start's own clearance.
 pub fn avoid(
     sys: &HandArm,
     object: Option<&Object>,
     obstacles: &[SceneShape],
     path: &mut [f64],
     curve: &[CurveSample],
+    hold_start: f64,
 ) -> AvoidReport {
     let checker = scene_checker(sys, object, obstacles);
     let mut data = checker.data();
@@ -121,7 +123,10 @@ pub fn avoid(
         curve,
         sys.model.lower_limits(),
         sys.model.upper_limits(),
-        &AvoidOptions::default(),
+        &AvoidOptions {
+            hold_start,
+            ..AvoidOptions::default()
+        },
         &mut scratch,
     )
 }

@@ -15,7 +15,9 @@ pub mod objects;
 pub mod optimizer;
 pub mod system;
 
-pub use approach::{ApproachOptions, PreGrasp, pre_grasp, shape_path};
+pub use approach::{
+    ApproachOptions, DEPARTURE_SHARE, PreGrasp, pre_grasp, shape_departure, shape_path,
+};
 pub use clearance::{
     CLOSING_PRESS, ClearanceHit, PathClearance, PostureCollision, avoid, closing_contacts,
     path_clearance, posture_collision, scene_checker,

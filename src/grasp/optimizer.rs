@@ -70,7 +70,10 @@ use serde::{Deserialize, Serialize};
 use crate::geometry::{
     Category, CheckData, Clearance, CollisionChecker, Plane, Scene, SceneShape, SignedDistance,
 };
-use crate::kinematics::{Data, add_point_jacobian_transpose, forward_kinematics, frame_jacobian};
+use crate::kinematics::{
+    Data, IkOptions, IkPosture, IkSolver, IkTarget, add_point_jacobian_transpose,
+    forward_kinematics, frame_jacobian,
+};
 use crate::optim::{Constraints, Problem, Settings, SolveReport, SolveStatus, Solver};
 
 use super::GraspError;
@@ -1457,7 +1460,7 @@ fn hand_gc(
     (indexes::compatibility_index(&m3, &req.task), m3)
 }
 
-/// A start: arm configuration from a pre-grasp palm pose (damped least-squares IK), hand
+/// A start: arm configuration from a pre-grasp palm pose (the kinematics IK), hand
 /// preshape at mid-range, perturbed per start.
 fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, u: &mut [f64]) {
     let model = &*sys.model;
@@ -1587,7 +1590,7 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
         Rotation3::from_basis_unchecked(&[approach, close_world, approach.cross(&close_world)]);
     let rot = UnitQuaternion::from_rotation_matrix(&(r_world * r_local.transpose()));
     let target = Isometry3::from_parts((cg.coords - rot * centroid_local).into(), rot);
-    dls_ik(sys, data, &mut q, &target, None);
+    palm_ik(sys, &mut q, &target, None);
     for (k, &i) in sys.arm_joints.iter().chain(&sys.hand_joints).enumerate() {
         u[k] = q[i];
     }
@@ -1603,57 +1606,45 @@ fn first_frame_of_q(sys: &HandArm, qi: usize, data: &Data) -> Point3<f64> {
     Point3::from(data.frame(joint.child).translation.vector)
 }
 
-/// Damped least-squares IK of the palm pose over the arm joints, clamped to limits. Hand-rolled
-/// because it is only a seeding heuristic (a few dozen iterations, accuracy irrelevant).
+/// The palm pose by the kinematics IK over the arm joints, from `q`, into `q` (its best
+/// configuration, within limits, whether or not it reached the pose): a seeding and repair
+/// heuristic, so one attempt of at most 60 iterations of at most 0.1 rad per joint and no random
+/// restarts (the answer depends on the request only), position to 0.1 mm and orientation
+/// weighted by 0.3 m.
 ///
 /// With `rest` (a configuration), the arm's self-motion is pulled towards it in the Jacobian's
-/// null space (`(I − J⁺J) k (rest − q)`), which moves no palm pose to first order: the contact
-/// repair backs a plan's grasp out of the object without leaving its goal region.
-fn dls_ik(
-    sys: &HandArm,
-    data: &mut Data,
-    q: &mut [f64],
-    target: &Isometry3<f64>,
-    rest: Option<&[f64]>,
-) {
+/// null space ([`IkPosture`]), which moves no palm pose to first order: the contact repair backs
+/// a plan's grasp out of the object without leaving its goal region.
+fn palm_ik(sys: &HandArm, q: &mut [f64], target: &Isometry3<f64>, rest: Option<&[f64]>) {
     let model = &*sys.model;
-    let na = sys.arm_joints.len();
-    let mut j = Matrix6xX::zeros(model.nq());
-    let mut ja = nalgebra::DMatrix::zeros(6, na);
-    let (lo, hi) = (model.lower_limits(), model.upper_limits());
-    for _ in 0..60 {
-        forward_kinematics(model, data, q);
-        let x = data.frame(sys.palm);
-        let ep = target.translation.vector - x.translation.vector;
-        let er = (target.rotation * x.rotation.inverse()).scaled_axis();
-        // Position errors matter more than orientation for a seed: weight rotation by 0.3 m.
-        let e = nalgebra::Vector6::new(ep.x, ep.y, ep.z, 0.3 * er.x, 0.3 * er.y, 0.3 * er.z);
-        // With a rest posture every iteration also moves the self-motion towards it.
-        if e.norm() < 1e-4 && rest.is_none() {
-            break;
-        }
-        frame_jacobian(model, data, sys.palm, &Vector3::zeros(), &mut j);
-        for (a, &qa) in sys.arm_joints.iter().enumerate() {
-            for r in 0..6 {
-                ja[(r, a)] = j[(r, qa)] * if r >= 3 { 0.3 } else { 1.0 };
-            }
-        }
-        let jjt = &ja * ja.transpose() + nalgebra::DMatrix::identity(6, 6) * 1e-3;
-        let Some(inv) = jjt.try_inverse() else { break };
-        let mut dq = ja.transpose() * (&inv * nalgebra::DVector::from_column_slice(e.as_slice()));
-        if let Some(rest) = rest {
-            let pull = nalgebra::DVector::from_iterator(
-                na,
-                sys.arm_joints.iter().map(|&qa| 0.3 * (rest[qa] - q[qa])),
-            );
-            let projected = &ja * &pull;
-            dq += &pull - ja.transpose() * (&inv * projected);
-        }
-        for (a, &qa) in sys.arm_joints.iter().enumerate() {
-            let step = dq[a].clamp(-0.3, 0.3);
-            q[qa] = (q[qa] + step).clamp(finite_or(lo[qa], -1e9), finite_or(hi[qa], 1e9));
-        }
-    }
+    let opts = IkOptions {
+        position_weight: 1.0,
+        orientation_weight: 0.3,
+        position_tolerance: 1e-4,
+        orientation_tolerance: 1e-4 / 0.3,
+        max_iterations_per_attempt: 60,
+        max_iterations: 60,
+        max_restarts: 0,
+        active_joints: Some(sys.arm_joints.clone()),
+        // Measured on the exact-verdict survey (180 requests): 146 feasible with 0.3 rad
+        // steps, 149 unbounded or 0.2, 154-155 with 0.1-0.15 (150 with the former
+        // hand-rolled DLS).
+        max_step: Some(0.1),
+        posture: rest.map(|r| IkPosture {
+            rest: r.to_vec(),
+            gain: 0.3,
+        }),
+        ..IkOptions::default()
+    };
+    let target = IkTarget {
+        frame: sys.palm,
+        point_in_frame: Vector3::zeros(),
+        pose: *target,
+    };
+    // No restarts: the generator is never drawn from.
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let r = IkSolver::new(model).solve(model, &target, q, &opts, &mut rng);
+    q.copy_from_slice(&r.q);
 }
 
 #[derive(Clone)]

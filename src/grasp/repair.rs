@@ -23,7 +23,7 @@ use crate::kinematics::{Data, forward_kinematics};
 
 use crate::grasp::system::HandArm;
 
-use super::{Eval, ExactGeometry, dls_ik, finite_or};
+use super::{Eval, ExactGeometry, finite_or, palm_ik};
 
 /// Deepest a finger may sit in the object after placement (m); half the verdict's tolerance.
 const BAND_LO: f64 = -5e-4;
@@ -245,13 +245,7 @@ impl Eval<'_> {
                 }
                 rest
             });
-            dls_ik(
-                self.sys,
-                &mut self.scratch.fd_data,
-                &mut self.kin.q,
-                &target,
-                rest.as_deref(),
-            );
+            palm_ik(self.sys, &mut self.kin.q, &target, rest.as_deref());
             // The seeding IK is a heuristic: keep its answer only where it reached the shifted
             // palm pose (within 1 mm, 0.01 rad); at joint limits it may wander off instead.
             forward_kinematics(&self.sys.model, &mut self.scratch.fd_data, &self.kin.q);
@@ -426,13 +420,7 @@ impl Eval<'_> {
             target.translation.vector = pivot + r * p;
             target.rotation = r * target.rotation;
         }
-        dls_ik(
-            self.sys,
-            &mut self.scratch.fd_data,
-            &mut self.kin.q,
-            &target,
-            None,
-        );
+        palm_ik(self.sys, &mut self.kin.q, &target, None);
         forward_kinematics(model, &mut self.scratch.fd_data, &self.kin.q);
         let at = self.scratch.fd_data.frame(self.sys.palm);
         let reached = (at.translation.vector - target.translation.vector).norm() < 5e-4

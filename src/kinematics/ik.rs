@@ -53,6 +53,29 @@ pub struct IkOptions {
     pub time_budget: Duration,
     /// Which `q` entries may move (default: every coordinate that moves the target frame).
     pub active_joints: Option<Vec<usize>>,
+    /// A posture the redundant joints' self-motion is pulled towards (see [`IkPosture`]).
+    pub posture: Option<IkPosture>,
+    /// Largest change of any one joint in one step (rad); a joint's longer step is cut to it.
+    /// Short steps follow the task error down from the seed instead of jumping across the
+    /// configuration space, so a seeding heuristic stays near the branch it was seeded on.
+    pub max_step: Option<f64>,
+}
+
+/// A rest posture for a redundant chain. Once the target is reached within tolerance, each step
+/// moves the active joints by `gain (rest − q)` projected into the null space of the damped
+/// task Jacobian, which leaves the target's pose unchanged to first order; such a step may leave
+/// the tolerance by a bounded factor (the next, plain step takes it back) and is halved until it
+/// stays within that. The solve does not stop at the first configuration within tolerance: it
+/// goes on along the self-motion until a step moves no joint by more than 1e-9 rad or the
+/// attempt's iterations are spent, and answers the last configuration within tolerance: the pose
+/// solution nearest the rest posture that the flow reaches. Used by the grasp optimiser's contact
+/// repair to back a grasp out of an object without leaving a goal region.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IkPosture {
+    /// Full configuration (`q` order); only the active joints' entries are read.
+    pub rest: Vec<f64>,
+    /// Fraction of the remaining posture error removed per step, in (0, 1].
+    pub gain: f64,
 }
 
 impl Default for IkOptions {
@@ -69,6 +92,8 @@ impl Default for IkOptions {
             max_iterations: 2_000,
             time_budget: Duration::from_secs(2),
             active_joints: None,
+            posture: None,
+            max_step: None,
         }
     }
 }
@@ -93,6 +118,13 @@ pub struct IkReport {
     pub timed_out: bool,
 }
 
+/// A posture solve has settled when its last step moved no joint by more than this (rad).
+const POSTURE_SETTLED: f64 = 1e-9;
+/// Posture steps may leave the tolerance by up to this factor (the answer never does): a step
+/// along the self-motion errs at second order in its length, and requiring every step to stay
+/// within a 1 µm tolerance would cut the pull to milliradians per step.
+const POSTURE_BAND: f64 = 100.0;
+
 /// Reusable IK scratch (one per worker). Allocates only in `new`.
 #[derive(Clone, Debug)]
 pub struct IkSolver {
@@ -104,6 +136,8 @@ pub struct IkSolver {
     active: Vec<bool>,
     /// Joints not moved by the current step: inactive, or held on a limit.
     blocked: Vec<bool>,
+    /// The posture pull of the current step (zero without a posture).
+    pull: Vec<f64>,
 }
 
 /// Weighted task error `[wp (p* − p); wo log(R* Rᵀ)]` and the two raw residuals.
@@ -134,6 +168,7 @@ impl IkSolver {
             best: vec![0.0; n],
             active: vec![false; n],
             blocked: vec![false; n],
+            pull: vec![0.0; n],
         }
     }
 
@@ -144,6 +179,10 @@ impl IkSolver {
     /// leaves the other joints' motion planned for a step the blocked joint never makes, which
     /// stalled solves pinned against limits (the main cause of restarts). `false` when
     /// `J Jᵀ + μ I` is not positive definite.
+    ///
+    /// With a posture pull `p` (`with_pull`), the step is `p + Jᵀ (J Jᵀ + μ I)⁻¹ (e − J p)`:
+    /// the pull less what of it the task sees, i.e. its (damped) null-space projection added to
+    /// the task step. A blocked joint drops its pull with its column.
     fn clamped_step(
         &mut self,
         n: usize,
@@ -151,12 +190,16 @@ impl IkSolver {
         hi: &[f64],
         e: &Vector6<f64>,
         mu: f64,
+        with_pull: bool,
     ) -> bool {
         self.blocked.copy_from_slice(&self.active);
         self.blocked.iter_mut().for_each(|b| *b = !*b);
         let mut e = *e;
         for k in 0..n {
             self.trial[k] = self.q[k];
+            if with_pull && !self.blocked[k] {
+                e -= self.jac.column(k) * self.pull[k];
+            }
         }
         for _pass in 0..=n {
             let mut m = Matrix6::zeros();
@@ -179,7 +222,11 @@ impl IkSolver {
                 if self.blocked[k] {
                     continue;
                 }
-                let t = self.q[k] + self.jac.column(k).dot(&y);
+                let t = if with_pull {
+                    self.q[k] + self.pull[k] + self.jac.column(k).dot(&y)
+                } else {
+                    self.q[k] + self.jac.column(k).dot(&y)
+                };
                 self.trial[k] = t;
                 // The joint overshooting its limit the most (relative to its range) is blocked
                 // first; the others may fit once it is.
@@ -193,7 +240,8 @@ impl IkSolver {
                 return true;
             };
             let at = self.trial[k].clamp(lo[k], hi[k]);
-            e -= self.jac.column(k) * (at - self.q[k]);
+            let planned = if with_pull { self.pull[k] } else { 0.0 };
+            e -= self.jac.column(k) * (at - self.q[k] - planned);
             self.trial[k] = at;
             self.blocked[k] = true;
         }
@@ -232,6 +280,26 @@ impl IkSolver {
             (wp == 0.0 || pe <= opts.position_tolerance)
                 && (wo == 0.0 || oe <= opts.orientation_tolerance)
         };
+        let posture = opts.posture.as_ref();
+        // Where posture steps may wander while the self-motion is pulled (see `IkPosture`).
+        let in_band = |pe: f64, oe: f64| {
+            (wp == 0.0 || pe <= POSTURE_BAND * opts.position_tolerance)
+                && (wo == 0.0 || oe <= POSTURE_BAND * opts.orientation_tolerance)
+        };
+        if let Some(p) = posture {
+            assert_eq!(
+                p.rest.len(),
+                n,
+                "rest posture has the wrong length for this model"
+            );
+        }
+        let better = |cost: f64, pe: f64, oe: f64, best_cost: f64, best_pe: f64, best_oe: f64| {
+            if posture.is_some() {
+                converged(pe, oe) || (!converged(best_pe, best_oe) && cost < best_cost)
+            } else {
+                cost < best_cost
+            }
+        };
         let mut best_cost = f64::INFINITY;
         let (mut best_pe, mut best_oe) = (f64::INFINITY, f64::INFINITY);
         let mut iterations = 0;
@@ -246,13 +314,19 @@ impl IkSolver {
             let mut cost = e.norm_squared();
             let mut lambda = 1e-3;
             let mut stalls = 0;
+            // With a posture: the last accepted step moved no joint by more than this (rad), so
+            // the self-motion has settled.
+            let mut settled = false;
             for _ in 0..opts.max_iterations_per_attempt {
-                if cost < best_cost {
+                // With a posture, a later configuration within tolerance is the better answer
+                // (nearer the rest posture) even where its residual is not the smallest, and
+                // one outside never replaces one within.
+                if better(cost, pe, oe, best_cost, best_pe, best_oe) {
                     best_cost = cost;
                     (best_pe, best_oe) = (pe, oe);
                     self.best.copy_from_slice(&self.q);
                 }
-                if converged(pe, oe) {
+                if converged(pe, oe) && (posture.is_none() || settled) {
                     break 'attempts;
                 }
                 // The budget is checked every iteration, not only between attempts, so a slow
@@ -292,32 +366,70 @@ impl IkSolver {
                     }
                     t / 6.0 + 1e-12
                 };
+                // A posture step only from within tolerance: away from the target, the plain
+                // task step (the solve without a posture) gets back to it first.
+                let posture_now = posture.filter(|_| converged(pe, oe));
+                if let Some(p) = posture_now {
+                    for k in 0..n {
+                        self.pull[k] = if self.active[k] {
+                            p.gain * (p.rest[k] - self.q[k])
+                        } else {
+                            0.0
+                        };
+                    }
+                }
                 let mut improved = false;
                 for _ in 0..8 {
-                    if !self.clamped_step(n, lo, hi, &e, lambda * scale) {
+                    if !self.clamped_step(n, lo, hi, &e, lambda * scale, posture_now.is_some()) {
                         lambda *= 10.0;
                         continue;
+                    }
+                    if let Some(m) = opts.max_step {
+                        // Towards `q` stays within the limits both ends are within.
+                        for k in 0..n {
+                            self.trial[k] = self.q[k] + (self.trial[k] - self.q[k]).clamp(-m, m);
+                        }
                     }
                     forward_kinematics(model, &mut self.data, &self.trial);
                     let (e2, pe2, oe2) = task_error(&self.data, target, wp, wo);
                     let c2 = e2.norm_squared();
-                    if c2 < cost {
+                    // A posture step may raise the residual (second order in the step) within
+                    // the band: the next, plain step takes it back.
+                    let posture_step = posture_now.is_some() && in_band(pe2, oe2);
+                    if c2 < cost || posture_step {
                         // Creeping progress (typically a local minimum) is better spent on a
                         // fresh random start.
-                        stalls = if c2 > 0.95 * cost { stalls + 1 } else { 0 };
+                        stalls = if c2 > 0.95 * cost && !posture_step {
+                            stalls + 1
+                        } else {
+                            0
+                        };
+                        if posture_now.is_some() {
+                            let moved = (0..n)
+                                .map(|k| (self.trial[k] - self.q[k]).abs())
+                                .fold(0.0, f64::max);
+                            settled = moved <= POSTURE_SETTLED;
+                        }
                         std::mem::swap(&mut self.q, &mut self.trial);
                         (e, pe, oe, cost) = (e2, pe2, oe2, c2);
                         lambda = (lambda * 0.3).max(1e-9);
                         improved = true;
                         break;
                     }
-                    lambda *= 8.0;
+                    // What errs in a posture step is the pull: its part the damped projection
+                    // lets through and its second-order error both shrink with it, while more
+                    // damping would let more of it through. Backtrack on the pull.
+                    if posture_now.is_some() {
+                        self.pull.iter_mut().for_each(|p| *p *= 0.5);
+                    } else {
+                        lambda *= 8.0;
+                    }
                 }
                 if !improved || stalls >= 6 {
                     break;
                 }
             }
-            if cost < best_cost {
+            if better(cost, pe, oe, best_cost, best_pe, best_oe) {
                 best_cost = cost;
                 (best_pe, best_oe) = (pe, oe);
                 self.best.copy_from_slice(&self.q);
@@ -457,6 +569,123 @@ mod tests {
             r.position_error
         );
         assert_eq!(r.restarts, 5);
+    }
+
+    /// The posture option's answer, checked by a second method: where no joint rests on a limit,
+    /// the nearest point of the self-motion to the rest posture is where `q − rest` has no
+    /// component in the null space of the (undamped) Jacobian, taken here from its SVD
+    /// pseudo-inverse; the pose is checked by a fresh FK.
+    #[test]
+    fn a_posture_pulls_the_self_motion_to_the_point_nearest_the_rest_without_moving_the_pose() {
+        use nalgebra::{DMatrix, DVector};
+        let model = model_from_urdf_file(&robots_dir().join("arms/wam.urdf")).unwrap();
+        let f = model.frame_id("wam_flange").unwrap();
+        let n = model.nq();
+        let (lo, hi) = (model.lower_limits(), model.upper_limits());
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut solver = IkSolver::new(&model);
+        let mut data = Data::new(&model);
+        let mut jac = Matrix6xX::zeros(n);
+        let null_part = |jac: &Matrix6xX<f64>, d: &DVector<f64>| {
+            let j = DMatrix::from_column_slice(6, n, jac.as_slice());
+            let pinv = j.clone().pseudo_inverse(1e-9).unwrap();
+            d - &pinv * (&j * d)
+        };
+        let mut checked = 0;
+        for _ in 0..10 {
+            let q_true = random_q_within(&model, &mut rng);
+            forward_kinematics(&model, &mut data, &q_true);
+            let target = IkTarget {
+                frame: f,
+                point_in_frame: Vector3::zeros(),
+                pose: *data.frame(f),
+            };
+            frame_jacobian(&model, &data, f, &Vector3::zeros(), &mut jac);
+            let rest: Vec<f64> = q_true
+                .iter()
+                .map(|&q| q + rng.random_range(-0.4..0.4))
+                .collect();
+            let d0 = DVector::from_iterator(n, (0..n).map(|k| q_true[k] - rest[k]));
+            let null0 = null_part(&jac, &d0).norm();
+            let opts = IkOptions {
+                posture: Some(IkPosture {
+                    rest: rest.clone(),
+                    gain: 0.3,
+                }),
+                max_restarts: 0,
+                max_iterations_per_attempt: 400,
+                max_iterations: 400,
+                ..IkOptions::default()
+            };
+            let r = solver.solve(&model, &target, &q_true, &opts, &mut rng);
+            assert!(r.success, "{r:?}");
+            forward_kinematics(&model, &mut data, &r.q);
+            let x = data.frame(f);
+            let pe = (x.translation.vector - target.pose.translation.vector).norm();
+            let oe = (target.pose.rotation * x.rotation.inverse()).angle();
+            assert!(
+                pe <= opts.position_tolerance && oe <= opts.orientation_tolerance,
+                "{pe} {oe}"
+            );
+            let dist = |q: &[f64]| (0..n).map(|k| (q[k] - rest[k]).powi(2)).sum::<f64>();
+            assert!(
+                dist(&r.q) < dist(&q_true),
+                "moved away from the rest posture"
+            );
+            if (0..n).any(|k| r.q[k] - lo[k] < 1e-6 || hi[k] - r.q[k] < 1e-6) {
+                continue;
+            }
+            frame_jacobian(&model, &data, f, &Vector3::zeros(), &mut jac);
+            let d = DVector::from_iterator(n, (0..n).map(|k| r.q[k] - rest[k]));
+            let null = null_part(&jac, &d).norm();
+            assert!(
+                null < 1e-6 && null0 > 1e-2,
+                "null-space part {null} (was {null0})"
+            );
+            checked += 1;
+        }
+        assert!(checked >= 7, "only {checked} of 10 ended off the limits");
+    }
+
+    /// `max_step` bounds every joint's move per iteration: after `k` iterations no joint is
+    /// farther than `k · max_step` from the seed, where the unbounded solve goes farther.
+    #[test]
+    fn max_step_bounds_every_joints_move_per_iteration() {
+        let model = model_from_urdf_file(&robots_dir().join("arms/wam.urdf")).unwrap();
+        let f = model.frame_id("wam_flange").unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut data = Data::new(&model);
+        let mut solver = IkSolver::new(&model);
+        let q_true = random_q_within(&model, &mut rng);
+        forward_kinematics(&model, &mut data, &q_true);
+        let target = IkTarget {
+            frame: f,
+            point_in_frame: Vector3::zeros(),
+            pose: *data.frame(f),
+        };
+        let seed = random_q_within(&model, &mut rng);
+        let farthest = |q: &[f64]| {
+            (0..model.nq())
+                .map(|k| (q[k] - seed[k]).abs())
+                .fold(0.0, f64::max)
+        };
+        let opts = |max_step| IkOptions {
+            max_step,
+            max_iterations_per_attempt: 10,
+            max_iterations: 10,
+            max_restarts: 0,
+            ..IkOptions::default()
+        };
+        let free = solver.solve(&model, &target, &seed, &opts(None), &mut rng);
+        assert!(farthest(&free.q) > 0.5, "{}", farthest(&free.q));
+        let bounded = solver.solve(&model, &target, &seed, &opts(Some(0.05)), &mut rng);
+        assert!(bounded.iterations <= 10);
+        assert!(
+            farthest(&bounded.q) <= 0.05 * bounded.iterations as f64 + 1e-12,
+            "{} after {} iterations",
+            farthest(&bounded.q),
+            bounded.iterations
+        );
     }
 
     #[test]

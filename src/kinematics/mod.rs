@@ -20,7 +20,7 @@ pub mod urdf;
 
 pub use algorithms::{Data, add_point_jacobian_transpose, forward_kinematics, frame_jacobian};
 pub use error::KinematicsError;
-pub use ik::{IkOptions, IkReport, IkSolver, IkTarget};
+pub use ik::{IkOptions, IkPosture, IkReport, IkSolver, IkTarget};
 pub use joint_vector::JointVector;
 pub use manipulability::{
     Ellipsoid, force_transmission_ratio, manipulability, velocity_ellipsoid,

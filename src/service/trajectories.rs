@@ -14,7 +14,7 @@ use crate::geometry::{Category, GeometryError, ObstacleSpec, SceneShape, ShapeSp
 use crate::grasp::{
     ApproachOptions, GraspResult, HandArm, Object, PathClearance, PreGrasp, avoid,
     optimizer::EXACT_PENETRATION_TOLERANCE, path_clearance, posture_collision, pre_grasp,
-    shape_path,
+    scene_checker, shape_departure, shape_path,
 };
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::motion::{
@@ -277,6 +277,22 @@ pub struct TrajectoryReportDto {
     /// with `approach_standoff: 0`, and in trajectories stored before it was planned).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub approach: Option<ApproachDto>,
+    /// The departure from a start at the object (within the approach margin of it: the end of
+    /// a previous plan, the hand on the object): the start's own pre-grasp, which the path
+    /// reaches first, the hand opening before the arm backs off; or why the path leaves
+    /// directly (absent where the start is not at the object).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub departure: Option<ApproachDto>,
+}
+
+/// The start is within the approach margin of the object (exact, every link).
+fn near_object(sys: &HandArm, object: &Object, start: &[f64]) -> bool {
+    let checker = scene_checker(sys, Some(object), &[]);
+    let mut data = checker.data();
+    checker
+        .category_clearance(&mut data, start, &[Category::Object])
+        .category_distance(Category::Object)
+        < ApproachOptions::default().margin
 }
 
 /// A grasp is approached from a pre-grasp: the grasp's palm pose moved back by `standoff_m`
@@ -307,6 +323,21 @@ pub struct ApproachDto {
 }
 
 impl ApproachDto {
+    /// The departure's report: as the approach's, with its own note.
+    fn departure(found: &Result<PreGrasp, String>) -> Self {
+        let mut dto = ApproachDto::new(found);
+        if let Ok(p) = found {
+            dto.note = format!(
+                "the start is at the object: over the first {:.0} % of the progress the hand opens {:.0} % of the way, then the arm backs the palm off {:.0} mm to the start's pre-grasp, where the humanlike path takes over; not in the paper, and not covered by the convergence certificates",
+                100.0 * crate::grasp::DEPARTURE_SHARE,
+                100.0 * p.open_fraction,
+                1e3 * p.standoff_m
+            );
+            dto.share = Some(crate::grasp::DEPARTURE_SHARE);
+        }
+        dto
+    }
+
     fn new(found: &Result<PreGrasp, String>) -> Self {
         let finite = |v: f64| v.is_finite().then_some(v);
         match found {
@@ -546,6 +577,7 @@ fn trajectory_report(
         clearance: None,
         avoidance: None,
         approach: None,
+        departure: None,
         workspace_entry: t.entry.as_ref().map(|e| WorkspaceEntryDto::new(e, ng)),
     }
 }
@@ -797,10 +829,30 @@ pub async fn compute(
             // timed.
             let mut avoidance = None;
             let mut approach = None;
+            let mut departure = None;
             let traj = l
                 .model
                 .trajectory_with(&start, &goal, &opts, |path, xs| {
                     if let Some(sc) = &scene {
+                        let mut hold = 0.0;
+                        // A start at the object (the end of a previous plan, holding it)
+                        // first leaves it: the hand opens, then the arm backs off.
+                        if let Some(object) = sc
+                            .object
+                            .as_ref()
+                            .filter(|o| near_object(&sc.sys, o, &start))
+                        {
+                            let opts = ApproachOptions {
+                                standoff: standoff.max(crate::grasp::approach::DEFAULT_STANDOFF),
+                                ..ApproachOptions::default()
+                            };
+                            let found = pre_grasp(&sc.sys, Some(object), &obstacles, &start, &opts);
+                            if let Ok(dep) = &found {
+                                shape_departure(path, xs, sc.sys.model.nq(), &sc.sys, dep);
+                                hold = crate::grasp::DEPARTURE_SHARE;
+                            }
+                            departure = Some(found);
+                        }
                         if let Some(object) = sc.object.as_ref().filter(|_| standoff > 0.0) {
                             let opts = ApproachOptions {
                                 standoff,
@@ -816,8 +868,14 @@ pub async fn compute(
                             .into_iter()
                             .map(|(x, first, w)| CurveSample { x, first, w })
                             .collect();
-                        avoidance =
-                            Some(avoid(&sc.sys, sc.object.as_ref(), &obstacles, path, &curve));
+                        avoidance = Some(avoid(
+                            &sc.sys,
+                            sc.object.as_ref(),
+                            &obstacles,
+                            path,
+                            &curve,
+                            hold,
+                        ));
                     }
                 })
                 .map_err(|e| {
@@ -832,6 +890,7 @@ pub async fn compute(
             let mut report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
             report.avoidance = avoidance.map(|a| AvoidanceDto::new(&a));
             report.approach = approach.as_ref().map(ApproachDto::new);
+            report.departure = departure.as_ref().map(ApproachDto::departure);
             report.clearance = scene.map(|sc| {
                 let points: Vec<f64> = traj
                     .points

@@ -1537,7 +1537,8 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     // way, from the worker's home (every joint 0, the README quickstart's start) and from a
     // bent-elbow ready pose, both with the hand open. A push is a velocity impulse of up to
     // 0.05 rad per joint, scaled down where it would carry a link frame more than 10 mm once
-    // braked (half the filter's margin).
+    // braked (half the filter's margin) or more than half the filter's smallest barrier at
+    // that moment (no push can be braked inside a spent margin).
     let pre = pre_grasp(&sys, Some(&object), &[], &goal, &ApproachOptions::default()).unwrap();
     let mut staged = safety.clone();
     staged.pre_grasp = Some(pre.q.clone());

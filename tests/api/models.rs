@@ -532,19 +532,36 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
     assert!(short["report"]["max_acceleration_ratio"].as_f64().unwrap() <= 1.0);
     assert!(short["report"]["workspace_entry"].is_null());
 
-    // The upright zero configuration lies outside this study's workspace: the motion enters
-    // it along the straight joint line (reported, with the distances that made it), then the
-    // certified flow runs to the exact goal.
-    let zero = vec![0.0; start.len()];
+    // A start with every arm joint at the far end of its range from the goal (5 % of the range
+    // inside the limit; the hand as at the goal) lies outside this study's workspace: the motion
+    // enters it along the straight joint line (reported, with the distances that made it), then
+    // the certified flow runs to the exact goal.
+    let remote: Vec<f64> = goal
+        .iter()
+        .enumerate()
+        .map(|(j, &g)| {
+            if !study.joint_names[j].starts_with("wam_") {
+                return g;
+            }
+            let (lo, hi) = (study.lower[j], study.upper[j]);
+            let inset = 0.05 * (hi - lo);
+            if g - lo > hi - g {
+                lo + inset
+            } else {
+                hi - inset
+            }
+        })
+        .collect();
     let res = app
         .post_json(
             "/v1/trajectories",
-            &json!({"model": id, "start": named(&study.joint_names, &zero),
+            &json!({"model": id, "start": named(&study.joint_names, &remote),
                     "goal": named(&study.joint_names, &goal), "rate": 50}),
         )
         .await;
-    assert_eq!(res.status(), 201);
+    let status = res.status();
     let far: Value = res.json().await.unwrap();
+    assert_eq!(status, 201, "{far}");
     let entry = &far["report"]["workspace_entry"];
     let arm = &entry["groups"][0];
     assert!(
@@ -555,7 +572,7 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
     assert!(fraction > 0.0 && fraction < 1.0, "{entry}");
     for (j, v) in entry["point"].as_array().unwrap().iter().enumerate() {
         assert!(
-            (v.as_f64().unwrap() - fraction * goal[j]).abs() < 1e-12,
+            (v.as_f64().unwrap() - (remote[j] + fraction * (goal[j] - remote[j]))).abs() < 1e-9,
             "{entry}"
         );
     }
@@ -564,7 +581,7 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
         "{entry}"
     );
     let p = far["points"].as_array().unwrap();
-    assert_eq!(p[0]["positions"], json!(zero));
+    assert_eq!(p[0]["positions"], json!(remote));
     assert_eq!(p[p.len() - 1]["positions"], json!(goal));
     assert_eq!(far["report"]["converged"], true);
 
