@@ -139,6 +139,13 @@ pub struct CurveSample {
 /// Reusable buffers of [`refine`] (nothing is allocated per configuration).
 pub struct AvoidScratch {
     hits: Vec<(usize, SignedDistance)>,
+    /// Per curve sample, its last round's step (`nq` values) and what it added to the round's
+    /// figures: a sample none of whose control configurations moved since is not checked
+    /// again (its step is a function of them alone).
+    sample_step: Vec<f64>,
+    sample: Vec<SampleStep>,
+    /// Per control configuration: moved in the last round.
+    moved: Vec<bool>,
     grad: Vec<f64>,
     q: Vec<f64>,
     step: Vec<f64>,
@@ -152,6 +159,9 @@ impl AvoidScratch {
     pub fn new(nq: usize, count: usize) -> Self {
         AvoidScratch {
             hits: Vec::with_capacity(64),
+            sample_step: Vec::new(),
+            sample: Vec::new(),
+            moved: vec![true; count],
             grad: vec![0.0; nq],
             q: vec![0.0; nq],
             step: vec![0.0; nq],
@@ -160,6 +170,76 @@ impl AvoidScratch {
             weight: vec![0.0; count],
         }
     }
+}
+
+/// The step of one curve sample (into `s.step`, after the trust region) and what it adds to the
+/// round's figures: every pair below its category's target within the first-order
+/// minimum-norm step that lifts it there.
+#[allow(clippy::too_many_arguments)]
+fn sample_step(
+    checker: &CollisionChecker,
+    data: &mut CheckData,
+    ctrl: &[f64],
+    nq: usize,
+    cs: &CurveSample,
+    target: &dyn Fn(Category) -> f64,
+    opts: &AvoidOptions,
+    s: &mut AvoidScratch,
+) -> SampleStep {
+    point(ctrl, nq, cs, &mut s.q);
+    s.hits.clear();
+    // one forward kinematics per point, then a cutoff per category
+    checker.update(data, &s.q);
+    for cat in Category::ALL {
+        let hits = &mut s.hits;
+        // (0.1 mm short of the target counts as kept: a point next to an end in contact is at
+        // its target only up to rounding)
+        checker.for_each_within_current(data, target(cat) - SLACK, &[cat], |pair, d| {
+            hits.push((pair, *d));
+        });
+    }
+    s.step.fill(0.0);
+    let mut out = SampleStep {
+        movable: false,
+        worst: f64::INFINITY,
+        deficit: 0.0,
+    };
+    for &(pair, d) in &s.hits {
+        let t = target(checker.pairs()[pair].category);
+        s.grad.fill(0.0);
+        checker.add_distance_gradient(data, pair, &d, &mut s.grad);
+        let g2: f64 = s.grad.iter().map(|g| g * g).sum();
+        // A pair no joint moves apart (the base on the table, a link turning about the normal)
+        // is what it is: not a target the path can be held to.
+        if g2 < 1e-10 {
+            continue;
+        }
+        out.movable = true;
+        out.worst = out.worst.min(d.distance - t);
+        out.deficit += (t - d.distance).max(0.0);
+        let f = (t - d.distance) / g2;
+        for (c, g) in s.step.iter_mut().zip(&s.grad) {
+            *c += f * g;
+        }
+    }
+    // A trust region: the first-order step is good for small moves only (a weak gradient asks
+    // for a large one), and a large move bends the path.
+    let big = s.step.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    if big > opts.max_step {
+        let f = opts.max_step / big;
+        s.step.iter_mut().for_each(|c| *c *= f);
+    }
+    out
+}
+
+/// What one curve sample contributed to a round (see [`AvoidScratch::sample`]).
+#[derive(Debug, Clone, Copy, Default)]
+struct SampleStep {
+    /// Some pair below target that a joint can move apart.
+    movable: bool,
+    /// Smallest clearance minus target and the summed deficit of its movable pairs (m).
+    worst: f64,
+    deficit: f64,
 }
 
 fn margin_of(c: Category, o: &AvoidOptions) -> f64 {
@@ -228,54 +308,38 @@ pub fn refine(
         let mut below = 0;
         let mut worst = f64::INFINITY;
         let mut deficit = 0.0;
-        for cs in curve.iter().filter(|c| c.x > 0.0 && c.x < 1.0) {
-            point(ctrl, nq, cs, &mut s.q);
-            s.hits.clear();
-            for cat in Category::ALL {
-                let hits = &mut s.hits;
-                // (0.1 mm short of the target counts as kept: a point next to an end in contact
-                // is at its target only up to rounding)
-                checker.for_each_within_in(
-                    data,
-                    &s.q,
-                    target(cs.x, cat) - SLACK,
-                    &[cat],
-                    |pair, d| {
-                        hits.push((pair, *d));
-                    },
-                );
-            }
-            s.step.fill(0.0);
-            let mut movable = false;
-            for &(pair, d) in &s.hits {
-                let t = target(cs.x, checker.pairs()[pair].category);
-                s.grad.fill(0.0);
-                checker.add_distance_gradient(data, pair, &d, &mut s.grad);
-                let g2: f64 = s.grad.iter().map(|g| g * g).sum();
-                // A pair no joint moves apart (the base on the table, a link turning about
-                // the normal) is what it is: not a target the path can be held to.
-                if g2 < 1e-10 {
-                    continue;
-                }
-                movable = true;
-                worst = worst.min(d.distance - t);
-                deficit += (t - d.distance).max(0.0);
-                let f = (t - d.distance) / g2;
-                for (c, g) in s.step.iter_mut().zip(&s.grad) {
-                    *c += f * g;
-                }
-            }
-            if !movable {
+        let samples = curve.len();
+        if s.sample.len() != samples {
+            s.sample = vec![SampleStep::default(); samples];
+            s.sample_step = vec![0.0; samples * nq];
+        }
+        for (m, cs) in curve.iter().enumerate() {
+            if cs.x <= 0.0 || cs.x >= 1.0 {
                 continue;
             }
-            below += 1;
-            // A trust region: the first-order step is good for small moves only (a weak
-            // gradient asks for a large one), and a large move bends the path.
-            let big = s.step.iter().fold(0.0f64, |m, c| m.max(c.abs()));
-            if big > opts.max_step {
-                let f = opts.max_step / big;
-                s.step.iter_mut().for_each(|c| *c *= f);
+            let fresh = round > 0
+                && !(0..cs.w.len()).any(|r| s.moved.get(cs.first + r).copied().unwrap_or(true));
+            if !fresh {
+                s.sample[m] = sample_step(
+                    checker,
+                    data,
+                    ctrl,
+                    nq,
+                    cs,
+                    &|cat| target(cs.x, cat),
+                    opts,
+                    s,
+                );
+                s.sample_step[m * nq..(m + 1) * nq].copy_from_slice(&s.step);
             }
+            let done = s.sample[m];
+            if !done.movable {
+                continue;
+            }
+            worst = worst.min(done.worst);
+            deficit += done.deficit;
+            below += 1;
+            s.step.copy_from_slice(&s.sample_step[m * nq..(m + 1) * nq]);
             // The minimum-norm change of the control configurations that moves this point by
             // the step.
             // (Over all four, the fixed ends included: near an end a sample is mostly the end,
@@ -336,10 +400,13 @@ pub fn refine(
                 row.iter_mut().for_each(|r| *r /= norm);
             }
         }
+        s.moved.fill(false);
         for k in 1..count - 1 {
             let row = &mut ctrl[k * nq..(k + 1) * nq];
             for j in 0..nq {
-                row[j] = (row[j] + s.spread[k * nq + j]).clamp(lower[j], upper[j]);
+                let moved = (row[j] + s.spread[k * nq + j]).clamp(lower[j], upper[j]);
+                s.moved[k] |= moved != row[j];
+                row[j] = moved;
             }
         }
     }

@@ -542,9 +542,22 @@ impl CollisionChecker {
         q: &[f64],
         cutoff: f64,
         categories: &[Category],
-        mut f: impl FnMut(usize, &SignedDistance),
+        f: impl FnMut(usize, &SignedDistance),
     ) {
         self.update(data, q);
+        self.for_each_within_current(data, cutoff, categories, f);
+    }
+
+    /// [`Self::for_each_within_in`] at the configuration of the last [`Self::update`] of
+    /// `data`: a caller that asks several questions of one configuration (a cutoff per
+    /// category) runs the forward kinematics and poses the shapes once.
+    pub fn for_each_within_current(
+        &self,
+        data: &mut CheckData,
+        cutoff: f64,
+        categories: &[Category],
+        mut f: impl FnMut(usize, &SignedDistance),
+    ) {
         for i in 0..self.pairs.len() {
             if self.allowed[i]
                 || !categories.contains(&self.pairs[i].category)

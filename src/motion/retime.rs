@@ -410,15 +410,20 @@ fn fit(path: &Path, limits: &RateLimits<'_>, base: f64, balanced: bool) -> Clock
         for (g, &tau) in taus.iter().enumerate() {
             let (_, xd, xdd, xddd) = clock.progress(tau);
             let row = &derivs[g * 3 * n..(g + 1) * 3 * n];
-            let mut u: f64 = 0.0;
+            // (the roots are monotone: one square and one cube root of the largest ratios per
+            // grid point, not one per joint, which took 8 % of a plan's time)
+            let (mut v_max, mut a_max, mut j_max): (f64, f64, f64) = (0.0, 0.0, 0.0);
             for i in 0..n {
                 let (d1, d2, d3) = (row[i], row[n + i], row[2 * n + i]);
                 let v = (d1 * xd).abs() / limits.velocity[i];
                 let a = (d2 * xd * xd + d1 * xdd).abs() / limits.acceleration[i];
                 let j =
                     (d3 * xd * xd * xd + 3.0 * d2 * xd * xdd + d1 * xddd).abs() / limits.jerk[i];
-                u = u.max(v).max(a.sqrt()).max(j.cbrt());
+                v_max = v_max.max(v);
+                a_max = a_max.max(a);
+                j_max = j_max.max(j);
             }
+            let u = v_max.max(a_max.sqrt()).max(j_max.cbrt());
             use_at[g] = u / TARGET_USE;
             worst = worst.max(use_at[g]);
         }
