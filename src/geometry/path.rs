@@ -202,6 +202,8 @@ impl CollisionChecker {
         }
     }
 
+    /// The suffix sums for the rates in `data.rates`, then every pair's motion bound
+    /// (`data.pair_rates`, 0 for an allowed pair).
     fn fill_suffix(&self, data: &mut CheckData) {
         for (i, s) in self.robot().shapes().iter().enumerate() {
             let off = self.suffix_offset[i];
@@ -211,6 +213,13 @@ impl CollisionChecker {
                 let c = &s.chain[k];
                 data.suffix[off + k] = data.suffix[off + k + 1] + c.gain * data.rates[c.q].abs();
             }
+        }
+        for i in 0..self.pairs().len() {
+            data.pair_rates[i] = if self.is_allowed(i) {
+                0.0
+            } else {
+                self.pair_rate(data, i)
+            };
         }
     }
 
@@ -277,10 +286,8 @@ impl CollisionChecker {
                 limit = f64::INFINITY;
                 let mut arg = usize::MAX;
                 for i in 0..n_pairs {
-                    if self.is_allowed(i) {
-                        continue;
-                    }
-                    let l = self.pair_rate(data, i);
+                    // (0 for an allowed pair)
+                    let l = data.pair_rates[i];
                     if l <= 0.0 {
                         continue;
                     }
@@ -313,7 +320,7 @@ impl CollisionChecker {
             };
             for i in 0..n_pairs {
                 if !self.is_allowed(i) {
-                    data.bound[i] -= self.pair_rate(data, i) * delta;
+                    data.bound[i] -= data.pair_rates[i] * delta;
                 }
             }
             s = try_end;

@@ -132,6 +132,15 @@ impl BSpline {
         }
         let k = lo;
         let c = self.channels;
+        // The blending weights depend on `x` and the knots only: once for every channel.
+        let mut alpha = [[0.0f64; 6]; 6];
+        for r in 1..=p {
+            for j in r..=p {
+                let left = self.knots[j + k - p];
+                let den = self.knots[j + 1 + k - r] - left;
+                alpha[r][j] = if den > 0.0 { (x - left) / den } else { 0.0 };
+            }
+        }
         let mut d = [0.0f64; 6];
         for ch in 0..c {
             for j in 0..=p {
@@ -139,10 +148,8 @@ impl BSpline {
             }
             for r in 1..=p {
                 for j in (r..=p).rev() {
-                    let left = self.knots[j + k - p];
-                    let den = self.knots[j + 1 + k - r] - left;
-                    let alpha = if den > 0.0 { (x - left) / den } else { 0.0 };
-                    d[j] = (1.0 - alpha) * d[j - 1] + alpha * d[j];
+                    let a = alpha[r][j];
+                    d[j] = (1.0 - a) * d[j - 1] + a * d[j];
                 }
             }
             out[ch] = d[p];
