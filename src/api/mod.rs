@@ -9,7 +9,7 @@
 //!    [`crate::store::blob`]; reference `jobs(id)` if your rows come from a job.
 //! 2. **Repository.** `src/store/<resource>.rs` with `sqlx::query`/`query_as` +
 //!    `#[derive(sqlx::FromRow)]` rows (never the `query!` macros). Multi-row writes use a
-//!    transaction: `let mut tx = store::begin_write(&pool).await?; ...execute(&mut *tx)...; tx.commit().await?`
+//!    transaction: `let mut tx = store::begin_write(&pool).await?; ...execute(&mut **tx)...; tx.commit().await?`
 //!    (`BEGIN IMMEDIATE`: a deferred `pool.begin()` that reads before it writes fails under
 //!    concurrent writers).
 //! 3. **DTOs and handlers.** `src/api/<resource>.rs`:

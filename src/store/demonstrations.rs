@@ -1,6 +1,6 @@
 //! The `demonstrations` table (migration 0003).
 
-use sqlx::{Sqlite, SqliteConnection, SqlitePool, Transaction};
+use sqlx::{SqliteConnection, SqlitePool};
 
 use crate::human::{Demonstration, FRAME_WIDTH, IngestSummary, ObjectSpec, Subject, pack_frames};
 use crate::store::blob;
@@ -251,11 +251,11 @@ pub enum Deleted {
 
 /// Delete a demonstration; with `cascade`, also the mappings that use it (one transaction).
 pub async fn delete(pool: &SqlitePool, id: &str, cascade: bool) -> Result<Deleted, sqlx::Error> {
-    let mut tx: Transaction<'static, Sqlite> = super::begin_write(pool).await?;
+    let mut tx = super::begin_write(pool).await?;
     let exists: bool =
         sqlx::query_scalar("SELECT EXISTS (SELECT 1 FROM demonstrations WHERE id = ?)")
             .bind(id)
-            .fetch_one(&mut *tx)
+            .fetch_one(&mut **tx)
             .await?;
     if !exists {
         return Ok(Deleted::NotFound);
@@ -268,23 +268,23 @@ pub async fn delete(pool: &SqlitePool, id: &str, cascade: bool) -> Result<Delete
         "SELECT EXISTS (SELECT 1 FROM sqlite_master WHERE type = 'table' \
          AND name = 'mapping_demonstrations')",
     )
-    .fetch_one(&mut *tx)
+    .fetch_one(&mut **tx)
     .await?;
     for m in &mappings {
         if has_link {
             sqlx::query("DELETE FROM mapping_demonstrations WHERE mapping_id = ?")
                 .bind(m)
-                .execute(&mut *tx)
+                .execute(&mut **tx)
                 .await?;
         }
         sqlx::query("DELETE FROM mappings WHERE id = ?")
             .bind(m)
-            .execute(&mut *tx)
+            .execute(&mut **tx)
             .await?;
     }
     sqlx::query("DELETE FROM demonstrations WHERE id = ?")
         .bind(id)
-        .execute(&mut *tx)
+        .execute(&mut **tx)
         .await?;
     tx.commit().await?;
     Ok(Deleted::Yes {

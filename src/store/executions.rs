@@ -360,7 +360,7 @@ pub async fn save_progress(
     .bind(last_feedback)
     .bind(tracking)
     .bind(id)
-    .execute(&mut *tx)
+    .execute(&mut **tx)
     .await?;
     append_history_and_commit(tx, r.rows_affected(), id, history).await
 }
@@ -369,7 +369,7 @@ pub async fn save_progress(
 /// execution's row, append the history chunk and commit; otherwise drop the transaction (nothing
 /// written) and answer false.
 async fn append_history_and_commit(
-    mut tx: sqlx::Transaction<'_, sqlx::Sqlite>,
+    mut tx: super::WriteTx,
     rows_affected: u64,
     id: &str,
     history: Option<&Chunk>,
@@ -408,7 +408,7 @@ pub async fn finish(
     .bind(last_feedback)
     .bind(tracking)
     .bind(id)
-    .execute(&mut *tx)
+    .execute(&mut **tx)
     .await?;
     append_history_and_commit(tx, r.rows_affected(), id, history).await
 }

@@ -131,7 +131,7 @@ pub async fn set_default(pool: &SqlitePool, id: &str) -> Result<bool, sqlx::Erro
     let robot: Option<String> =
         sqlx::query_scalar("SELECT robot FROM models WHERE id = ? AND model IS NOT NULL")
             .bind(id)
-            .fetch_optional(&mut *tx)
+            .fetch_optional(&mut **tx)
             .await?;
     let Some(robot) = robot else {
         return Ok(false);

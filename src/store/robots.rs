@@ -65,14 +65,14 @@ pub async fn insert_with_meshes(
     .bind(r.hand_urdf)
     .bind(&t)
     .bind(&t)
-    .execute(&mut *tx)
+    .execute(&mut **tx)
     .await?;
     for (filename, data) in meshes {
         sqlx::query("INSERT INTO robot_meshes (robot_id, filename, data) VALUES (?, ?, ?)")
             .bind(r.id)
             .bind(filename)
             .bind(data)
-            .execute(&mut *tx)
+            .execute(&mut **tx)
             .await?;
     }
     tx.commit().await?;
@@ -102,7 +102,7 @@ pub async fn upsert_bundled(pool: &SqlitePool, r: &NewRobot<'_>) -> Result<Upser
     let mut tx = super::begin_write(pool).await?;
     let existing: Option<RobotRow> = sqlx::query_as("SELECT id, name, bundled, descriptor, arm_urdf, hand_urdf, created_at, updated_at FROM robots WHERE id = ?")
         .bind(r.id)
-        .fetch_optional(&mut *tx)
+        .fetch_optional(&mut **tx)
         .await?;
     let t = now();
     let outcome = match existing {
@@ -118,7 +118,7 @@ pub async fn upsert_bundled(pool: &SqlitePool, r: &NewRobot<'_>) -> Result<Upser
             .bind(r.hand_urdf)
             .bind(&t)
             .bind(&t)
-            .execute(&mut *tx)
+            .execute(&mut **tx)
             .await?;
             Upsert::Inserted
         }
@@ -142,7 +142,7 @@ pub async fn upsert_bundled(pool: &SqlitePool, r: &NewRobot<'_>) -> Result<Upser
             .bind(r.hand_urdf)
             .bind(&t)
             .bind(r.id)
-            .execute(&mut *tx)
+            .execute(&mut **tx)
             .await?;
             Upsert::Updated
         }
