@@ -290,44 +290,17 @@ const OPENING_PROBE: f64 = 0.05;
 /// open, and the hand joints close over the last 60 % (overlapping by a fifth so the motion
 /// never stops dead).
 pub fn shape_path(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, pre: &PreGrasp) {
-    let rows = xs.len();
-    assert_eq!(
-        path.len(),
-        rows * nq,
-        "path rows do not match the progress samples"
-    );
-    let original = path.to_vec();
-    let goal = original[(rows - 1) * nq..].to_vec();
+    let given = Given::new(path, xs, nq, sys);
+    let goal = &given.original[(xs.len() - 1) * nq..];
     let s = pre.share.clamp(0.05, 0.5);
-    let smooth = |t: f64| {
-        let t = t.clamp(0.0, 1.0);
-        t * t * (3.0 - 2.0 * t)
-    };
-    let mut is_hand = vec![false; nq];
-    for &h in &sys.hand_joints {
-        is_hand[h] = true;
-    }
     for (k, &x) in xs.iter().enumerate() {
         let row = &mut path[k * nq..(k + 1) * nq];
         if x <= 1.0 - s {
             let y = x / (1.0 - s);
-            let b = smooth(y);
-            // linear interpolation of the original samples at progress y
-            let i = xs.partition_point(|&v| v <= y).clamp(1, rows - 1);
-            let (x0, x1) = (xs[i - 1], xs[i]);
-            let w = if x1 > x0 { (y - x0) / (x1 - x0) } else { 0.0 };
-            for j in 0..nq {
-                let a = original[(i - 1) * nq + j];
-                let c = original[i * nq + j];
-                row[j] = a + w * (c - a) + b * (pre.q[j] - goal[j]);
-            }
+            given.offset_at(y, smooth(y), &pre.q, goal, row);
         } else {
             let z = (x - (1.0 - s)) / s;
-            let (arm, hand) = (smooth(z / 0.6), smooth((z - 0.4) / 0.6));
-            for j in 0..nq {
-                let f = if is_hand[j] { hand } else { arm };
-                row[j] = pre.q[j] + f * (goal[j] - pre.q[j]);
-            }
+            given.phase(z, false, &pre.q, goal, row);
         }
     }
 }
@@ -346,47 +319,81 @@ pub const DEPARTURE_SHARE: f64 = 0.15;
 /// object, and a finger is dragged through it (measured: a wam_ihy thumb 2.6 mm into the ball
 /// on the README quickstart's second plan).
 pub fn shape_departure(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, dep: &PreGrasp) {
-    let rows = xs.len();
-    assert_eq!(
-        path.len(),
-        rows * nq,
-        "path rows do not match the progress samples"
-    );
-    let original = path.to_vec();
-    let start = original[..nq].to_vec();
+    let given = Given::new(path, xs, nq, sys);
+    let start = &given.original[..nq];
     let s = DEPARTURE_SHARE;
-    let smooth = |t: f64| {
-        let t = t.clamp(0.0, 1.0);
-        t * t * (3.0 - 2.0 * t)
-    };
-    let mut is_hand = vec![false; nq];
-    for &h in &sys.hand_joints {
-        is_hand[h] = true;
-    }
     for (k, &x) in xs.iter().enumerate() {
         let row = &mut path[k * nq..(k + 1) * nq];
         if x < s {
-            let z = x / s;
-            let (hand, arm) = (smooth(z / 0.6), smooth((z - 0.4) / 0.6));
-            for j in 0..nq {
-                let f = if is_hand[j] { hand } else { arm };
-                row[j] = start[j] + f * (dep.q[j] - start[j]);
-            }
+            given.phase(x / s, true, start, &dep.q, row);
         } else {
             let y = (x - s) / (1.0 - s);
-            let b = 1.0 - smooth(y);
-            let i = xs.partition_point(|&v| v <= y).clamp(1, rows - 1);
-            let (x0, x1) = (xs[i - 1], xs[i]);
-            let w = if x1 > x0 {
-                ((y - x0) / (x1 - x0)).clamp(0.0, 1.0)
+            given.offset_at(y, 1.0 - smooth(y), &dep.q, start, row);
+        }
+    }
+}
+
+/// `3t² − 2t³` on `[0, 1]`, clamped outside.
+fn smooth(t: f64) -> f64 {
+    let t = t.clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// A path as given to a reshaping, before it changes.
+struct Given<'a> {
+    original: Vec<f64>,
+    xs: &'a [f64],
+    nq: usize,
+    is_hand: Vec<bool>,
+}
+
+impl<'a> Given<'a> {
+    fn new(path: &[f64], xs: &'a [f64], nq: usize, sys: &HandArm) -> Self {
+        assert_eq!(
+            path.len(),
+            xs.len() * nq,
+            "path rows do not match the progress samples"
+        );
+        let mut is_hand = vec![false; nq];
+        for &h in &sys.hand_joints {
+            is_hand[h] = true;
+        }
+        Given {
+            original: path.to_vec(),
+            xs,
+            nq,
+            is_hand,
+        }
+    }
+
+    /// The given path at progress `y` (linear between its samples) plus `b (to − from)`.
+    fn offset_at(&self, y: f64, b: f64, to: &[f64], from: &[f64], row: &mut [f64]) {
+        let (xs, nq) = (self.xs, self.nq);
+        let i = xs.partition_point(|&v| v <= y).clamp(1, xs.len() - 1);
+        let (x0, x1) = (xs[i - 1], xs[i]);
+        let w = if x1 > x0 {
+            ((y - x0) / (x1 - x0)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        for j in 0..nq {
+            let a = self.original[(i - 1) * nq + j];
+            let c = self.original[i * nq + j];
+            row[j] = a + w * (c - a) + b * (to[j] - from[j]);
+        }
+    }
+
+    /// From `a` to `b` at phase `z ∈ [0, 1]`: one group of joints over the first 60 %, the other
+    /// over the last 60 % (the hand first with `hand_first`, else the arm).
+    fn phase(&self, z: f64, hand_first: bool, a: &[f64], b: &[f64], row: &mut [f64]) {
+        let (early, late) = (smooth(z / 0.6), smooth((z - 0.4) / 0.6));
+        for j in 0..self.nq {
+            let f = if self.is_hand[j] == hand_first {
+                early
             } else {
-                0.0
+                late
             };
-            for j in 0..nq {
-                let a = original[(i - 1) * nq + j];
-                let c = original[i * nq + j];
-                row[j] = a + w * (c - a) + b * (dep.q[j] - start[j]);
-            }
+            row[j] = a[j] + f * (b[j] - a[j]);
         }
     }
 }
@@ -404,12 +411,17 @@ mod tests {
     /// The test arm above a small ball held between its two fingers: the goal configuration,
     /// the ball's centre (the fingertips' centroid) and the palm pose there.
     fn grasp_scene(sys: &HandArm) -> (Vec<f64>, Vector3<f64>, Isometry3<f64>) {
+        grasp_scene_flexed(sys, 0.6)
+    }
+
+    /// [`grasp_scene`] with every hand joint at `flex`.
+    fn grasp_scene_flexed(sys: &HandArm, flex: f64) -> (Vec<f64>, Vector3<f64>, Isometry3<f64>) {
         let model = &*sys.model;
         let mut goal = vec![0.0; model.nq()];
         goal[model.q_index("j2").unwrap()] = 0.9;
         goal[model.q_index("j4").unwrap()] = 1.2;
         for &h in &sys.hand_joints {
-            goal[h] = 0.6;
+            goal[h] = flex;
         }
         let mut data = Data::new(model);
         forward_kinematics(model, &mut data, &goal);
@@ -420,6 +432,11 @@ mod tests {
             .sum::<Vector3<f64>>()
             / 2.0;
         (goal, centre, *data.frame(sys.palm))
+    }
+
+    /// The point a fraction `y` along the straight joint line from `a` to `b`.
+    fn joint_line(a: &[f64], b: &[f64], y: f64) -> Vec<f64> {
+        a.iter().zip(b).map(|(a, b)| a + y * (b - a)).collect()
     }
 
     fn ball(centre: Vector3<f64>, radius: f64) -> Object {
@@ -529,18 +546,7 @@ mod tests {
         let sys = test_system();
         let nq = sys.model.nq();
         // the fingers half as flexed as the approach tests' grasp: a ball of a few centimetres
-        let (mut held, _, _) = grasp_scene(&sys);
-        for &h in &sys.hand_joints {
-            held[h] = 0.3;
-        }
-        let mut data = Data::new(&sys.model);
-        forward_kinematics(&sys.model, &mut data, &held);
-        let centre = sys
-            .fingers
-            .iter()
-            .map(|f| f.contact_point(&data).coords)
-            .sum::<Vector3<f64>>()
-            / 2.0;
+        let (held, centre, _) = grasp_scene_flexed(&sys, 0.3);
         let r = ball_distance(&sys, &held, centre, 0.0);
         assert!(r > 1e-3, "{r}");
         let object = ball(centre, r);
@@ -548,13 +554,10 @@ mod tests {
         let mut goal = held.clone();
         goal[sys.model.q_index("j1").unwrap()] += 0.8;
         let xs: Vec<f64> = (0..=400).map(|k| k as f64 / 400.0).collect();
-        let line = |y: f64| -> Vec<f64> {
-            held.iter()
-                .zip(&goal)
-                .map(|(a, b)| a + y * (b - a))
-                .collect()
-        };
-        let mut path: Vec<f64> = xs.iter().flat_map(|&x| line(x)).collect();
+        let mut path: Vec<f64> = xs
+            .iter()
+            .flat_map(|&x| joint_line(&held, &goal, x))
+            .collect();
         shape_departure(&mut path, &xs, nq, &sys, &dep);
         let row = |k: usize| &path[k * nq..(k + 1) * nq];
         assert_eq!(row(0), &held[..]);
@@ -600,13 +603,7 @@ mod tests {
         };
         let xs: Vec<f64> = (0..=40).map(|k| k as f64 / 40.0).collect();
         // a straight joint line from the start to the goal
-        let line = |y: f64| -> Vec<f64> {
-            start
-                .iter()
-                .zip(&goal)
-                .map(|(a, b)| a + y * (b - a))
-                .collect()
-        };
+        let line = |y: f64| joint_line(&start, &goal, y);
         let mut path: Vec<f64> = xs.iter().flat_map(|&x| line(x)).collect();
         shape_path(&mut path, &xs, nq, &sys, &pre);
         let row = |k: usize| &path[k * nq..(k + 1) * nq];

@@ -571,6 +571,16 @@ mod tests {
         assert_eq!(r.restarts, 5);
     }
 
+    /// The pose of frame `f` at `q` as an IK target (FK into `data`).
+    fn frame_target(model: &Model, data: &mut Data, f: FrameId, q: &[f64]) -> IkTarget {
+        forward_kinematics(model, data, q);
+        IkTarget {
+            frame: f,
+            point_in_frame: Vector3::zeros(),
+            pose: *data.frame(f),
+        }
+    }
+
     /// The posture option's answer, checked by a second method: where no joint rests on a limit,
     /// the nearest point of the self-motion to the rest posture is where `q − rest` has no
     /// component in the null space of the (undamped) Jacobian, taken here from its SVD
@@ -594,12 +604,7 @@ mod tests {
         let mut checked = 0;
         for _ in 0..10 {
             let q_true = random_q_within(&model, &mut rng);
-            forward_kinematics(&model, &mut data, &q_true);
-            let target = IkTarget {
-                frame: f,
-                point_in_frame: Vector3::zeros(),
-                pose: *data.frame(f),
-            };
+            let target = frame_target(&model, &mut data, f, &q_true);
             frame_jacobian(&model, &data, f, &Vector3::zeros(), &mut jac);
             let rest: Vec<f64> = q_true
                 .iter()
@@ -657,12 +662,7 @@ mod tests {
         let mut data = Data::new(&model);
         let mut solver = IkSolver::new(&model);
         let q_true = random_q_within(&model, &mut rng);
-        forward_kinematics(&model, &mut data, &q_true);
-        let target = IkTarget {
-            frame: f,
-            point_in_frame: Vector3::zeros(),
-            pose: *data.frame(f),
-        };
+        let target = frame_target(&model, &mut data, f, &q_true);
         let seed = random_q_within(&model, &mut rng);
         let farthest = |q: &[f64]| {
             (0..model.nq())
