@@ -610,6 +610,8 @@ struct Scratch {
     grad_arm: Vec<f64>,
     /// `y − c` of a goal region (scratch, the largest region's dimension).
     region_diff: Vec<f64>,
+    /// The palm IK of the seeding and the repair ([`palm_ik`]).
+    ik: IkSolver,
 }
 
 impl KinState {
@@ -802,6 +804,7 @@ impl<'a> Eval<'a> {
                         .max()
                         .unwrap_or(0)
                 ],
+                ik: IkSolver::new(model),
             },
         }
     }
@@ -1462,7 +1465,14 @@ fn hand_gc(
 
 /// A start: arm configuration from a pre-grasp palm pose (the kinematics IK), hand
 /// preshape at mid-range, perturbed per start.
-fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, u: &mut [f64]) {
+fn seed_start(
+    sys: &HandArm,
+    req: &GraspRequest,
+    start: usize,
+    data: &mut Data,
+    ik: &mut IkSolver,
+    u: &mut [f64],
+) {
     let model = &*sys.model;
     let mut rng =
         ChaCha8Rng::seed_from_u64(req.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ start as u64);
@@ -1590,7 +1600,7 @@ fn seed_start(sys: &HandArm, req: &GraspRequest, start: usize, data: &mut Data, 
         Rotation3::from_basis_unchecked(&[approach, close_world, approach.cross(&close_world)]);
     let rot = UnitQuaternion::from_rotation_matrix(&(r_world * r_local.transpose()));
     let target = Isometry3::from_parts((cg.coords - rot * centroid_local).into(), rot);
-    palm_ik(sys, &mut q, &target, None);
+    palm_ik(sys, ik, &mut q, &target, None);
     for (k, &i) in sys.arm_joints.iter().chain(&sys.hand_joints).enumerate() {
         u[k] = q[i];
     }
@@ -1615,7 +1625,13 @@ fn first_frame_of_q(sys: &HandArm, qi: usize, data: &Data) -> Point3<f64> {
 /// With `rest` (a configuration), the arm's self-motion is pulled towards it in the Jacobian's
 /// null space ([`IkPosture`]), which moves no palm pose to first order: the contact repair backs
 /// a plan's grasp out of the object without leaving its goal region.
-fn palm_ik(sys: &HandArm, q: &mut [f64], target: &Isometry3<f64>, rest: Option<&[f64]>) {
+fn palm_ik(
+    sys: &HandArm,
+    ik: &mut IkSolver,
+    q: &mut [f64],
+    target: &Isometry3<f64>,
+    rest: Option<&[f64]>,
+) {
     let model = &*sys.model;
     let opts = IkOptions {
         position_weight: 1.0,
@@ -1643,7 +1659,7 @@ fn palm_ik(sys: &HandArm, q: &mut [f64], target: &Isometry3<f64>, rest: Option<&
     };
     // No restarts: the generator is never drawn from.
     let mut rng = ChaCha8Rng::seed_from_u64(0);
-    let r = IkSolver::new(model).solve(model, &target, q, &opts, &mut rng);
+    let r = ik.solve(model, &target, q, &opts, &mut rng);
     q.copy_from_slice(&r.q);
 }
 
@@ -1694,7 +1710,8 @@ fn run_start_with(
     {
         let mut e = eval.borrow_mut();
         let e = &mut *e;
-        seed_start(sys, req, start, &mut e.scratch.fd_data, &mut u);
+        let s = &mut e.scratch;
+        seed_start(sys, req, start, &mut s.fd_data, &mut s.ik, &mut u);
     }
     let (lo, hi) = bounds(sys);
     let problem = Problem::new(

@@ -245,7 +245,13 @@ impl Eval<'_> {
                 }
                 rest
             });
-            palm_ik(self.sys, &mut self.kin.q, &target, rest.as_deref());
+            palm_ik(
+                self.sys,
+                &mut self.scratch.ik,
+                &mut self.kin.q,
+                &target,
+                rest.as_deref(),
+            );
             // The seeding IK is a heuristic: keep its answer only where it reached the shifted
             // palm pose (within 1 mm, 0.01 rad); at joint limits it may wander off instead.
             forward_kinematics(&self.sys.model, &mut self.scratch.fd_data, &self.kin.q);
@@ -420,7 +426,13 @@ impl Eval<'_> {
             target.translation.vector = pivot + r * p;
             target.rotation = r * target.rotation;
         }
-        palm_ik(self.sys, &mut self.kin.q, &target, None);
+        palm_ik(
+            self.sys,
+            &mut self.scratch.ik,
+            &mut self.kin.q,
+            &target,
+            None,
+        );
         forward_kinematics(model, &mut self.scratch.fd_data, &self.kin.q);
         let at = self.scratch.fd_data.frame(self.sys.palm);
         let reached = (at.translation.vector - target.translation.vector).norm() < 5e-4
