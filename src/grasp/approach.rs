@@ -288,8 +288,9 @@ const OPENING_PROBE: f64 = 0.05;
 /// progress, its end carried smoothly from the goal to the pre-grasp; then the arm joints move
 /// in along the joint line over the first 60 % of the remaining progress while the hand stays
 /// open, and the hand joints close over the last 60 % (overlapping by a fifth so the motion
-/// never stops dead).
-pub fn shape_path(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, pre: &PreGrasp) {
+/// never stops dead). Returns `1 - share`, the factor the given path's progress was compressed
+/// by (a departure at its start now ends that much sooner).
+pub fn shape_path(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, pre: &PreGrasp) -> f64 {
     let given = Given::new(path, xs, nq, sys);
     let goal = &given.original[(xs.len() - 1) * nq..];
     let s = pre.share.clamp(0.05, 0.5);
@@ -303,6 +304,7 @@ pub fn shape_path(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, pre: &
             given.phase(z, false, &pre.q, goal, row);
         }
     }
+    1.0 - s
 }
 
 /// Share of the progress the departure from a held object takes ([`shape_departure`]).

@@ -323,17 +323,18 @@ pub struct ApproachDto {
 }
 
 impl ApproachDto {
-    /// The departure's report: as the approach's, with its own note.
-    fn departure(found: &Result<PreGrasp, String>) -> Self {
+    /// The departure's report: as the approach's, with its own note; `share` is the progress it
+    /// takes (less than [`crate::grasp::DEPARTURE_SHARE`] where an approach phase follows).
+    fn departure(found: &Result<PreGrasp, String>, share: f64) -> Self {
         let mut dto = ApproachDto::new(found);
         if let Ok(p) = found {
             dto.note = format!(
                 "the start is at the object: over the first {:.0} % of the progress the hand opens {:.0} % of the way, then the arm backs the palm off {:.0} mm to the start's pre-grasp, where the humanlike path takes over; not in the paper, and not covered by the convergence certificates",
-                100.0 * crate::grasp::DEPARTURE_SHARE,
+                100.0 * share,
                 100.0 * p.open_fraction,
                 1e3 * p.standoff_m
             );
-            dto.share = Some(crate::grasp::DEPARTURE_SHARE);
+            dto.share = Some(share);
         }
         dto
     }
@@ -830,11 +831,13 @@ pub async fn compute(
             let mut avoidance = None;
             let mut approach = None;
             let mut departure = None;
+            // Progress the departure takes, if there is one (the avoidance holds its targets
+            // at the start's clearance over it).
+            let mut hold = 0.0;
             let traj = l
                 .model
                 .trajectory_with(&start, &goal, &opts, |path, xs| {
                     if let Some(sc) = &scene {
-                        let mut hold = 0.0;
                         // A start at the object (the end of a previous plan, holding it)
                         // first leaves it: the hand opens, then the arm backs off.
                         if let Some(object) = sc
@@ -860,7 +863,8 @@ pub async fn compute(
                             };
                             let found = pre_grasp(&sc.sys, Some(object), &obstacles, &goal, &opts);
                             if let Ok(pre) = &found {
-                                shape_path(path, xs, sc.sys.model.nq(), &sc.sys, pre);
+                                // (the departure, if any, is compressed with the rest)
+                                hold *= shape_path(path, xs, sc.sys.model.nq(), &sc.sys, pre);
                             }
                             approach = Some(found);
                         }
@@ -890,7 +894,7 @@ pub async fn compute(
             let mut report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
             report.avoidance = avoidance.map(|a| AvoidanceDto::new(&a));
             report.approach = approach.as_ref().map(ApproachDto::new);
-            report.departure = departure.as_ref().map(ApproachDto::departure);
+            report.departure = departure.as_ref().map(|d| ApproachDto::departure(d, hold));
             report.clearance = scene.map(|sc| {
                 let points: Vec<f64> = traj
                     .points
