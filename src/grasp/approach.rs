@@ -12,9 +12,9 @@
 //!
 //! The path is then reshaped ([`shape_path`]): the humanlike path runs over the first part of
 //! the progress with a smooth offset that carries its end from the grasp to the pre-grasp (the
-//! hand opens on the way, as a human's does before it closes), then the arm moves in along the
-//! joint line to the grasp with the hand still open, and the hand closes last. Not in the
-//! paper, whose flow ends at the grasp configuration itself.
+//! hand opens on the way, as a human's does before it closes), then the arm moves the palm in
+//! along the straight line to the grasp with the hand still open ([`PreGrasp::line`]), and the
+//! hand closes last. Not in the paper, whose flow ends at the grasp configuration itself.
 
 use nalgebra::{Translation3, Vector3};
 use rand::SeedableRng;
@@ -85,6 +85,12 @@ pub struct PreGrasp {
     pub obstacle_clearance_m: f64,
     /// Share of the progress of the final approach and closing.
     pub share: f64,
+    /// The final approach as a straight palm line: [`LINE_STEPS`]` + 1` rows of joint values
+    /// (model order), from `q` to the grasp, the palm's position moved evenly along the
+    /// straight line and its orientation slerped between them, solved by the arm alone (empty:
+    /// no such line was found, and the arm moves in along the joint line).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub line: Vec<f64>,
 }
 
 /// The pre-grasp of `goal` (model order) in the scene, or why there is none.
@@ -187,7 +193,9 @@ pub fn pre_grasp(
                     if b.0 < a.0 { b } else { a }
                 });
                 if worst >= 0.0 {
+                    let line = straight_line(sys, &mut ik, &ik_opts, &mut rng, &q, goal, &palm);
                     return Ok(PreGrasp {
+                        line,
                         q: q.clone(),
                         standoff_m: along,
                         direction: [direction.x, direction.y, direction.z],
@@ -225,6 +233,77 @@ pub fn pre_grasp(
                 .to_string()
         }
     })
+}
+
+/// Intervals of the straight final approach ([`PreGrasp::line`]): the arm's joint-space path
+/// between two of its poses deviates from the straight palm line at second order in their
+/// distance, well under a millimetre over the 8 mm or so between poses of a 60 mm standoff.
+pub const LINE_STEPS: usize = 8;
+
+/// Largest joint move between two poses of the straight line, relative to the joint line's
+/// own step (plus a small floor): a larger one is the IK jumping to another branch, which the
+/// interpolation between them would sweep through the scene.
+const LINE_JUMP: f64 = 3.0;
+
+/// The straight palm line from `pre` (the pre-grasp configuration) to `goal` (whose palm pose
+/// is `palm`), solved pose by pose by the arm alone, each seeded at the one before; empty when
+/// the arm jumps between two of them (see [`PreGrasp::line`]). Where an arm joint on its limit
+/// keeps a pose off the line (the grasp optimiser often ends on one), the IK's best effort is
+/// the reachable pose nearest to it, which still bends less than the joint line. Why: the
+/// joint line from the pre-grasp bends the palm's path sideways by up to centimetres, and at the
+/// end of it a finger that must slide past the object at its surface (a hand open at its limit
+/// around a 65 mm bottle) is swept into it; a straight palm line keeps the pads on their own
+/// tangent planes.
+fn straight_line(
+    sys: &HandArm,
+    ik: &mut IkSolver,
+    opts: &IkOptions,
+    rng: &mut ChaCha8Rng,
+    pre: &[f64],
+    goal: &[f64],
+    palm: &nalgebra::Isometry3<f64>,
+) -> Vec<f64> {
+    let model = &*sys.model;
+    let nq = model.nq();
+    let mut data = crate::kinematics::Data::new(model);
+    crate::kinematics::forward_kinematics(model, &mut data, pre);
+    let from = *data.frame(sys.palm);
+    let mut rows = Vec::with_capacity((LINE_STEPS + 1) * nq);
+    rows.extend_from_slice(pre);
+    let opts = IkOptions {
+        position_tolerance: 1e-5,
+        orientation_tolerance: 1e-4,
+        ..opts.clone()
+    };
+    for k in 1..LINE_STEPS {
+        let u = k as f64 / LINE_STEPS as f64;
+        let target = IkTarget {
+            frame: sys.palm,
+            point_in_frame: Vector3::zeros(),
+            pose: from.lerp_slerp(palm, u),
+        };
+        let seed = rows[(k - 1) * nq..k * nq].to_vec();
+        let solved = ik.solve(model, &target, &seed, &opts, rng);
+        let jump = solved
+            .q
+            .iter()
+            .zip(&seed)
+            .zip(pre.iter().zip(goal))
+            .map(|((a, b), (p, g))| (a - b).abs() / ((g - p).abs() / LINE_STEPS as f64 + 0.02))
+            .fold(0.0, f64::max);
+        if jump > LINE_JUMP {
+            return Vec::new();
+        }
+        rows.extend_from_slice(&solved.q);
+    }
+    rows.extend_from_slice(goal);
+    // the hand joints follow their own phase; the line carries the arm's
+    for k in 0..=LINE_STEPS {
+        for &h in &sys.hand_joints {
+            rows[k * nq + h] = pre[h];
+        }
+    }
+    rows
 }
 
 /// Per independent hand joint: its grasp value and the limit that opens the hand: the one of
@@ -286,7 +365,8 @@ const OPENING_PROBE: f64 = 0.05;
 /// Reshapes a path sampled at progress `xs` (rows of `nq`, first row the start, last the
 /// goal) into the approach: the humanlike path compressed into the first `1 - share` of the
 /// progress, its end carried smoothly from the goal to the pre-grasp; then the arm joints move
-/// in along the joint line over the first 60 % of the remaining progress while the hand stays
+/// in along `pre.line` (the straight palm line; the joint line without one) over the first
+/// 60 % of the remaining progress while the hand stays
 /// open, and the hand joints close over the last 60 % (overlapping by a fifth so the motion
 /// never stops dead). Returns `1 - share`, the factor the given path's progress was compressed
 /// by (a departure at its start now ends that much sooner).
@@ -301,7 +381,7 @@ pub fn shape_path(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, pre: &
             given.offset_at(y, smooth(y), &pre.q, goal, row);
         } else {
             let z = (x - (1.0 - s)) / s;
-            given.phase(z, false, &pre.q, goal, row);
+            given.phase(z, false, &pre.q, goal, &pre.line, false, row);
         }
     }
     1.0 - s
@@ -327,12 +407,32 @@ pub fn shape_departure(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, d
     for (k, &x) in xs.iter().enumerate() {
         let row = &mut path[k * nq..(k + 1) * nq];
         if x < s {
-            given.phase(x / s, true, start, &dep.q, row);
+            given.phase(x / s, true, start, &dep.q, &dep.line, true, row);
         } else {
             let y = (x - s) / (1.0 - s);
             given.offset_at(y, 1.0 - smooth(y), &dep.q, start, row);
         }
     }
+}
+
+/// Joint `j` of the straight line's poses ([`PreGrasp::line`]) at `u ∈ [0, 1]`: the uniform
+/// Catmull-Rom spline through them (end poses repeated), so the velocity has no kinks where
+/// a piecewise-linear interpolation would have them at every pose.
+fn line_at(line: &[f64], nq: usize, u: f64, j: usize) -> f64 {
+    let t = u.clamp(0.0, 1.0) * LINE_STEPS as f64;
+    let p = |k: isize| line[(k.clamp(0, LINE_STEPS as isize) as usize) * nq + j];
+    let i = t.floor() as isize;
+    let w = t - i as f64;
+    if w == 0.0 {
+        // at a pose (both ends included), its own values to the last bit
+        return p(i);
+    }
+    let (p0, p1, p2, p3) = (p(i - 1), p(i), p(i + 1), p(i + 2));
+    let (w2, w3) = (w * w, w * w * w);
+    0.5 * (2.0 * p1
+        + (p2 - p0) * w
+        + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * w2
+        + (3.0 * p1 - p0 - 3.0 * p2 + p3) * w3)
 }
 
 /// `3t² − 2t³` on `[0, 1]`, clamped outside.
@@ -386,8 +486,20 @@ impl<'a> Given<'a> {
     }
 
     /// From `a` to `b` at phase `z ∈ [0, 1]`: one group of joints over the first 60 %, the other
-    /// over the last 60 % (the hand first with `hand_first`, else the arm).
-    fn phase(&self, z: f64, hand_first: bool, a: &[f64], b: &[f64], row: &mut [f64]) {
+    /// over the last 60 % (the hand first with `hand_first`, else the arm). The arm follows
+    /// `line` where there is one ([`PreGrasp::line`], which runs from `b` to `a` when
+    /// `reversed`), else the joint line.
+    #[allow(clippy::too_many_arguments)]
+    fn phase(
+        &self,
+        z: f64,
+        hand_first: bool,
+        a: &[f64],
+        b: &[f64],
+        line: &[f64],
+        reversed: bool,
+        row: &mut [f64],
+    ) {
         let (early, late) = (smooth(z / 0.6), smooth((z - 0.4) / 0.6));
         for j in 0..self.nq {
             let f = if self.is_hand[j] == hand_first {
@@ -395,7 +507,11 @@ impl<'a> Given<'a> {
             } else {
                 late
             };
-            row[j] = a[j] + f * (b[j] - a[j]);
+            row[j] = if self.is_hand[j] || line.is_empty() {
+                a[j] + f * (b[j] - a[j])
+            } else {
+                line_at(line, self.nq, if reversed { 1.0 - f } else { f }, j)
+            };
         }
     }
 }
@@ -517,6 +633,61 @@ mod tests {
         assert!(ball_distance(&sys, &goal, centre, r) < opts.margin);
     }
 
+    /// Distance of `p` from the segment `a`-`b` (closed form).
+    fn segment_distance(p: Vector3<f64>, a: Vector3<f64>, b: Vector3<f64>) -> f64 {
+        let t = ((p - a).dot(&(b - a)) / (b - a).norm_squared()).clamp(0.0, 1.0);
+        (p - (a + (b - a) * t)).norm()
+    }
+
+    #[test]
+    fn the_final_approach_moves_the_palm_in_along_a_straight_line() {
+        let sys = test_system();
+        let model = &*sys.model;
+        let nq = model.nq();
+        let (goal, centre, palm) = grasp_scene(&sys);
+        // twice the default standoff: the joint line's bend grows with the distance
+        let opts = ApproachOptions {
+            standoff: 0.12,
+            ..ApproachOptions::default()
+        };
+        let pre = pre_grasp(&sys, Some(&ball(centre, 0.012)), &[], &goal, &opts).unwrap();
+        assert_eq!(pre.line.len(), (LINE_STEPS + 1) * nq, "{pre:?}");
+        let mut data = Data::new(model);
+        let mut palm_at = |q: &[f64]| {
+            forward_kinematics(model, &mut data, q);
+            data.frame(sys.palm).translation.vector
+        };
+        let (from, to) = (palm_at(&pre.q), palm.translation.vector);
+        let start = vec![0.1; nq];
+        let xs: Vec<f64> = (0..=400).map(|k| k as f64 / 400.0).collect();
+        let mut path: Vec<f64> = xs
+            .iter()
+            .flat_map(|&x| joint_line(&start, &goal, x))
+            .collect();
+        shape_path(&mut path, &xs, nq, &sys, &pre);
+        let mut worst: f64 = 0.0;
+        for (k, &x) in xs.iter().enumerate() {
+            if x >= 0.8 {
+                worst = worst.max(segment_distance(
+                    palm_at(&path[k * nq..(k + 1) * nq]),
+                    from,
+                    to,
+                ));
+            }
+        }
+        // the same phase along the joint line instead: the test can tell the two apart
+        let mut bent: f64 = 0.0;
+        for k in 0..=100 {
+            let q = joint_line(&pre.q, &goal, k as f64 / 100.0);
+            bent = bent.max(segment_distance(palm_at(&q), from, to));
+        }
+        assert!(worst < 2e-4, "palm {worst} m off the straight line");
+        assert!(
+            bent > 2e-3,
+            "the joint line bends the palm's path only {bent} m"
+        );
+    }
+
     #[test]
     fn a_pre_grasp_inside_an_obstacle_is_refused_with_the_obstacle_named() {
         let sys = test_system();
@@ -602,6 +773,7 @@ mod tests {
             support_clearance_m: f64::INFINITY,
             obstacle_clearance_m: f64::INFINITY,
             share: 0.2,
+            line: Vec::new(),
         };
         let xs: Vec<f64> = (0..=40).map(|k| k as f64 / 40.0).collect();
         // a straight joint line from the start to the goal
