@@ -105,9 +105,11 @@ pub struct PlanIn {
     #[serde(default)]
     #[schema(max_items = 32)]
     pub obstacles: Vec<crate::geometry::ObstacleSpec>,
-    /// Pre-grasp standoff, m, in [0, 0.25] (default 0: none; 0.06 is a typical value): the path
-    /// then ends at the palm this far back along the approach direction with the hand opened,
-    /// then moves in and closes (`trajectory.report.approach`).
+    /// Pre-grasp standoff, m, in [0, 0.25] (0.06 is a typical value): the path then ends at the
+    /// palm this far back along the approach direction with the hand opened, then moves in along
+    /// a straight line and closes (`trajectory.report.approach`). Absent: none, unless the path
+    /// without one collides with the object; then 0.06 is tried and used where it is
+    /// collision-free. 0: none at all.
     #[schema(minimum = 0, maximum = 0.25)]
     pub approach_standoff: Option<f64>,
 }

@@ -106,9 +106,11 @@ pub struct CreateTrajectory {
     /// Pre-grasp standoff, m, in [0, 0.25] (default 0: none; 0.06 is a typical value). With an
     /// object (a plan's, or a stored grasp goal's) the path then ends with an approach phase:
     /// the palm this far back along the approach direction with the hand opened, then the final
-    /// approach and the closing (`report.approach`). Off by default: measured over 60 seeded
-    /// plans it made no more grasps hold in physics and lengthened the motions by about a third
-    /// (README, "Approach phase").
+    /// approach along a straight line and the closing (`report.approach`). Absent: none, unless
+    /// the path without one collides with the object; then 0.06 is tried and used where it is
+    /// collision-free. 0: none at all. Not on every path: measured over 60 seeded plans it made
+    /// no more grasps hold in physics and lengthened the motions by about a third (README,
+    /// "Approach phase").
     #[schema(minimum = 0, maximum = 0.25)]
     pub approach_standoff: Option<f64>,
 }
@@ -299,8 +301,9 @@ fn near_object(sys: &HandArm, object: &Object, start: &[f64]) -> bool {
 /// along `direction` (robot base frame; the approach direction reversed, lifted off the support
 /// where straight back was not clear), reached by the arm alone, with every hand joint opened
 /// `open_fraction` of the way towards its open limit. The humanlike path runs to it over the
-/// first `1 - share` of the progress (the hand opening on the way); then the arm moves in along
-/// the joint line with the hand open, and the hand closes last. The clearances are exact
+/// first `1 - share` of the progress (the hand opening on the way); then the arm moves the palm
+/// in along the straight line to the grasp (`straight_line`; else along the joint line) with
+/// the hand open, and the hand closes last. The clearances are exact
 /// (URDF collision shapes) at the pre-grasp. Not in the paper, whose flow ends at the grasp
 /// itself; the convergence certificates cover the flow, not this reshaping.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
@@ -319,6 +322,9 @@ pub struct ApproachDto {
     pub object_clearance_m: Option<f64>,
     pub support_clearance_m: Option<f64>,
     pub obstacle_clearance_m: Option<f64>,
+    /// The arm moves the palm in along the straight line from the pre-grasp (its poses solved
+    /// at even steps of the line); false: along the joint line, where the IK jumped branches.
+    pub straight_line: Option<bool>,
     pub note: String,
 }
 
@@ -352,6 +358,7 @@ impl ApproachDto {
                 object_clearance_m: finite(p.object_clearance_m),
                 support_clearance_m: finite(p.support_clearance_m),
                 obstacle_clearance_m: finite(p.obstacle_clearance_m),
+                straight_line: Some(!p.line.is_empty()),
                 note: format!(
                     "the humanlike path ends at a pre-grasp {:.0} mm back from the grasp with the hand {:.0} % open; the last {:.0} % of the progress moves the arm in and then closes the hand",
                     1e3 * p.standoff_m,
@@ -369,6 +376,7 @@ impl ApproachDto {
                 object_clearance_m: None,
                 support_clearance_m: None,
                 obstacle_clearance_m: None,
+                straight_line: None,
                 note: why.clone(),
             },
         }
@@ -759,6 +767,7 @@ pub async fn compute(
     }
     let obstacles = scene_obstacles(&body.obstacles)?;
     let standoff = approach_standoff(body.approach_standoff, "$.approach_standoff")?;
+    let requested_standoff = body.approach_standoff;
     let l = loaded_model(ctx, &body.model, Some("$.model")).await?;
     let system = match ctx.robots.system(&l.robot).await {
         Err(LibraryError::UnknownRobot(_)) => {
@@ -825,85 +834,127 @@ pub async fn compute(
             grasp.clone(),
         );
         tokio::task::spawn_blocking(move || {
-            // With an object, the path ends with the approach phase; in a scene, the humanlike
-            // path is then moved the least amount needed for a clearance margin before it is
-            // timed.
-            let mut avoidance = None;
-            let mut approach = None;
-            let mut departure = None;
-            // Progress the departure takes, if there is one (the avoidance holds its targets
-            // at the start's clearance over it).
-            let mut hold = 0.0;
-            let traj = l
-                .model
-                .trajectory_with(&start, &goal, &opts, |path, xs| {
-                    if let Some(sc) = &scene {
-                        // A start at the object (the end of a previous plan, holding it)
-                        // first leaves it: the hand opens, then the arm backs off.
-                        if let Some(object) = sc
-                            .object
+            let run = |standoff: f64| {
+                // With an object, the path ends with the approach phase; in a scene, the humanlike
+                // path is then moved the least amount needed for a clearance margin before it is
+                // timed.
+                let mut avoidance = None;
+                let mut approach = None;
+                let mut departure = None;
+                // Progress the departure takes, if there is one (the avoidance holds its targets
+                // at the start's clearance over it).
+                let mut hold = 0.0;
+                let traj = l
+                    .model
+                    .trajectory_with(&start, &goal, &opts, |path, xs| {
+                        if let Some(sc) = &scene {
+                            // A start at the object (the end of a previous plan, holding it)
+                            // first leaves it: the hand opens, then the arm backs off.
+                            if let Some(object) = sc
+                                .object
+                                .as_ref()
+                                .filter(|o| near_object(&sc.sys, o, &start))
+                            {
+                                let opts = ApproachOptions {
+                                    standoff: standoff
+                                        .max(crate::grasp::approach::DEFAULT_STANDOFF),
+                                    ..ApproachOptions::default()
+                                };
+                                let found =
+                                    pre_grasp(&sc.sys, Some(object), &obstacles, &start, &opts);
+                                if let Ok(dep) = &found {
+                                    shape_departure(path, xs, sc.sys.model.nq(), &sc.sys, dep);
+                                    hold = crate::grasp::DEPARTURE_SHARE;
+                                }
+                                departure = Some(found);
+                            }
+                            if let Some(object) = sc.object.as_ref().filter(|_| standoff > 0.0) {
+                                let opts = ApproachOptions {
+                                    standoff,
+                                    ..ApproachOptions::default()
+                                };
+                                let found =
+                                    pre_grasp(&sc.sys, Some(object), &obstacles, &goal, &opts);
+                                if let Ok(pre) = &found {
+                                    // (the departure, if any, is compressed with the rest)
+                                    hold *= shape_path(path, xs, sc.sys.model.nq(), &sc.sys, pre);
+                                }
+                                approach = Some(found);
+                            }
+                            let curve: Vec<CurveSample> =
+                                cubic_basis(xs.len(), &clearance_progress())
+                                    .into_iter()
+                                    .map(|(x, first, w)| CurveSample { x, first, w })
+                                    .collect();
+                            avoidance = Some(avoid(
+                                &sc.sys,
+                                sc.object.as_ref(),
+                                &obstacles,
+                                path,
+                                &curve,
+                                hold,
+                            ));
+                        }
+                    })
+                    .map_err(|e| {
+                        let outside = matches!(e, MotionError::GoalOutsideRegion { .. });
+                        let e = region_error(e, l.model.manifolds.len(), "$.start", goal_base);
+                        if outside {
+                            Rejected::goal(e)
+                        } else {
+                            Rejected::Other(e)
+                        }
+                    })?;
+                let mut report =
+                    trajectory_report(&system, &l.model, &traj, requested, rate, grasp.clone());
+                report.avoidance = avoidance.map(|a| AvoidanceDto::new(&a));
+                report.approach = approach.as_ref().map(ApproachDto::new);
+                report.departure = departure.as_ref().map(|d| ApproachDto::departure(d, hold));
+                report.clearance = scene.as_ref().map(|sc| {
+                    let points: Vec<f64> = traj
+                        .points
+                        .iter()
+                        .flat_map(|p| p.positions.iter().copied())
+                        .collect();
+                    let times: Vec<f64> = traj.points.iter().map(|p| p.t).collect();
+                    path_clearance(&sc.sys, sc.object.as_ref(), &obstacles, &points, &times)
+                });
+                Ok::<_, Rejected>((traj, report))
+            };
+            let (traj, report) = run(standoff)?;
+            // A direct path that meets the object (a finger swept across it on the way in) is
+            // tried again with the default approach phase when the request left the standoff
+            // to us, and replaced where that one is collision-free. Not by default for every
+            // plan: the approach phase lengthens the motion by about a third (README).
+            let collides =
+                |r: &TrajectoryReportDto| r.clearance.as_ref().is_some_and(|c| !c.collision_free);
+            let has_object = scene.as_ref().is_some_and(|sc| sc.object.is_some());
+            if collides(&report) && has_object && requested_standoff.is_none() {
+                let (t2, mut r2) = run(crate::grasp::approach::DEFAULT_STANDOFF)?;
+                if !collides(&r2) {
+                    if let Some(a) = r2.approach.as_mut() {
+                        let why = report
+                            .clearance
                             .as_ref()
-                            .filter(|o| near_object(&sc.sys, o, &start))
-                        {
-                            let opts = ApproachOptions {
-                                standoff: standoff.max(crate::grasp::approach::DEFAULT_STANDOFF),
-                                ..ApproachOptions::default()
-                            };
-                            let found = pre_grasp(&sc.sys, Some(object), &obstacles, &start, &opts);
-                            if let Ok(dep) = &found {
-                                shape_departure(path, xs, sc.sys.model.nq(), &sc.sys, dep);
-                                hold = crate::grasp::DEPARTURE_SHARE;
-                            }
-                            departure = Some(found);
-                        }
-                        if let Some(object) = sc.object.as_ref().filter(|_| standoff > 0.0) {
-                            let opts = ApproachOptions {
-                                standoff,
-                                ..ApproachOptions::default()
-                            };
-                            let found = pre_grasp(&sc.sys, Some(object), &obstacles, &goal, &opts);
-                            if let Ok(pre) = &found {
-                                // (the departure, if any, is compressed with the rest)
-                                hold *= shape_path(path, xs, sc.sys.model.nq(), &sc.sys, pre);
-                            }
-                            approach = Some(found);
-                        }
-                        let curve: Vec<CurveSample> = cubic_basis(xs.len(), &clearance_progress())
-                            .into_iter()
-                            .map(|(x, first, w)| CurveSample { x, first, w })
-                            .collect();
-                        avoidance = Some(avoid(
-                            &sc.sys,
-                            sc.object.as_ref(),
-                            &obstacles,
-                            path,
-                            &curve,
-                            hold,
-                        ));
+                            .and_then(|c| c.closest.as_ref())
+                            .map(|h| {
+                                format!(
+                                    "'{}' {:.1} mm inside '{}' at t = {:.2} s",
+                                    h.link,
+                                    -1e3 * h.distance_m,
+                                    h.other,
+                                    h.time_s
+                                )
+                            })
+                            .unwrap_or_default();
+                        a.note = format!(
+                            "{}; added because the path without an approach phase collided ({why})",
+                            a.note
+                        );
                     }
-                })
-                .map_err(|e| {
-                    let outside = matches!(e, MotionError::GoalOutsideRegion { .. });
-                    let e = region_error(e, l.model.manifolds.len(), "$.start", goal_base);
-                    if outside {
-                        Rejected::goal(e)
-                    } else {
-                        Rejected::Other(e)
-                    }
-                })?;
-            let mut report = trajectory_report(&system, &l.model, &traj, requested, rate, grasp);
-            report.avoidance = avoidance.map(|a| AvoidanceDto::new(&a));
-            report.approach = approach.as_ref().map(ApproachDto::new);
-            report.departure = departure.as_ref().map(|d| ApproachDto::departure(d, hold));
-            report.clearance = scene.map(|sc| {
-                let points: Vec<f64> = traj
-                    .points
-                    .iter()
-                    .flat_map(|p| p.positions.iter().copied())
-                    .collect();
-                let times: Vec<f64> = traj.points.iter().map(|p| p.t).collect();
-                path_clearance(&sc.sys, sc.object.as_ref(), &obstacles, &points, &times)
-            });
+                    return Ok((t2, r2));
+                }
+            }
             Ok::<_, Rejected>((traj, report))
         })
         .await

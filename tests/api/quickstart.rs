@@ -192,6 +192,45 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         assert_eq!(model["trained_at"], job["finished_at"], "{r} vs {job}");
     }
 
+    // With the seeded models, the wam_t42 bottle plan from the zero posture sweeps a proximal
+    // link through the bottle when it runs into the grasp directly (measured: 43.8 mm deep). Left
+    // to the service, the plan gets the approach phase instead, with its straight final approach,
+    // and is collision-free; asked for no approach phase, it stays the collision it is.
+    let robot = get_json(&client, &format!("{base}/v1/robots/wam_t42")).await;
+    let n = robot["joint_names"].as_array().unwrap().len();
+    let plan = |standoff: Option<f64>| {
+        let mut body = serde_json::json!({"robot": "wam_t42",
+            "object_id": "00000000-0000-4000-8000-000000000002",
+            "start": {"joint_names": robot["joint_names"], "positions": vec![0.0; n]},
+            "task_directions": [{"direction": [0, 1, 0], "kind": "velocity", "goal": "maximize"}]});
+        if let Some(s) = standoff {
+            body["approach_standoff"] = s.into();
+        }
+        let (client, url) = (&client, format!("{base}/v1/plans"));
+        async move {
+            let res = client.post(url).json(&body).send().await.unwrap();
+            assert_eq!(res.status(), 201);
+            res.json::<Value>().await.unwrap()
+        }
+    };
+    let direct = plan(Some(0.0)).await;
+    assert_eq!(direct["feasible"], false, "{}", direct["reason"]);
+    let hit = &direct["trajectory"]["report"]["clearance"]["object"];
+    assert!(hit["distance_m"].as_f64().unwrap() < -1e-3, "{hit}");
+    assert!(direct["trajectory"]["report"]["approach"].is_null());
+    let chosen = plan(None).await;
+    assert_eq!(chosen["feasible"], true, "{}", chosen["reason"]);
+    let report = &chosen["trajectory"]["report"];
+    assert_eq!(report["clearance"]["collision_free"], true, "{report}");
+    let approach = &report["approach"];
+    assert_eq!(approach["used"], true, "{approach}");
+    assert_eq!(approach["straight_line"], true, "{approach}");
+    let note = approach["note"].as_str().unwrap();
+    assert!(
+        note.contains("added because") && note.contains("inside 'bottle'"),
+        "{note}"
+    );
+
     // The README's worker, as the built binary.
     let mut worker = Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
         .args(["bridge", "--sim", "--robot", "wam_ihy", "--token", TOKEN])
