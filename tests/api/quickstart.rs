@@ -195,14 +195,16 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     // With the seeded models, the wam_t42 bottle plan from the zero posture sweeps a proximal
     // link through the bottle when it runs into the grasp directly (measured: 43.8 mm deep). Left
     // to the service, the plan gets the approach phase instead, with its straight final approach,
-    // and is collision-free; asked for no approach phase, it stays the collision it is.
+    // and is collision-free; asked for no approach phase, it stays the collision it is. (The
+    // grasp's seed is set: left to the service, a grasp without a clear motion is replaced.)
     let robot = get_json(&client, &format!("{base}/v1/robots/wam_t42")).await;
     let n = robot["joint_names"].as_array().unwrap().len();
     let plan = |standoff: Option<f64>| {
         let mut body = serde_json::json!({"robot": "wam_t42",
             "object_id": "00000000-0000-4000-8000-000000000002",
             "start": {"joint_names": robot["joint_names"], "positions": vec![0.0; n]},
-            "task_directions": [{"direction": [0, 1, 0], "kind": "velocity", "goal": "maximize"}]});
+            "task_directions": [{"direction": [0, 1, 0], "kind": "velocity", "goal": "maximize"}],
+            "seed": 0});
         if let Some(s) = standoff {
             body["approach_standoff"] = s.into();
         }
@@ -230,6 +232,50 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         note.contains("added because") && note.contains("inside 'bottle'"),
         "{note}"
     );
+
+    // With the seeded pa10_ihy model, the ball grasp of seed 0 (the default) has no
+    // collision-free motion from the zero posture (measured: the thumb presses 5.0 mm into the
+    // ball while the hand closes). Left to the service, the plan drops it and takes seed 1's
+    // grasp; with the seed set, the plan is that grasp's, infeasible.
+    let robot = get_json(&client, &format!("{base}/v1/robots/pa10_ihy")).await;
+    let n = robot["joint_names"].as_array().unwrap().len();
+    let ball_plan = |seed: Option<u64>| {
+        let mut body = serde_json::json!({"robot": "pa10_ihy",
+            "object_id": "00000000-0000-4000-8000-000000000001",
+            "start": {"joint_names": robot["joint_names"], "positions": vec![0.0; n]},
+            "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]});
+        if let Some(s) = seed {
+            body["seed"] = s.into();
+        }
+        let (client, url) = (&client, format!("{base}/v1/plans"));
+        async move {
+            let res = client.post(url).json(&body).send().await.unwrap();
+            assert_eq!(res.status(), 201);
+            res.json::<Value>().await.unwrap()
+        }
+    };
+    let pinned = ball_plan(Some(0)).await;
+    assert_eq!(pinned["feasible"], false, "{}", pinned["reason"]);
+    assert!(
+        pinned["reason"]
+            .as_str()
+            .unwrap()
+            .contains("no collision-free motion"),
+        "{}",
+        pinned["reason"]
+    );
+    assert!(pinned["timings"]["rejected_grasps"].is_null());
+    let chosen = ball_plan(None).await;
+    assert_eq!(chosen["feasible"], true, "{}", chosen["reason"]);
+    assert_eq!(
+        chosen["trajectory"]["report"]["clearance"]["collision_free"],
+        true
+    );
+    let rejected = chosen["timings"]["rejected_grasps"].as_array().unwrap();
+    assert_eq!(rejected.len(), 1, "{rejected:?}");
+    assert_eq!(rejected[0]["seed"], 0);
+    assert_eq!(rejected[0]["reason"], pinned["reason"]);
+    assert_eq!(chosen["grasp"]["request"]["seed"], 1, "{}", chosen["grasp"]);
 
     // The README's worker, as the built binary.
     let mut worker = Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
