@@ -197,23 +197,21 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     // to the service, the plan gets the approach phase instead, with its straight final approach,
     // and is collision-free; asked for no approach phase, it stays the collision it is. (The
     // grasp's seed is set: left to the service, a grasp without a clear motion is replaced.)
-    let robot = get_json(&client, &format!("{base}/v1/robots/wam_t42")).await;
-    let n = robot["joint_names"].as_array().unwrap().len();
+    let bottle = "00000000-0000-4000-8000-000000000002";
     let plan = |standoff: Option<f64>| {
-        let mut body = serde_json::json!({"robot": "wam_t42",
-            "object_id": "00000000-0000-4000-8000-000000000002",
-            "start": {"joint_names": robot["joint_names"], "positions": vec![0.0; n]},
-            "task_directions": [{"direction": [0, 1, 0], "kind": "velocity", "goal": "maximize"}],
-            "seed": 0});
+        let mut extra = serde_json::json!({"seed": 0});
         if let Some(s) = standoff {
-            body["approach_standoff"] = s.into();
+            extra["approach_standoff"] = s.into();
         }
-        let (client, url) = (&client, format!("{base}/v1/plans"));
-        async move {
-            let res = client.post(url).json(&body).send().await.unwrap();
-            assert_eq!(res.status(), 201);
-            res.json::<Value>().await.unwrap()
-        }
+        zero_start_plan(
+            &client,
+            &base,
+            "wam_t42",
+            bottle,
+            [0, 1, 0],
+            "velocity",
+            extra,
+        )
     };
     let direct = plan(Some(0.0)).await;
     assert_eq!(direct["feasible"], false, "{}", direct["reason"]);
@@ -237,22 +235,10 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     // collision-free motion from the zero posture (measured: the thumb presses 5.0 mm into the
     // ball while the hand closes). Left to the service, the plan drops it and takes seed 1's
     // grasp; with the seed set, the plan is that grasp's, infeasible.
-    let robot = get_json(&client, &format!("{base}/v1/robots/pa10_ihy")).await;
-    let n = robot["joint_names"].as_array().unwrap().len();
+    let ball = "00000000-0000-4000-8000-000000000001";
     let ball_plan = |seed: Option<u64>| {
-        let mut body = serde_json::json!({"robot": "pa10_ihy",
-            "object_id": "00000000-0000-4000-8000-000000000001",
-            "start": {"joint_names": robot["joint_names"], "positions": vec![0.0; n]},
-            "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]});
-        if let Some(s) = seed {
-            body["seed"] = s.into();
-        }
-        let (client, url) = (&client, format!("{base}/v1/plans"));
-        async move {
-            let res = client.post(url).json(&body).send().await.unwrap();
-            assert_eq!(res.status(), 201);
-            res.json::<Value>().await.unwrap()
-        }
+        let extra = seed.map_or(serde_json::json!({}), |s| serde_json::json!({"seed": s}));
+        zero_start_plan(&client, &base, "pa10_ihy", ball, [0, 0, 1], "force", extra)
     };
     let pinned = ball_plan(Some(0)).await;
     assert_eq!(pinned["feasible"], false, "{}", pinned["reason"]);
@@ -376,6 +362,35 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     // A second start on the same database reuses the models: no seeding job is submitted.
     let db = app._dir.path().join("db/test.db");
     assert_reused(&db).await;
+}
+
+/// `POST /v1/plans` for `robot` from its zero posture, maximising `kind` along `direction` on
+/// the stored `object`, with `extra`'s fields added to the body: the plan (201).
+async fn zero_start_plan(
+    client: &reqwest::Client,
+    base: &str,
+    robot: &str,
+    object: &str,
+    direction: [i32; 3],
+    kind: &str,
+    extra: Value,
+) -> Value {
+    let names = get_json(client, &format!("{base}/v1/robots/{robot}")).await["joint_names"].clone();
+    let zero = vec![0.0; names.as_array().unwrap().len()];
+    let mut body = serde_json::json!({"robot": robot, "object_id": object,
+        "start": {"joint_names": names, "positions": zero},
+        "task_directions": [{"direction": direction, "kind": kind, "goal": "maximize"}]});
+    for (k, v) in extra.as_object().unwrap() {
+        body[k] = v.clone();
+    }
+    let res = client
+        .post(format!("{base}/v1/plans"))
+        .json(&body)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 201);
+    res.json().await.unwrap()
 }
 
 async fn assert_reused(db: &Path) {
