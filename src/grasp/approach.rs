@@ -366,9 +366,8 @@ const OPENING_PROBE: f64 = 0.05;
 /// goal) into the approach: the humanlike path compressed into the first `1 - share` of the
 /// progress, its end carried smoothly from the goal to the pre-grasp; then the arm joints move
 /// in along `pre.line` (the straight palm line; the joint line without one) over the first
-/// 60 % of the remaining progress while the hand stays
-/// open, and the hand joints close over the last 60 % (overlapping by a fifth so the motion
-/// never stops dead). Returns `1 - share`, the factor the given path's progress was compressed
+/// 60 % of the remaining progress while the hand stays open, and the hand joints close over the
+/// last 60 % (overlapping by a fifth so the motion never stops dead). Returns `1 - share`, the factor the given path's progress was compressed
 /// by (a departure at its start now ends that much sooner).
 pub fn shape_path(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, pre: &PreGrasp) -> f64 {
     let given = Given::new(path, xs, nq, sys);
