@@ -482,7 +482,7 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
         "no".to_owned()
     };
     let obstacles = request["obstacles"].as_array().map_or(0, Vec::len);
-    let summary = facts(&[
+    let mut rows = vec![
         ("robot", link(&format!("/ui/robots/{}", p.robot), &p.robot)),
         ("object", object),
         ("task", esc(&directions)),
@@ -522,7 +522,29 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
                 link(&format!("/v1/plans/{id}"), "JSON")
             ),
         ),
-    ]);
+    ];
+    // grasps the plan found and dropped because no collision-free motion reached them
+    if let Some(list) = timings["rejected_grasps"]
+        .as_array()
+        .filter(|l| !l.is_empty())
+    {
+        let text: Vec<String> = list
+            .iter()
+            .map(|r| {
+                format!(
+                    "seed {}: {}",
+                    r["seed"].as_u64().unwrap_or(0),
+                    esc(r["reason"].as_str().unwrap_or(""))
+                )
+            })
+            .collect();
+        let after = rows
+            .iter()
+            .position(|(k, _)| *k == "result")
+            .map_or(rows.len(), |i| i + 1);
+        rows.insert(after, ("grasps dropped", text.join("<br>")));
+    }
+    let summary = facts(&rows);
 
     let r = &parts.result;
     let mut grasp = format!(

@@ -462,8 +462,8 @@ fn collision_reason(c: &PathClearance) -> Option<String> {
         .filter(|h| h.distance_m < -c.contact_tolerance_m);
     Some(match (inside, pressed) {
         (None, Some(h)) if c.complete => format!(
-            "no collision-free motion to the grasp: link '{}' presses {:.1} mm into '{}' at t = \
-             {:.2} s while the hand closes (up to {:.1} mm is allowed); the trajectory is kept \
+            "no collision-free motion to the grasp: link '{}' presses {:.2} mm into '{}' at t = \
+             {:.2} s while the hand closes (up to {:.2} mm is allowed); the trajectory is kept \
              for inspection",
             h.link,
             -1e3 * h.distance_m,

@@ -262,6 +262,22 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     assert_eq!(rejected[0]["seed"], 0);
     assert_eq!(rejected[0]["reason"], pinned["reason"]);
     assert_eq!(chosen["grasp"]["request"]["seed"], 1, "{}", chosen["grasp"]);
+    // the plan's page lists the dropped grasp
+    let page = client
+        .get(format!(
+            "{base}/ui/plans/{}",
+            chosen["id"].as_str().unwrap()
+        ))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        page.contains("grasps dropped") && page.contains("seed 0: no collision-free motion"),
+        "the plan page does not list the dropped grasp"
+    );
 
     // The README's worker, as the built binary.
     let mut worker = Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
