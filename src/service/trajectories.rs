@@ -360,10 +360,15 @@ impl ApproachDto {
                 obstacle_clearance_m: finite(p.obstacle_clearance_m),
                 straight_line: Some(!p.line.is_empty()),
                 note: format!(
-                    "the humanlike path ends at a pre-grasp {:.0} mm back from the grasp with the hand {:.0} % open; the last {:.0} % of the progress moves the arm in and then closes the hand",
+                    "the humanlike path ends at a pre-grasp {:.0} mm back from the grasp with the hand {:.0} % open; the last {:.0} % of the progress moves the palm in {} and then closes the hand",
                     1e3 * p.standoff_m,
                     100.0 * p.open_fraction,
-                    100.0 * p.share
+                    100.0 * p.share,
+                    if p.line.is_empty() {
+                        "along the joint line (the straight line jumped IK branches)"
+                    } else {
+                        "along a straight line"
+                    }
                 ),
             },
             Err(why) => ApproachDto {
