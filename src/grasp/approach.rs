@@ -16,7 +16,7 @@
 //! along the straight line to the grasp with the hand still open ([`PreGrasp::line`]), and the
 //! hand closes last. Not in the paper, whose flow ends at the grasp configuration itself.
 
-use nalgebra::{Translation3, Vector3};
+use nalgebra::{Isometry3, Translation3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -193,7 +193,10 @@ pub fn pre_grasp(
                     if b.0 < a.0 { b } else { a }
                 });
                 if worst >= 0.0 {
-                    let line = straight_line(sys, &mut ik, &ik_opts, &mut rng, &q, goal, &palm);
+                    // (`data` holds the pre-grasp's kinematics from the clearance above)
+                    let from = *data.kinematics().frame(sys.palm);
+                    let line =
+                        straight_line(sys, &mut ik, &ik_opts, &mut rng, &q, goal, (from, palm));
                     return Ok(PreGrasp {
                         line,
                         q: q.clone(),
@@ -245,8 +248,8 @@ pub const LINE_STEPS: usize = 8;
 /// interpolation between them would sweep through the scene.
 const LINE_JUMP: f64 = 3.0;
 
-/// The straight palm line from `pre` (the pre-grasp configuration) to `goal` (whose palm pose
-/// is `palm`), solved pose by pose by the arm alone, each seeded at the one before; empty when
+/// The straight palm line from `pre` (the pre-grasp configuration) to `goal`, between their
+/// palm poses `ends`, solved pose by pose by the arm alone, each seeded at the one before; empty when
 /// the arm jumps between two of them (see [`PreGrasp::line`]). Where an arm joint on its limit
 /// keeps a pose off the line (the grasp optimiser often ends on one), the IK's best effort is
 /// the reachable pose nearest to it, which still bends less than the joint line. Why: the
@@ -261,13 +264,10 @@ fn straight_line(
     rng: &mut ChaCha8Rng,
     pre: &[f64],
     goal: &[f64],
-    palm: &nalgebra::Isometry3<f64>,
+    (from, palm): (Isometry3<f64>, Isometry3<f64>),
 ) -> Vec<f64> {
     let model = &*sys.model;
     let nq = model.nq();
-    let mut data = crate::kinematics::Data::new(model);
-    crate::kinematics::forward_kinematics(model, &mut data, pre);
-    let from = *data.frame(sys.palm);
     let mut rows = Vec::with_capacity((LINE_STEPS + 1) * nq);
     rows.extend_from_slice(pre);
     let opts = IkOptions {
@@ -280,14 +280,14 @@ fn straight_line(
         let target = IkTarget {
             frame: sys.palm,
             point_in_frame: Vector3::zeros(),
-            pose: from.lerp_slerp(palm, u),
+            pose: from.lerp_slerp(&palm, u),
         };
-        let seed = rows[(k - 1) * nq..k * nq].to_vec();
-        let solved = ik.solve(model, &target, &seed, &opts, rng);
+        let seed = &rows[(k - 1) * nq..k * nq];
+        let solved = ik.solve(model, &target, seed, &opts, rng);
         let jump = solved
             .q
             .iter()
-            .zip(&seed)
+            .zip(seed)
             .zip(pre.iter().zip(goal))
             .map(|((a, b), (p, g))| (a - b).abs() / ((g - p).abs() / LINE_STEPS as f64 + 0.02))
             .fold(0.0, f64::max);
@@ -367,8 +367,9 @@ const OPENING_PROBE: f64 = 0.05;
 /// progress, its end carried smoothly from the goal to the pre-grasp; then the arm joints move
 /// in along `pre.line` (the straight palm line; the joint line without one) over the first
 /// 60 % of the remaining progress while the hand stays open, and the hand joints close over the
-/// last 60 % (overlapping by a fifth so the motion never stops dead). Returns `1 - share`, the factor the given path's progress was compressed
-/// by (a departure at its start now ends that much sooner).
+/// last 60 % (overlapping by a fifth so the motion never stops dead). Returns `1 - share`, the
+/// factor the given path's progress was compressed by (a departure at its start now ends that
+/// much sooner).
 pub fn shape_path(path: &mut [f64], xs: &[f64], nq: usize, sys: &HandArm, pre: &PreGrasp) -> f64 {
     let given = Given::new(path, xs, nq, sys);
     let goal = &given.original[(xs.len() - 1) * nq..];

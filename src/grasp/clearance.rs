@@ -72,6 +72,26 @@ pub struct PathClearance {
     pub exact_queries: usize,
 }
 
+impl PathClearance {
+    /// The pair that makes the path a collision, and whether it is a pad pressing too deep
+    /// while the hand closes (`true`) rather than a link inside something (`false`, reported
+    /// first): `None` where neither is found (collision-free, or a check whose budget ran out
+    /// before it found one).
+    pub fn collision(&self) -> Option<(&ClearanceHit, bool)> {
+        let inside = self
+            .closest
+            .as_ref()
+            .filter(|h| h.distance_m < -self.contact_tolerance_m)
+            .map(|h| (h, false));
+        let pressed = self
+            .closing_contact
+            .as_ref()
+            .filter(|h| h.distance_m < -self.closing_press_m)
+            .map(|h| (h, true));
+        inside.or(pressed)
+    }
+}
+
 /// Steps of the conservative advancement (deterministic budget; `complete` says if it ran out).
 const MAX_STEPS: usize = 200_000;
 /// Tolerance of the continuous check, m.

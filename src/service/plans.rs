@@ -452,16 +452,8 @@ fn collision_reason(c: &PathClearance) -> Option<String> {
     if c.collision_free {
         return None;
     }
-    let pressed = c
-        .closing_contact
-        .as_ref()
-        .filter(|h| h.distance_m < -c.closing_press_m);
-    let inside = c
-        .closest
-        .as_ref()
-        .filter(|h| h.distance_m < -c.contact_tolerance_m);
-    Some(match (inside, pressed) {
-        (None, Some(h)) if c.complete => format!(
+    Some(match c.collision() {
+        Some((h, true)) if c.complete => format!(
             "no collision-free motion to the grasp: link '{}' presses {:.2} mm into '{}' at t = \
              {:.2} s while the hand closes (up to {:.2} mm is allowed); the trajectory is kept \
              for inspection",
@@ -471,7 +463,7 @@ fn collision_reason(c: &PathClearance) -> Option<String> {
             h.time_s,
             1e3 * c.closing_press_m
         ),
-        (Some(h), _) if c.complete => format!(
+        Some((h, false)) if c.complete => format!(
             "no collision-free motion to the grasp: link '{}' is {:.1} mm inside '{}' at t = \
              {:.2} s (contact up to {:.1} mm is allowed); the trajectory is kept for inspection",
             h.link,

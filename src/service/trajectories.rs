@@ -938,25 +938,16 @@ pub async fn compute(
                 let (t2, mut r2) = run(crate::grasp::approach::DEFAULT_STANDOFF)?;
                 if !collides(&r2) {
                     if let Some(a) = r2.approach.as_mut() {
-                        // the pair that made it a collision: one inside, else a pad pressing
-                        // too deep while the hand closed
                         let why = report
                             .clearance
                             .as_ref()
-                            .and_then(|c| {
-                                let inside = c
-                                    .closest
-                                    .as_ref()
-                                    .filter(|h| h.distance_m < -c.contact_tolerance_m);
-                                inside.map(|h| (h, "inside")).or_else(|| {
-                                    c.closing_contact.as_ref().map(|h| (h, "pressing into"))
-                                })
-                            })
-                            .map(|(h, how)| {
+                            .and_then(|c| c.collision())
+                            .map(|(h, pressed)| {
                                 format!(
-                                    "'{}' {:.1} mm {how} '{}' at t = {:.2} s",
+                                    "'{}' {:.1} mm {} '{}' at t = {:.2} s",
                                     h.link,
                                     -1e3 * h.distance_m,
+                                    if pressed { "pressing into" } else { "inside" },
                                     h.other,
                                     h.time_s
                                 )

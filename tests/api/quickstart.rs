@@ -12,7 +12,7 @@ use reachgrasp::config::Config;
 use serde_json::Value;
 use tokio::process::Command;
 
-use crate::helpers::spawn_app_with;
+use crate::helpers::{TestApp, spawn_app_with};
 
 const TOKEN: &str = "lab-token";
 /// The address the README's calls use.
@@ -112,12 +112,7 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         &std::fs::read_to_string(root().join("examples/plan-bottle.json")).unwrap(),
     )
     .unwrap();
-    let res = client
-        .post(format!("{base}/v1/plans"))
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
+    let res = app.post_json("/v1/plans", &body).await;
     assert_eq!(res.status(), 503);
     let problem: Value = res.json().await.unwrap();
     assert_eq!(problem["type"], "urn:reachgrasp:problem:not-ready");
@@ -203,15 +198,7 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         if let Some(s) = standoff {
             extra["approach_standoff"] = s.into();
         }
-        zero_start_plan(
-            &client,
-            &base,
-            "wam_t42",
-            bottle,
-            [0, 1, 0],
-            "velocity",
-            extra,
-        )
+        zero_start_plan(&app, "wam_t42", bottle, [0, 1, 0], "velocity", extra)
     };
     let direct = plan(Some(0.0)).await;
     assert_eq!(direct["feasible"], false, "{}", direct["reason"]);
@@ -238,7 +225,7 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     let ball = "00000000-0000-4000-8000-000000000001";
     let ball_plan = |seed: Option<u64>| {
         let extra = seed.map_or(serde_json::json!({}), |s| serde_json::json!({"seed": s}));
-        zero_start_plan(&client, &base, "pa10_ihy", ball, [0, 0, 1], "force", extra)
+        zero_start_plan(&app, "pa10_ihy", ball, [0, 0, 1], "force", extra)
     };
     let pinned = ball_plan(Some(0)).await;
     assert_eq!(pinned["feasible"], false, "{}", pinned["reason"]);
@@ -356,12 +343,7 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     .unwrap();
     far["execute"] = Value::Bool(true);
     far["start"]["positions"][3] = Value::from(2.0);
-    let res = client
-        .post(format!("{base}/v1/plans"))
-        .json(&far)
-        .send()
-        .await
-        .unwrap();
+    let res = app.post_json("/v1/plans", &far).await;
     assert_eq!(res.status(), 422);
     let problem: Value = res.json().await.unwrap();
     let error = &problem["errors"][0];
@@ -383,15 +365,20 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
 /// `POST /v1/plans` for `robot` from its zero posture, maximising `kind` along `direction` on
 /// the stored `object`, with `extra`'s fields added to the body: the plan (201).
 async fn zero_start_plan(
-    client: &reqwest::Client,
-    base: &str,
+    app: &TestApp,
     robot: &str,
     object: &str,
     direction: [i32; 3],
     kind: &str,
     extra: Value,
 ) -> Value {
-    let names = get_json(client, &format!("{base}/v1/robots/{robot}")).await["joint_names"].clone();
+    let robot_doc: Value = app
+        .get(&format!("/v1/robots/{robot}"))
+        .await
+        .json()
+        .await
+        .unwrap();
+    let names = robot_doc["joint_names"].clone();
     let zero = vec![0.0; names.as_array().unwrap().len()];
     let mut body = serde_json::json!({"robot": robot, "object_id": object,
         "start": {"joint_names": names, "positions": zero},
@@ -399,12 +386,7 @@ async fn zero_start_plan(
     for (k, v) in extra.as_object().unwrap() {
         body[k] = v.clone();
     }
-    let res = client
-        .post(format!("{base}/v1/plans"))
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
+    let res = app.post_json("/v1/plans", &body).await;
     assert_eq!(res.status(), 201);
     res.json().await.unwrap()
 }
