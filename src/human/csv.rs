@@ -4,14 +4,31 @@
 //!   wrist_z,qw,qx,qy,qz`.
 //! * Glove: header `t` followed by the 22 channel names of [`GLOVE_CHANNELS`]; values are angles in
 //!   radians, or raw sensor values when a calibration is supplied alongside.
+//! * Keypoints (instead of the two): header `t`, `<keypoint>_x,_y,_z` for the 21 keypoints of
+//!   [`KEYPOINT_NAMES`], `elbow_x..z`, `shoulder_x..z`, and optionally
+//!   `wrist_qw,wrist_qx,wrist_qy,wrist_qz` (all four or none).
 //!
 //! Columns are found by header name (order free, extra columns ignored); `#` starts a comment
 //! line; blank lines are skipped. The files are plain numeric tables without quoting, so a tiny
 //! hand-rolled reader suffices and keeps a CSV crate out of the dependency tree.
 
-use super::demo::{GloveCalibration, GloveStream, TrackerStream};
+use super::demo::{GloveCalibration, GloveStream, KeypointStream, TrackerStream};
 use super::error::HumanError;
+use super::keypoints::KEYPOINT_NAMES;
 use super::model::GLOVE_CHANNELS;
+
+const WRIST_QUATERNION: [&str; 4] = ["wrist_qw", "wrist_qx", "wrist_qy", "wrist_qz"];
+
+/// The keypoint CSV columns, in [`KeypointStream`] order (without the optional quaternion).
+fn keypoint_columns() -> Vec<String> {
+    let mut cols = vec!["t".to_string()];
+    for name in KEYPOINT_NAMES.iter().chain(&["elbow", "shoulder"]) {
+        for axis in ["x", "y", "z"] {
+            cols.push(format!("{name}_{axis}"));
+        }
+    }
+    cols
+}
 
 pub const TRACKER_COLUMNS: [&str; 14] = [
     "t",
@@ -126,6 +143,60 @@ pub fn parse_glove_csv(
             calibration: None,
         },
     })
+}
+
+/// Parse a keypoint CSV file.
+pub fn parse_keypoint_csv(text: &str) -> Result<KeypointStream, HumanError> {
+    let header = text
+        .lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty() && !l.starts_with('#'))
+        .unwrap_or("");
+    let has = |c: &str| header.split(',').any(|n| n.trim().eq_ignore_ascii_case(c));
+    let quaternion = has(WRIST_QUATERNION[0]);
+    let mut cols = keypoint_columns();
+    if quaternion {
+        cols.extend(WRIST_QUATERNION.iter().map(|c| c.to_string()));
+    }
+    let names: Vec<&str> = cols.iter().map(String::as_str).collect();
+    let rows = read_table("keypoints", text, &names)?;
+    let mut s = KeypointStream {
+        wrist_orientation: quaternion.then(Vec::new),
+        ..KeypointStream::default()
+    };
+    for r in rows {
+        s.t.push(r[0]);
+        s.points
+            .push(r[1..64].chunks(3).map(<[f64]>::to_vec).collect());
+        s.elbow.push(r[64..67].to_vec());
+        s.shoulder.push(r[67..70].to_vec());
+        if let Some(q) = &mut s.wrist_orientation {
+            q.push(r[70..74].to_vec());
+        }
+    }
+    Ok(s)
+}
+
+/// Keypoint stream as CSV (rows written as they are, so that tests can produce bad files).
+pub fn keypoints_to_csv(s: &KeypointStream) -> String {
+    let mut header = keypoint_columns().join(",");
+    if s.wrist_orientation.is_some() {
+        header.push(',');
+        header.push_str(&WRIST_QUATERNION.join(","));
+    }
+    write_rows(
+        &header,
+        (0..s.t.len()).map(|i| {
+            let mut r = vec![s.t[i]];
+            r.extend(s.points.get(i).into_iter().flatten().flatten());
+            r.extend(s.elbow.get(i).into_iter().flatten());
+            r.extend(s.shoulder.get(i).into_iter().flatten());
+            if let Some(q) = &s.wrist_orientation {
+                r.extend(q.get(i).into_iter().flatten());
+            }
+            r
+        }),
+    )
 }
 
 fn write_rows(header: &str, rows: impl Iterator<Item = Vec<f64>>) -> String {

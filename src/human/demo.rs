@@ -385,14 +385,40 @@ impl Default for SyncOptions {
     }
 }
 
-/// What a client uploads (or the synthetic generator emits).
+/// A hand keypoint recording (issue 22): per sample the 21 keypoints in the MANO / MediaPipe
+/// order ([`super::KEYPOINT_NAMES`]), and the elbow and shoulder centres; optionally the wrist
+/// frame's orientation (otherwise derived from the palm keypoints, see [`super::keypoints`]).
+/// Positions in metres, within 10 m of the recording's origin; one row per `t` in every column.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct KeypointStream {
+    /// Sample times, s, strictly increasing.
+    pub t: Vec<f64>,
+    /// Per sample, 21 points `[x, y, z]`.
+    pub points: Vec<Vec<Vec<f64>>>,
+    /// Per sample `[w, x, y, z]` (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wrist_orientation: Option<Vec<Vec<f64>>>,
+    /// Per sample `[x, y, z]`: the arm's transport and elbow terms read them, so a stored
+    /// demonstration needs both (the live stream, `GET /v1/robots/{id}/retarget`, does not for
+    /// a hand on a fixed base).
+    pub elbow: Vec<Vec<f64>>,
+    pub shoulder: Vec<Vec<f64>>,
+}
+
+/// What a client uploads (or the synthetic generator emits): a tracker and data-glove
+/// recording, or a keypoint recording (`keypoints`, with `tracker` and `glove` left out).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DemonstrationInput {
     pub subject: Subject,
     pub object: ObjectSpec,
     pub labels: Labels,
+    #[serde(default)]
     pub tracker: TrackerStream,
+    #[serde(default)]
     pub glove: GloveStream,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keypoints: Option<KeypointStream>,
     #[serde(default)]
     pub sync: SyncOptions,
 }
@@ -410,6 +436,21 @@ pub struct IngestSummary {
     /// Mean sampling rates of the raw streams.
     pub tracker_rate_hz: f64,
     pub glove_rate_hz: f64,
+    /// `tracker_glove`, or `keypoints` (then `tracker_*` count the keypoint samples and the
+    /// glove figures are 0: there are no glove angles).
+    #[serde(default)]
+    pub source: Source,
+}
+
+/// Where a demonstration's hand comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Source {
+    /// A magnetic tracker and a data glove (the paper's set-up).
+    #[default]
+    TrackerGlove,
+    /// Hand keypoints (camera, headset, motion-capture suit).
+    Keypoints,
 }
 
 /// An ingested demonstration: metadata plus derived kinematics on the common clock.
@@ -662,6 +703,9 @@ fn mean_rate(t: &[f64]) -> f64 {
 /// Validate a demonstration, align and resample its streams, and derive the human kinematics of
 /// every frame (the one ingest path for uploads, CSV and synthetic data).
 pub fn ingest(input: &DemonstrationInput) -> Result<Demonstration, HumanError> {
+    if let Some(k) = &input.keypoints {
+        return ingest_keypoints(input, k);
+    }
     let hand = input.subject.hand_dims()?;
     input.subject.arm_dims()?;
     validate_object(&input.object)?;
@@ -735,8 +779,140 @@ pub fn ingest(input: &DemonstrationInput) -> Result<Demonstration, HumanError> {
             glove_samples: gt.len(),
             tracker_rate_hz: mean_rate(&tracker.t),
             glove_rate_hz: mean_rate(&gt),
+            source: Source::TrackerGlove,
         },
         frames,
         glove: angles,
+    })
+}
+
+/// A keypoint recording's ingest: validate every column, resample at `sync.rate_hz` on its own
+/// clock (points and arm positions linearly, a given wrist orientation by slerp) and derive
+/// each frame's human kinematics ([`super::keypoints::human_frame`]). Glove angles do not exist:
+/// they are stored as NaN and answered as empty.
+fn ingest_keypoints(
+    input: &DemonstrationInput,
+    k: &KeypointStream,
+) -> Result<Demonstration, HumanError> {
+    use super::keypoints::{KEYPOINT_COUNT, KeypointFrame, human_frame};
+    const STREAM: &str = "keypoints";
+    input.subject.hand_dims()?;
+    input.subject.arm_dims()?;
+    validate_object(&input.object)?;
+    validate_sync(&input.sync)?;
+    if input.tracker != TrackerStream::default() || input.glove != GloveStream::default() {
+        return Err(HumanError::InvalidParameter {
+            field: "keypoints".into(),
+            value: f64::NAN,
+            reason: "a demonstration is either a tracker + glove recording or a keypoint                      recording: leave out `tracker` and `glove` with `keypoints`",
+        });
+    }
+    check_times(STREAM, &k.t, input.sync.max_gap_s)?;
+    let n = k.t.len();
+    check_len(STREAM, "points", n, k.points.len())?;
+    check_len(STREAM, "elbow", n, k.elbow.len())?;
+    check_len(STREAM, "shoulder", n, k.shoulder.len())?;
+    if let Some(q) = &k.wrist_orientation {
+        check_len(STREAM, "wrist_orientation", n, q.len())?;
+    }
+    let vec3 = |field: &str, i: usize, v: &[f64]| -> Result<Vector3<f64>, HumanError> {
+        let v = row(STREAM, field, i, v, 3)?;
+        Ok(Vector3::new(v[0], v[1], v[2]))
+    };
+    let mut samples: Vec<KeypointFrame> = Vec::with_capacity(n);
+    for i in 0..n {
+        let pts = &k.points[i];
+        if pts.len() != KEYPOINT_COUNT {
+            return Err(HumanError::WrongWidth {
+                stream: STREAM,
+                index: i,
+                field: "points".into(),
+                expected: KEYPOINT_COUNT,
+                got: pts.len(),
+            });
+        }
+        let mut points = [Point3::origin(); KEYPOINT_COUNT];
+        for (j, p) in pts.iter().enumerate() {
+            points[j] = Point3::from(vec3(&format!("points[{j}]"), i, p)?);
+        }
+        let wrist_orientation = match &k.wrist_orientation {
+            None => None,
+            Some(qs) => {
+                let q = row(STREAM, "wrist_orientation", i, &qs[i], 4)?;
+                let quat = Quaternion::new(q[0], q[1], q[2], q[3]);
+                let norm = quat.norm();
+                if norm < MIN_QUATERNION_NORM {
+                    return Err(HumanError::DegenerateQuaternion {
+                        stream: STREAM,
+                        index: i,
+                        field: "wrist_orientation".into(),
+                        norm,
+                    });
+                }
+                Some(UnitQuaternion::from_quaternion(quat))
+            }
+        };
+        let sample = KeypointFrame {
+            t: k.t[i],
+            points,
+            wrist_orientation,
+            elbow: Some(Point3::from(vec3("elbow", i, &k.elbow[i])?)),
+            shoulder: Some(Point3::from(vec3("shoulder", i, &k.shoulder[i])?)),
+        };
+        // Every sample checked (and its palm), not only those the resampling reads.
+        human_frame(&sample, input.subject.handedness, STREAM, i)?;
+        samples.push(sample);
+    }
+    let (start, end) = (k.t[0], k.t[n - 1]);
+    let dt = 1.0 / input.sync.rate_hz;
+    let count = if end > start {
+        ((end - start) / dt + 1e-9).floor() as usize + 1
+    } else {
+        0
+    };
+    if count < 2 {
+        return Err(HumanError::InvalidParameter {
+            field: "keypoints.t".into(),
+            value: end - start,
+            reason: "the recording is shorter than two frames at `sync.rate_hz`",
+        });
+    }
+    let mut cursor = Cursor::default();
+    let mut frames = Vec::with_capacity(count);
+    for f in 0..count {
+        let t = (start + f as f64 * dt).min(end);
+        let (i, a) = cursor.locate(&k.t, t);
+        let j = (i + 1).min(n - 1);
+        let (s0, s1) = (&samples[i], &samples[j]);
+        let p = |x: &Point3<f64>, y: &Point3<f64>| Point3::from(lerp(&x.coords, &y.coords, a));
+        let frame = KeypointFrame {
+            t,
+            points: std::array::from_fn(|m| p(&s0.points[m], &s1.points[m])),
+            wrist_orientation: s0
+                .wrist_orientation
+                .zip(s1.wrist_orientation)
+                .map(|(x, y)| slerp(&x, &y, a)),
+            elbow: s0.elbow.zip(s1.elbow).map(|(x, y)| p(&x, &y)),
+            shoulder: s0.shoulder.zip(s1.shoulder).map(|(x, y)| p(&x, &y)),
+        };
+        frames.push(human_frame(&frame, input.subject.handedness, STREAM, i)?);
+    }
+    Ok(Demonstration {
+        subject: input.subject.clone(),
+        object: input.object.clone(),
+        labels: input.labels.clone(),
+        summary: IngestSummary {
+            start_s: start,
+            duration_s: frames[count - 1].t - start,
+            frames: count,
+            rate_hz: input.sync.rate_hz,
+            tracker_samples: n,
+            glove_samples: 0,
+            tracker_rate_hz: mean_rate(&k.t),
+            glove_rate_hz: 0.0,
+            source: Source::Keypoints,
+        },
+        glove: vec![[f64::NAN; 22]; count],
+        frames,
     })
 }

@@ -98,6 +98,12 @@ pub enum HumanError {
         line: usize,
         message: String,
     },
+    #[error("stream `{stream}` sample {index}: {reason}")]
+    DegenerateHand {
+        stream: &'static str,
+        index: usize,
+        reason: String,
+    },
     #[error("stored frame array is malformed: {reason}")]
     MalformedStorage { reason: String },
     #[error(
@@ -124,6 +130,7 @@ impl HumanError {
             | Self::AngleOutOfRange { stream, .. }
             | Self::PositionOutOfRange { stream, .. }
             | Self::DegenerateQuaternion { stream, .. }
+            | Self::DegenerateHand { stream, .. }
             | Self::Csv { stream, .. } => Some(stream),
             _ => None,
         }
@@ -138,7 +145,8 @@ impl HumanError {
             | Self::Gap { index, .. }
             | Self::AngleOutOfRange { index, .. }
             | Self::PositionOutOfRange { index, .. }
-            | Self::DegenerateQuaternion { index, .. } => Some(*index),
+            | Self::DegenerateQuaternion { index, .. }
+            | Self::DegenerateHand { index, .. } => Some(*index),
             _ => None,
         }
     }
@@ -154,6 +162,7 @@ impl HumanError {
             | Self::LengthMismatch { field, .. }
             | Self::InvalidParameter { field, .. } => Some(field),
             Self::NotIncreasing { .. } | Self::Gap { .. } => Some("t"),
+            Self::DegenerateHand { .. } => Some("points"),
             _ => None,
         }
     }

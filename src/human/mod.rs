@@ -26,6 +26,7 @@ pub mod csv;
 pub mod demo;
 pub mod derive;
 pub mod error;
+pub mod keypoints;
 pub mod model;
 pub mod resample;
 pub mod storage;
@@ -34,10 +35,12 @@ pub mod synth;
 pub use anthropometry::{ArmDims, FingerDims, HandDims};
 pub use demo::{
     Demonstration, DemonstrationInput, GloveCalibration, GloveStream, Handedness, IngestSummary,
-    Labels, ObjectShape, ObjectSpec, Pose, Subject, SyncOptions, TrackerStream, ingest,
+    KeypointStream, Labels, ObjectShape, ObjectSpec, Pose, Source, Subject, SyncOptions,
+    TrackerStream, ingest,
 };
 pub use derive::HandKinematics;
 pub use error::HumanError;
+pub use keypoints::{KEYPOINT_COUNT, KEYPOINT_NAMES, KeypointFrame};
 pub use model::{
     ARM_JOINTS, FINGER_NAMES, GLOVE_CHANNELS, HAND_DOF, JointSpec, arm_model, arm_spec, hand_model,
     hand_spec,

@@ -937,6 +937,7 @@ fn generate_trial_with(
             raw: None,
             calibration: None,
         },
+        keypoints: None,
         sync: SyncOptions {
             rate_hz: spec.rate_hz,
             ..SyncOptions::default()

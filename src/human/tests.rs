@@ -238,6 +238,7 @@ pub(super) fn analytic_input(duration: f64) -> DemonstrationInput {
             raw: None,
             calibration: None,
         },
+        keypoints: None,
         sync: SyncOptions::default(),
     }
 }

@@ -22,6 +22,7 @@
 pub mod goals;
 pub mod objective;
 pub mod registration;
+pub mod retarget;
 pub mod solve;
 #[cfg(test)]
 mod tests;
@@ -36,6 +37,7 @@ pub use registration::{
     ArmPoints, BodyAxes, HumanObject, Registration, RegistrationSpec, RobotAnchor, Scale,
     SceneRegistration, human_object,
 };
+pub use retarget::{RetargetError, RetargetOptions, RetargetStep, Retargeter};
 pub use solve::{
     FIRST_FRAME_FALLBACK, FrameMetrics, Mapper, SolverOptions, StartReference,
     elbow_circle_distance,

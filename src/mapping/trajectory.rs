@@ -266,7 +266,7 @@ pub fn shape_spec(shape: &ObjectShape) -> ShapeSpec {
     }
 }
 
-fn check_frame(k: usize, f: &HumanFrame) -> Result<(), MappingError> {
+pub(super) fn check_frame(k: usize, f: &HumanFrame) -> Result<(), MappingError> {
     let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
     let fields: [(&'static str, bool); 5] = [
         ("t", f.t.is_finite()),
