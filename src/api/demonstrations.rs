@@ -13,8 +13,8 @@ use uuid::Uuid;
 use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem, Query};
 use crate::human::{
-    self, DemonstrationInput, GloveCalibration, GloveStream, HumanError, IngestSummary, Labels,
-    ObjectSpec, StudyConfig, Subject, SyncOptions, TrackerStream,
+    self, DemonstrationInput, GloveCalibration, GloveStream, HumanError, IngestSummary,
+    KeypointStream, Labels, ObjectSpec, StudyConfig, Subject, SyncOptions, TrackerStream,
 };
 use crate::jobs::JobRecord;
 use crate::service::demonstrations::{self as service, DemonstrationFilter, DemonstrationRow};
@@ -40,31 +40,62 @@ impl From<HumanError> for ApiError {
 /// timestamps strictly increase with gaps of at most `sync.max_gap_s`, the two streams overlap
 /// for at least two frames at `sync.rate_hz`, tracker positions lie within 3 m of its origin,
 /// quaternions are not zero, and calibrated glove angles are within ±π.
+///
+/// A keypoint recording (camera, headset, motion-capture suit) gives `keypoints` instead of
+/// `tracker` and `glove`: the 21 MANO / MediaPipe hand points per sample with the elbow and
+/// shoulder, optionally the wrist orientation; it is resampled at `sync.rate_hz` on its own
+/// clock (`sync.glove_offset_s` does not apply) and becomes the same derived frames.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DemonstrationUpload {
     pub subject: Subject,
     pub object: ObjectSpec,
     pub labels: Labels,
-    /// Positions in metres, orientations `[w, x, y, z]`.
-    pub tracker: TrackerStream,
+    /// Positions in metres, orientations `[w, x, y, z]`. Required without `keypoints`.
+    #[serde(default)]
+    pub tracker: Option<TrackerStream>,
     /// `{t, angles: [[22 radians]]}` or `{t, raw: [[22]], calibration: {gain: [22], offset: [22]}}`.
-    pub glove: GloveStream,
+    /// Required without `keypoints`.
+    #[serde(default)]
+    pub glove: Option<GloveStream>,
+    /// A keypoint recording instead of `tracker` and `glove`.
+    #[serde(default)]
+    pub keypoints: Option<KeypointStream>,
     /// Default `{glove_offset_s: 0, rate_hz: 120, max_gap_s: 0.1}`.
     #[serde(default)]
     pub sync: SyncOptions,
 }
 
-impl From<DemonstrationUpload> for DemonstrationInput {
-    fn from(u: DemonstrationUpload) -> Self {
-        DemonstrationInput {
+impl TryFrom<DemonstrationUpload> for DemonstrationInput {
+    type Error = ApiError;
+    fn try_from(u: DemonstrationUpload) -> Result<Self, ApiError> {
+        let (tracker, glove) = match (u.tracker, u.glove, &u.keypoints) {
+            (Some(t), Some(g), None) => (t, g),
+            (None, None, Some(_)) => Default::default(),
+            (_, _, Some(_)) => {
+                return Err(ApiError::invalid_field(
+                    "$.keypoints",
+                    "a demonstration is a tracker + glove recording or a keypoint recording, \
+                     not both: leave out `tracker` and `glove` with `keypoints`",
+                ));
+            }
+            (t, _, None) => {
+                let field = if t.is_none() { "$.tracker" } else { "$.glove" };
+                return Err(ApiError::invalid_field(
+                    field,
+                    "missing: give `tracker` and `glove`, or `keypoints`",
+                ));
+            }
+        };
+        Ok(DemonstrationInput {
             subject: u.subject,
             object: u.object,
             labels: u.labels,
-            tracker: u.tracker,
-            glove: u.glove,
+            tracker,
+            glove,
+            keypoints: u.keypoints,
             sync: u.sync,
-        }
+        })
     }
 }
 
@@ -82,6 +113,11 @@ pub struct DemonstrationForm {
     /// CSV `t` and the 22 glove channel names (radians, or raw values with a calibration).
     #[schema(content_media_type = "text/csv")]
     glove: String,
+    /// Instead of `tracker` and `glove`: a keypoint recording, CSV `t`, `<keypoint>_x,_y,_z` for
+    /// the 21 keypoints (`wrist`, `thumb_cmc`, ..., `little_tip`), `elbow_x..z`,
+    /// `shoulder_x..z`, and optionally `wrist_qw,wrist_qx,wrist_qy,wrist_qz`.
+    #[schema(content_media_type = "text/csv")]
+    keypoints: String,
 }
 
 /// The `meta` part of a multipart upload: the upload's fields other than its streams, and the
@@ -137,6 +173,9 @@ pub struct SummaryDto {
     /// Mean raw stream rates, Hz.
     pub tracker_rate_hz: f64,
     pub glove_rate_hz: f64,
+    /// `tracker_glove` or `keypoints` (then `tracker_*` are the keypoint samples, and frames
+    /// have no glove angles).
+    pub source: human::Source,
 }
 
 impl From<IngestSummary> for SummaryDto {
@@ -150,6 +189,7 @@ impl From<IngestSummary> for SummaryDto {
             glove_samples: s.glove_samples,
             tracker_rate_hz: s.tracker_rate_hz,
             glove_rate_hz: s.glove_rate_hz,
+            source: s.source,
         }
     }
 }
@@ -324,7 +364,7 @@ fn created(dto: DemonstrationDto, status: StatusCode) -> Response {
 }
 
 async fn read_form(mut form: Multipart) -> Result<DemonstrationInput, ApiError> {
-    let (mut meta, mut tracker, mut glove) = (None, None, None);
+    let (mut meta, mut tracker, mut glove, mut keypoints) = (None, None, None, None);
     while let Some(field) = form
         .next_field()
         .await
@@ -339,6 +379,7 @@ async fn read_form(mut form: Multipart) -> Result<DemonstrationInput, ApiError> 
             "meta" => meta = Some(text),
             "tracker" => tracker = Some(text),
             "glove" => glove = Some(text),
+            "keypoints" => keypoints = Some(text),
             _ => {}
         }
     }
@@ -346,6 +387,24 @@ async fn read_form(mut form: Multipart) -> Result<DemonstrationInput, ApiError> 
         ApiError::invalid_field(part, format!("the multipart part `{part}` is missing"))
     };
     let meta = read_meta(&meta.ok_or_else(|| missing("meta"))?)?;
+    if let Some(text) = keypoints {
+        if tracker.is_some() || glove.is_some() {
+            return Err(ApiError::invalid_field(
+                "keypoints",
+                "a demonstration is a tracker + glove recording or a keypoint recording, not \
+                 both: send the `keypoints` part without `tracker` and `glove`",
+            ));
+        }
+        return Ok(DemonstrationInput {
+            subject: meta.subject,
+            object: meta.object,
+            labels: meta.labels,
+            tracker: TrackerStream::default(),
+            glove: GloveStream::default(),
+            keypoints: Some(human::csv::parse_keypoint_csv(&text)?),
+            sync: meta.sync,
+        });
+    }
     let tracker = human::csv::parse_tracker_csv(&tracker.ok_or_else(|| missing("tracker"))?)?;
     let glove =
         human::csv::parse_glove_csv(&glove.ok_or_else(|| missing("glove"))?, meta.calibration)?;
@@ -355,6 +414,7 @@ async fn read_form(mut form: Multipart) -> Result<DemonstrationInput, ApiError> 
         labels: meta.labels,
         tracker,
         glove,
+        keypoints: None,
         sync: meta.sync,
     })
 }
@@ -394,7 +454,7 @@ async fn create_demonstration(
         Json::<DemonstrationUpload>::from_request(req, &state)
             .await?
             .0
-            .into()
+            .try_into()?
     };
     let (row, new) = service::upload(&state, input).await?;
     let status = if new {
@@ -480,7 +540,12 @@ async fn get_frames(
             elbow: f.elbow.coords.into(),
             wrist: PoseDto::new(&f.wrist),
             fingertips: f.fingertips.iter().map(PoseDto::new).collect(),
-            glove: g.to_vec(),
+            // A keypoint recording has no glove angles (stored as NaN).
+            glove: if g.iter().all(|a| a.is_finite()) {
+                g.to_vec()
+            } else {
+                Vec::new()
+            },
         })
         .collect();
     Ok(Json(FramesDto {

@@ -77,6 +77,7 @@ pub mod middleware;
 pub mod models;
 pub mod page;
 pub mod plans;
+pub mod retarget;
 pub mod robots;
 pub mod testing;
 
@@ -167,6 +168,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(health::router())
         .merge(jobs::router())
         .merge(robots::router())
+        .merge(retarget::router())
         .merge(demonstrations::router())
         .merge(grasps::router())
         .merge(mappings::router())

@@ -27,6 +27,7 @@ pub mod jobs;
 pub mod mappings;
 pub mod models;
 pub mod plans;
+pub mod retarget;
 pub mod robots;
 pub mod seed;
 pub mod status;

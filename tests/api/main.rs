@@ -20,5 +20,6 @@ mod plans;
 mod plans_ui;
 mod process;
 mod quickstart;
+mod retarget;
 mod robots;
 mod storage;

@@ -1,0 +1,421 @@
+//! Online retargeting of hand keypoint streams (issue 22): the session behind
+//! `GET /v1/robots/{id}/retarget` (a WebSocket). The numerics are [`crate::mapping::retarget`];
+//! this module resolves the robot, reads the wire messages and measures each frame's latency.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::{Point3, Quaternion, UnitQuaternion};
+use serde::{Deserialize, Serialize};
+use utoipa::{IntoParams, ToSchema};
+
+use super::{Context, Error};
+use crate::human::keypoints::{KEYPOINT_COUNT, KEYPOINT_NAMES, KeypointFrame};
+use crate::human::{Handedness, HumanError};
+use crate::kinematics::System;
+use crate::mapping::{
+    MappingModel, RetargetError, RetargetOptions, RetargetStep, Retargeter, SolverOptions, Weights,
+};
+
+/// Stream settings, as query parameters of the upgrade request.
+#[derive(Debug, Clone, Default, Deserialize, Serialize, ToSchema, IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct RetargetQuery {
+    /// `right` (default) or `left`: which hand the keypoints are.
+    #[serde(default)]
+    pub handedness: Handedness,
+    /// First-order low-pass on the output joint values, Hz (default: off).
+    #[param(minimum = 0.01, maximum = 1000.0)]
+    pub cutoff_hz: Option<f64>,
+    /// Output joint speed bound as a multiple of each joint's URDF velocity limit (default:
+    /// off; the solver's own per-frame step box of 2 × the limit still applies).
+    #[param(minimum = 0.01, maximum = 10.0)]
+    pub speed_scale: Option<f64>,
+    /// Fingertips relative to the wrist scaled by this (default 1: unscaled).
+    #[param(minimum = 0.1, maximum = 10.0)]
+    pub hand_scale: Option<f64>,
+    /// Arm systems: the subject's stature, m, for the arm's transport scale (default 1.72).
+    #[param(minimum = 1.0, maximum = 2.3)]
+    pub stature_m: Option<f64>,
+    /// Arm systems: where the first frame's wrist lands, robot base frame, `x,y,z` in metres
+    /// (default: the scaled human reach above the robot's support).
+    pub placement: Option<String>,
+}
+
+impl RetargetQuery {
+    /// The numerics' options; every bad value named by its query parameter.
+    pub fn options(&self) -> Result<RetargetOptions, Error> {
+        let mut issues = Vec::new();
+        let mut range = |field: &str, v: Option<f64>, lo: f64, hi: f64| {
+            if let Some(x) = v
+                && !(x.is_finite() && (lo..=hi).contains(&x))
+            {
+                issues.push(super::Invalid::new(
+                    format!("$.{field}"),
+                    format!("must be a number in [{lo}, {hi}], got {x}"),
+                ));
+            }
+        };
+        range("cutoff_hz", self.cutoff_hz, 0.01, 1000.0);
+        range("speed_scale", self.speed_scale, 0.01, 10.0);
+        range("hand_scale", self.hand_scale, 0.1, 10.0);
+        range("stature_m", self.stature_m, 1.0, 2.3);
+        let placement = match &self.placement {
+            None => None,
+            Some(text) => {
+                let v: Vec<Option<f64>> = text
+                    .split(',')
+                    .map(|s| s.trim().parse::<f64>().ok().filter(|x| x.is_finite()))
+                    .collect();
+                match v.as_slice() {
+                    [Some(x), Some(y), Some(z)] => Some(Point3::new(*x, *y, *z)),
+                    _ => {
+                        issues.push(super::Invalid::new(
+                            "$.placement",
+                            format!("must be three finite numbers `x,y,z` in metres, got `{text}`"),
+                        ));
+                        None
+                    }
+                }
+            }
+        };
+        if !issues.is_empty() {
+            return Err(Error::Invalid(issues));
+        }
+        let d = RetargetOptions::default();
+        Ok(RetargetOptions {
+            handedness: self.handedness,
+            cutoff_hz: self.cutoff_hz,
+            speed_scale: self.speed_scale,
+            hand_scale: self.hand_scale.unwrap_or(d.hand_scale),
+            placement,
+            stature_m: self.stature_m.unwrap_or(d.stature_m),
+            weights: Weights::default(),
+            solver: SolverOptions::default(),
+        })
+    }
+}
+
+/// One keypoint frame, as a client sends it (a WebSocket text message).
+#[derive(Debug, Clone, Deserialize, Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct KeypointFrameMsg {
+    /// Client's frame number, echoed in the answer (default: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seq: Option<u64>,
+    /// Frame time, s, strictly increasing along the stream.
+    pub t: f64,
+    /// The 21 hand keypoints `[x, y, z]` (m) in the MANO / MediaPipe order: wrist; thumb CMC,
+    /// MCP, IP, tip; index, middle, ring, little MCP, PIP, DIP, tip.
+    #[schema(min_items = 21, max_items = 21)]
+    pub points: Vec<Vec<f64>>,
+    /// The wrist frame `[w, x, y, z]` (`x` towards the middle-finger MCP, `z` the palmar
+    /// normal), when the tracking gives it; otherwise it is derived from the palm keypoints.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wrist_orientation: Option<Vec<f64>>,
+    /// Elbow and shoulder centres `[x, y, z]`: required by arm systems, unused by a hand on a
+    /// fixed base.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elbow: Option<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shoulder: Option<Vec<f64>>,
+}
+
+/// The first message of a session: what the answers will hold.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct RetargetReady {
+    /// Always `ready`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    pub robot: String,
+    /// Order of `q` in every answer (the independent joints).
+    pub joint_names: Vec<String>,
+    /// Robot fingers, order of `fingertip_error_m`.
+    pub fingers: Vec<String>,
+    /// A hand on a fixed base: frames need no elbow or shoulder.
+    pub hand_only: bool,
+    /// The keypoint order frames must follow.
+    pub keypoints: Vec<String>,
+}
+
+/// The answer to one frame.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct RetargetJoints {
+    /// Always `joints`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seq: Option<u64>,
+    /// Accepted frames before this one.
+    pub index: usize,
+    pub t: f64,
+    /// Joint values, rad or m, in `joint_names` order (after the low-pass and speed bound).
+    pub q: Vec<f64>,
+    /// Distance of each robot fingertip from its goal at `q`, m.
+    pub fingertip_error_m: Vec<f64>,
+    /// Elbow swivel difference human vs robot, rad (arm systems; null for a hand).
+    pub swivel_difference: Option<f64>,
+    pub converged: bool,
+    pub iterations: usize,
+    /// Whether the low-pass or the speed bound moved `q` off the solution.
+    pub filtered: bool,
+    /// Time from the frame's arrival to this answer, µs (parse, solve, filter, serialise).
+    pub latency_us: f64,
+}
+
+/// A refused frame: the stream stays open and unchanged.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct RetargetFrameError {
+    /// Always `error`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seq: Option<u64>,
+    /// HTTP-like status: 422 for a frame that does not validate, 400 for a message that is not
+    /// a frame.
+    pub status: u16,
+    pub title: String,
+    pub detail: String,
+    /// JSONPath of the offending field (`$.points[8]`), when there is one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub field: Option<String>,
+}
+
+impl RetargetFrameError {
+    pub fn new(seq: Option<u64>, status: u16, detail: String, field: Option<String>) -> Self {
+        Self {
+            kind: "error".into(),
+            seq,
+            status,
+            title: if status == 422 {
+                "Invalid frame".into()
+            } else {
+                "Bad message".into()
+            },
+            detail,
+            field,
+        }
+    }
+}
+
+/// An open stream.
+pub struct Session {
+    robot: String,
+    system: Arc<System>,
+    retargeter: Option<Retargeter>,
+}
+
+/// Opens a stream onto robot `id` (404 unknown robot, 422 bad options).
+pub async fn open(ctx: &Context, id: &str, query: &RetargetQuery) -> Result<Session, Error> {
+    let options = query.options()?;
+    let system = super::robots::system(ctx, id).await?;
+    let mm = MappingModel::from_system(&system).map_err(|e| Error::invalid("$", e.to_string()))?;
+    let retargeter = tokio::task::spawn_blocking(move || Retargeter::new(mm, options))
+        .await
+        .map_err(|e| Error::internal(anyhow::anyhow!("retargeter task failed: {e}")))?
+        .map_err(|e| match e {
+            RetargetError::InvalidOption { field, value } => {
+                Error::invalid(format!("$.{field}"), format!("invalid value {value}"))
+            }
+            e => Error::invalid("$.placement", e.to_string()),
+        })?;
+    Ok(Session {
+        robot: id.to_string(),
+        system,
+        retargeter: Some(retargeter),
+    })
+}
+
+impl Session {
+    pub fn ready(&self) -> RetargetReady {
+        let r = self
+            .retargeter
+            .as_ref()
+            .expect("a session holds its retargeter");
+        RetargetReady {
+            kind: "ready".into(),
+            robot: self.robot.clone(),
+            joint_names: r.joint_names().to_vec(),
+            fingers: self.system.fingers.iter().map(|f| f.name.clone()).collect(),
+            hand_only: !r.needs_arm(),
+            keypoints: KEYPOINT_NAMES.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+
+    /// Answers one text message (a frame), `arrived` when it was read off the socket. The solve
+    /// runs on the blocking pool (the first frame's multi-start takes milliseconds).
+    pub async fn message(&mut self, text: &str, arrived: Instant) -> String {
+        let mut de = serde_json::Deserializer::from_str(text);
+        let msg: KeypointFrameMsg = match serde_path_to_error::deserialize(&mut de) {
+            Ok(m) => m,
+            Err(e) => {
+                let (path, detail) = crate::wire::locate(&e);
+                let e = RetargetFrameError::new(None, 400, detail, Some(path));
+                return serde_json::to_string(&e).expect("serialisable");
+            }
+        };
+        let seq = msg.seq;
+        let frame = match parse_frame(&msg) {
+            Ok(f) => f,
+            Err((field, detail)) => {
+                let e = RetargetFrameError::new(seq, 422, detail, Some(field));
+                return serde_json::to_string(&e).expect("serialisable");
+            }
+        };
+        let mut r = self.retargeter.take().expect("one message at a time");
+        let (r, result) = match tokio::task::spawn_blocking(move || {
+            let res = r.push(&frame);
+            let q = r.output().to_vec();
+            (r, res.map(|s| (s, q)))
+        })
+        .await
+        {
+            Ok(v) => v,
+            Err(e) => {
+                // The solver panicked: the session cannot go on from a known state.
+                tracing::error!(error = %e, "retargeting task failed");
+                let e = RetargetFrameError::new(seq, 500, "internal error".into(), None);
+                return serde_json::to_string(&e).expect("serialisable");
+            }
+        };
+        self.retargeter = Some(r);
+        match result {
+            Ok((step, q)) => answer(seq, &frame, step, q, arrived),
+            Err(e) => {
+                let field = e.field();
+                let field = (!field.is_empty()).then(|| format!("$.{field}"));
+                let e = RetargetFrameError::new(seq, 422, e.to_string(), field);
+                serde_json::to_string(&e).expect("serialisable")
+            }
+        }
+    }
+
+    /// Whether the solver state is intact (false only after a panic in the solver).
+    pub fn alive(&self) -> bool {
+        self.retargeter.is_some()
+    }
+}
+
+fn answer(
+    seq: Option<u64>,
+    frame: &KeypointFrame,
+    step: RetargetStep,
+    q: Vec<f64>,
+    arrived: Instant,
+) -> String {
+    let m = &step.metrics;
+    let mut out = RetargetJoints {
+        kind: "joints".into(),
+        seq,
+        index: step.index,
+        t: frame.t,
+        q,
+        fingertip_error_m: step.output_error[..m.fingers].to_vec(),
+        swivel_difference: m
+            .swivel_difference
+            .is_finite()
+            .then_some(m.swivel_difference),
+        converged: m.converged,
+        iterations: m.iterations,
+        filtered: step.filtered,
+        latency_us: 0.0,
+    };
+    // The latency includes serialising: measure, then write the figure into the same text
+    // (a fixed-width field, so the second serialisation costs what the first did).
+    out.latency_us = arrived.elapsed().as_secs_f64() * 1e6;
+    serde_json::to_string(&out).expect("serialisable")
+}
+
+/// A wire frame to the numerics' frame; errors are `(JSONPath, message)`.
+pub fn parse_frame(msg: &KeypointFrameMsg) -> Result<KeypointFrame, (String, String)> {
+    if msg.points.len() != KEYPOINT_COUNT {
+        return Err((
+            "$.points".into(),
+            format!(
+                "expected {KEYPOINT_COUNT} keypoints (MANO / MediaPipe order), got {}",
+                msg.points.len()
+            ),
+        ));
+    }
+    let point = |v: &[f64], path: String| -> Result<Point3<f64>, (String, String)> {
+        match v {
+            [x, y, z] => Ok(Point3::new(*x, *y, *z)),
+            _ => Err((path, format!("expected [x, y, z], got {} values", v.len()))),
+        }
+    };
+    let mut points = [Point3::origin(); KEYPOINT_COUNT];
+    for (k, p) in msg.points.iter().enumerate() {
+        points[k] = point(p, format!("$.points[{k}]"))?;
+    }
+    let wrist_orientation = match &msg.wrist_orientation {
+        None => None,
+        Some(q) => match q.as_slice() {
+            [w, x, y, z] => {
+                let quat = Quaternion::new(*w, *x, *y, *z);
+                let n = quat.norm();
+                if !(n.is_finite() && n > crate::human::demo::MIN_QUATERNION_NORM) {
+                    return Err((
+                        "$.wrist_orientation".into(),
+                        format!("quaternion norm {n} cannot be normalised"),
+                    ));
+                }
+                Some(UnitQuaternion::from_quaternion(quat))
+            }
+            _ => {
+                return Err((
+                    "$.wrist_orientation".into(),
+                    format!("expected [w, x, y, z], got {} values", q.len()),
+                ));
+            }
+        },
+    };
+    let elbow = msg
+        .elbow
+        .as_deref()
+        .map(|v| point(v, "$.elbow".into()))
+        .transpose()?;
+    let shoulder = msg
+        .shoulder
+        .as_deref()
+        .map(|v| point(v, "$.shoulder".into()))
+        .transpose()?;
+    let frame = KeypointFrame {
+        t: msg.t,
+        points,
+        wrist_orientation,
+        elbow,
+        shoulder,
+    };
+    crate::human::keypoints::validate(&frame, "frame", 0)
+        .map_err(|e| (frame_path(&e), frame_detail(&e)))?;
+    Ok(frame)
+}
+
+/// The message of a frame's validation error, without the stream and sample a recording's
+/// error names (the frame is the whole document here).
+fn frame_detail(e: &HumanError) -> String {
+    match e {
+        HumanError::NonFinite { field, value, .. } => format!("`{field}` is not finite ({value})"),
+        HumanError::PositionOutOfRange {
+            field,
+            distance,
+            limit,
+            ..
+        } => format!("`{field}` is {distance:.3} m from the origin (limit {limit} m)"),
+        e => e.to_string(),
+    }
+}
+
+/// `$.points[8]` for a keypoint error (its field names the keypoint), `$.elbow`, `$.t`.
+fn frame_path(e: &HumanError) -> String {
+    let field = e.field().unwrap_or("");
+    let base = field.split(' ').next().unwrap_or(field);
+    // `points[8] (index_tip)[1]` -> `points[8]`; `elbow[2]` -> `elbow`.
+    let base = if base.starts_with("points") {
+        base.to_string()
+    } else {
+        base.split('[').next().unwrap_or(base).to_string()
+    };
+    format!("$.{base}")
+}
