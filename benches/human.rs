@@ -63,6 +63,7 @@ fn one_minute(rate_hz: f64) -> DemonstrationInput {
             raw: None,
             calibration: None,
         },
+        keypoints: None,
         sync: SyncOptions {
             rate_hz,
             ..SyncOptions::default()

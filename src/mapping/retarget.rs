@@ -271,15 +271,14 @@ impl Retargeter {
                 let alpha = self.options.cutoff_hz.map_or(1.0, |fc| {
                     1.0 - (-2.0 * std::f64::consts::PI * fc * dt).exp()
                 });
-                for i in 0..q.len() {
-                    let mut step = alpha * (q[i] - self.out[i]);
+                for ((out, &qi), &vmax) in self.out.iter_mut().zip(q).zip(&self.vmax) {
+                    let mut step = alpha * (qi - *out);
                     if let Some(s) = self.options.speed_scale {
-                        let bound = s * self.vmax[i] * dt;
+                        let bound = s * vmax * dt;
                         step = step.clamp(-bound, bound);
                     }
-                    let y = self.out[i] + step;
-                    filtered |= y != q[i];
-                    self.out[i] = y;
+                    *out += step;
+                    filtered |= *out != qi;
                 }
             }
         }
