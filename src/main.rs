@@ -114,6 +114,16 @@ enum Command {
         reachgrasp map --robot wam_ihy --demo examples/demonstration.json > mapped.json"
     )]
     Map(MapArgs),
+    /// Retarget a recorded hand keypoint stream onto a robot frame by frame on one thread, as
+    /// the WebSocket `GET /v1/robots/{id}/retarget` does, and report frames/s, per-frame latency
+    /// and fingertip error (from the goals, and from the file's `targets` when it has them) on
+    /// stderr; the report with every frame's joint values as JSON on stdout.
+    #[command(
+        after_help = "The file: an array of frames ({t, points: 21 x [x,y,z], wrist_orientation?, elbow?, shoulder?}),\n\
+        or {frames, targets?} as `RETARGET_DUMP=stream.json cargo bench --bench retarget` writes.\n\
+        Example:\n  reachgrasp retarget --robot robots/examples/ff16_hand.toml --stream examples/keypoints-ff16.json > out.json"
+    )]
+    Retarget(RetargetArgs),
     /// Plan a humanlike motion to a task-specific grasp offline (the computation of
     /// `POST /v1/plans`) against the service's database (`--db`, default
     /// `./data/reachgrasp.db`), which holds the trained models; the plan, its grasp and its
@@ -129,6 +139,30 @@ enum Command {
         #[arg(long)]
         request: std::path::PathBuf,
     },
+}
+
+#[derive(Debug, clap::Args)]
+struct RetargetArgs {
+    #[command(flatten)]
+    sources: Sources,
+    /// A robot id (bundled or registered) or a system descriptor file.
+    #[arg(long)]
+    robot: String,
+    /// The recorded stream (JSON).
+    #[arg(long)]
+    stream: std::path::PathBuf,
+    /// Low-pass cutoff on the output joints, Hz (default: off).
+    #[arg(long)]
+    cutoff_hz: Option<f64>,
+    /// Output joint speed bound, × the URDF velocity limits (default: off).
+    #[arg(long)]
+    speed_scale: Option<f64>,
+    /// Weight of the fingertip orientation term, 0 to 1 (default 1e-4; 0: positions only).
+    #[arg(long)]
+    orientation_weight: Option<f64>,
+    /// The keypoints are of a left hand (default: a right hand).
+    #[arg(long)]
+    left: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -327,6 +361,7 @@ fn run_command(command: Command) -> anyhow::Result<()> {
         } => ik(&sources, &robot, &targets),
         Command::Synth(args) => synth(args),
         Command::Map(args) => map(args),
+        Command::Retarget(args) => retarget(args),
         Command::Plan { sources, request } => plan(sources, &request),
         Command::Bridge(args) => bridge(args),
         Command::Grasp {
@@ -519,6 +554,66 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
     }
     writeln!(out)?;
     out.flush()?;
+    Ok(())
+}
+
+fn retarget(args: RetargetArgs) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use reachgrasp::service::retarget::{RecordedStream, RetargetQuery, replay};
+    let system = reachgrasp::store::library::resolve_for_cli(
+        &args.sources.robots,
+        &args.sources.db,
+        &args.robot,
+    )?;
+    let query = RetargetQuery {
+        handedness: if args.left {
+            reachgrasp::human::Handedness::Left
+        } else {
+            reachgrasp::human::Handedness::Right
+        },
+        cutoff_hz: args.cutoff_hz,
+        speed_scale: args.speed_scale,
+        orientation_weight: args.orientation_weight,
+        ..RetargetQuery::default()
+    };
+    let options = query.options().map_err(failure)?;
+    let text = std::fs::read_to_string(&args.stream)
+        .with_context(|| format!("cannot read {}", args.stream.display()))?;
+    let stream: RecordedStream = serde_json::from_str(&text).with_context(|| {
+        format!(
+            "{} is neither an array of frames nor {{frames, targets}}",
+            args.stream.display()
+        )
+    })?;
+    let report = replay(&args.robot, &system, &stream, options).map_err(failure)?;
+    eprintln!(
+        "{}: {} frames, {:.0} frames/s warm-started on one thread (first frame {:.0} us); \
+         per frame p50 {:.1} us, p95 {:.1} us, p99 {:.1} us, max {:.1} us",
+        report.robot,
+        report.frames,
+        report.frames_per_s,
+        report.first_frame_us,
+        report.latency_us[0],
+        report.latency_us[1],
+        report.latency_us[2],
+        report.latency_us[3]
+    );
+    let [m, p, x] = report.goal_error_m;
+    eprintln!(
+        "fingertip error from the goals: median {:.3} mm, p95 {:.3} mm, max {:.3} mm",
+        m * 1e3,
+        p * 1e3,
+        x * 1e3
+    );
+    if let Some([m, p, x]) = report.target_error_m {
+        eprintln!(
+            "fingertip error from the targets: median {:.3} mm, p95 {:.3} mm, max {:.3} mm",
+            m * 1e3,
+            p * 1e3,
+            x * 1e3
+        );
+    }
+    println!("{}", serde_json::to_string(&report)?);
     Ok(())
 }
 

@@ -41,6 +41,12 @@ pub struct RetargetQuery {
     /// Arm systems: where the first frame's wrist lands, robot base frame, `x,y,z` in metres
     /// (default: the scaled human reach above the robot's support).
     pub placement: Option<String>,
+    /// Weight of the fingertip orientation term (eq. 2-3) against the positions (default
+    /// 1e-4, the mappings' tie-break). Keypoints give a fingertip's roll only as an estimate;
+    /// 0 follows the fingertip positions alone (on reachable targets: median 0.02 mm instead of
+    /// 0.4 mm).
+    #[param(minimum = 0.0, maximum = 1.0)]
+    pub orientation_weight: Option<f64>,
 }
 
 impl RetargetQuery {
@@ -61,6 +67,7 @@ impl RetargetQuery {
         range("speed_scale", self.speed_scale, 0.01, 10.0);
         range("hand_scale", self.hand_scale, 0.1, 10.0);
         range("stature_m", self.stature_m, 1.0, 2.3);
+        range("orientation_weight", self.orientation_weight, 0.0, 1.0);
         let placement = match &self.placement {
             None => None,
             Some(text) => {
@@ -91,7 +98,10 @@ impl RetargetQuery {
             hand_scale: self.hand_scale.unwrap_or(d.hand_scale),
             placement,
             stature_m: self.stature_m.unwrap_or(d.stature_m),
-            weights: Weights::default(),
+            weights: Weights {
+                orientation: self.orientation_weight.unwrap_or(d.weights.orientation),
+                ..d.weights
+            },
             solver: SolverOptions::default(),
         })
     }
@@ -418,4 +428,132 @@ fn frame_path(e: &HumanError) -> String {
         base.split('[').next().unwrap_or(base).to_string()
     };
     format!("$.{base}")
+}
+
+/// What [`replay`] measured over a recorded stream.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ReplayReport {
+    pub robot: String,
+    pub joint_names: Vec<String>,
+    pub frames: usize,
+    /// Warm-started frames per second on this thread (the first frame's multi-start excluded).
+    pub frames_per_s: f64,
+    /// The first frame (the multi-start), µs.
+    pub first_frame_us: f64,
+    /// Per warm-started frame, µs: median, p95, p99, max.
+    pub latency_us: [f64; 4],
+    /// Robot fingertips' distance from their goals (the keypoints' assignment), m: median,
+    /// p95, max over every finger and frame.
+    pub goal_error_m: [f64; 3],
+    /// The same from the given `targets`, when the file has them (m: median, p95, max).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_error_m: Option<[f64; 3]>,
+    /// The joint values of every frame, `joint_names` order.
+    pub q: Vec<Vec<f64>>,
+}
+
+/// A recorded stream file: an array of frames, or `{frames, targets?}` where `targets` are, per
+/// frame, the robot fingertip positions the frame is meant to reach (robot base frame, finger
+/// order), as `cargo bench --bench retarget` writes with `RETARGET_DUMP`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(untagged)]
+pub enum RecordedStream {
+    Frames(Vec<KeypointFrameMsg>),
+    WithTargets {
+        frames: Vec<KeypointFrameMsg>,
+        #[serde(default)]
+        targets: Option<Vec<Vec<[f64; 3]>>>,
+    },
+}
+
+fn spread(mut v: Vec<f64>) -> [f64; 3] {
+    if v.is_empty() {
+        return [f64::NAN; 3];
+    }
+    v.sort_by(f64::total_cmp);
+    let at = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+    [at(0.5), at(0.95), v[v.len() - 1]]
+}
+
+/// Retargets a recorded stream frame by frame on this thread, as the WebSocket session does,
+/// timing every frame (the comparison harness of issue 22: `reachgrasp retarget`). A frame that
+/// does not validate is an error naming it.
+pub fn replay(
+    robot: &str,
+    system: &System,
+    stream: &RecordedStream,
+    options: RetargetOptions,
+) -> Result<ReplayReport, Error> {
+    let (msgs, targets) = match stream {
+        RecordedStream::Frames(f) => (f, None),
+        RecordedStream::WithTargets { frames, targets } => (frames, targets.as_ref()),
+    };
+    if let Some(t) = targets
+        && t.len() != msgs.len()
+    {
+        return Err(Error::invalid(
+            "$.targets",
+            format!("{} target rows for {} frames", t.len(), msgs.len()),
+        ));
+    }
+    let frames: Vec<KeypointFrame> = msgs
+        .iter()
+        .enumerate()
+        .map(|(k, m)| {
+            parse_frame(m).map_err(|(field, detail)| {
+                Error::invalid(field.replacen('$', &format!("$.frames[{k}]"), 1), detail)
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let mm = MappingModel::from_system(system).map_err(|e| Error::invalid("$", e.to_string()))?;
+    let mut r = Retargeter::new(mm, options).map_err(|e| Error::invalid("$", e.to_string()))?;
+    let model = &system.model;
+    let mut data = crate::kinematics::Data::new(model);
+    let (mut lat, mut goal_err, mut target_err) = (Vec::new(), Vec::new(), Vec::new());
+    let mut q = Vec::with_capacity(frames.len());
+    let mut first_frame_us = f64::NAN;
+    let mut warm = 0.0;
+    for (k, f) in frames.iter().enumerate() {
+        let t0 = Instant::now();
+        let step = r.push(f).map_err(|e| {
+            let field = e.field();
+            Error::invalid(format!("$.frames[{k}].{field}"), e.to_string())
+        })?;
+        let us = t0.elapsed().as_secs_f64() * 1e6;
+        if k == 0 {
+            first_frame_us = us;
+        } else {
+            warm += us;
+            lat.push(us);
+        }
+        goal_err.extend_from_slice(&step.output_error[..step.metrics.fingers]);
+        if let Some(t) = targets {
+            crate::kinematics::forward_kinematics(model, &mut data, r.output());
+            for (finger, p) in system.fingers.iter().zip(&t[k]) {
+                let x = data.frame(finger.tip).translation.vector;
+                target_err.push((x - nalgebra::Vector3::from(*p)).norm());
+            }
+        }
+        q.push(r.output().to_vec());
+    }
+    let latency = {
+        let s = spread(lat.clone());
+        lat.sort_by(f64::total_cmp);
+        let p99 = lat
+            .get(((lat.len().max(1) - 1) as f64 * 0.99).round() as usize)
+            .copied()
+            .unwrap_or(f64::NAN);
+        [s[0], s[1], p99, s[2]]
+    };
+    Ok(ReplayReport {
+        robot: robot.to_string(),
+        joint_names: r.joint_names().to_vec(),
+        frames: frames.len(),
+        frames_per_s: lat.len() as f64 / (warm * 1e-6),
+        first_frame_us,
+        latency_us: latency,
+        goal_error_m: spread(goal_err),
+        target_error_m: targets.map(|_| spread(target_err)),
+        q,
+    })
 }

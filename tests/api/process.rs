@@ -224,7 +224,7 @@ fn every_sub_command_lists_only_its_own_flags_each_described() {
         "--retention-max-count",
     ];
     for sub in [
-        "serve", "openapi", "ik", "bridge", "synth", "grasp", "map", "plan",
+        "serve", "openapi", "ik", "bridge", "synth", "grasp", "map", "plan", "retarget",
     ] {
         let out = cli(&[sub, "--help"]).output().unwrap();
         assert!(out.status.success(), "{sub} --help: {out:?}");
@@ -270,6 +270,7 @@ fn the_example_files_the_help_names_run() {
         ("grasp", "examples/grasp-ball.json"),
         ("map", "examples/demonstration.json"),
         ("plan", "examples/plan-bottle.json"),
+        ("retarget", "examples/keypoints-ff16.json"),
     ] {
         let help = String::from_utf8(cli(&[sub, "--help"]).output().unwrap().stdout).unwrap();
         assert!(
@@ -321,6 +322,24 @@ fn the_example_files_the_help_names_run() {
     assert!(map.status.success(), "{map:?}");
     let map: Value = serde_json::from_slice(&map.stdout).unwrap();
     assert_eq!(map["summary"]["demonstrations"], 1, "{map}");
+
+    // The recorded FF16 stream (1 s of reachable targets, `cargo bench --bench retarget`'s
+    // generator): the fingertips land on the targets.
+    let rt = cli(&[
+        "retarget",
+        "--robot",
+        "robots/examples/ff16_hand.toml",
+        "--stream",
+        "examples/keypoints-ff16.json",
+    ])
+    .output()
+    .unwrap();
+    assert!(rt.status.success(), "{rt:?}");
+    let rt: Value = serde_json::from_slice(&rt.stdout).unwrap();
+    assert_eq!(rt["frames"], 100, "{}", rt["frames"]);
+    assert_eq!(rt["q"].as_array().unwrap().len(), 100);
+    let median = rt["target_error_m"][0].as_f64().unwrap();
+    assert!(median < 1e-3, "median fingertip error {median} m");
 
     // `plan` needs a database with trained models; without one it says so in one line
     let dir = tempfile::tempdir().unwrap();
