@@ -68,19 +68,28 @@ TOLERATED = [
     # timestamps strictly increase with gaps of at most `sync.max_gap_s`, the two streams
     # overlap for at least two frames, a tracker position's distance (not each coordinate)
     # is within 3 m, and a raw glove value is an angle only after its calibration.
-    ("demonstration samples", r"^\$(\.(tracker|glove)\.|$)", r"(samples, expected \d+ \(as `t`\)"
+    ("demonstration samples", r"^\$(\.(tracker|glove|keypoints)\.|$)",
+     r"(samples, expected \d+ \(as `t`\)"
      r"|is not strictly greater than the previous one|before this sample exceeds the limit|"
      r"do not overlap for at least two frames|m from the tracker origin \(limit|"
-     r"^stream `glove` sample \d+: angle `raw\[)"),
+     r"^stream `glove` sample \d+: angle `raw\[|shorter than two frames at `sync.rate_hz`|"
+     r"do not span a palm)"),
+    # A demonstration is a tracker + glove recording or a keypoint recording (the JSON body
+    # states it as a oneOf; a multipart form's parts cannot), and a keypoint recording gives
+    # the elbow and the shoulder together or neither.
+    ("recording kind", r"^(\$\.)?(keypoints|tracker|glove)(\.(elbow|shoulder))?$",
+     r"(tracker \+ glove recording or a keypoint recording|part `\w+` is missing|^missing: give|"
+     r"give the elbow and the shoulder together)"),
     # The multipart upload's streams are CSV files: a header and one numeric row per sample,
     # which no pattern on the part's text states (the same sample rules as above then apply).
-    ("CSV content", r"^\$\.(tracker|glove)$", r"^stream `(tracker|glove)` (CSV line \d+: |is empty$)"),
+    ("CSV content", r"^\$\.(tracker|glove|keypoints)$",
+     r"^stream `(tracker|glove|keypoints)` (CSV line \d+: |is empty$)"),
     # A mesh filename is limited in UTF-8 bytes (1 to 512); JSON Schema's `maxLength` counts
     # characters (1 to 4 bytes each), so the document states 1 to 512 characters.
     ("mesh filename bytes", r"^\$\.meshes\[", r"^a mesh filename must have 1 to 512 bytes$"),
 ]
 
-FORM_PARTS = {"meta", "tracker", "glove"}
+FORM_PARTS = {"meta", "tracker", "glove", "keypoints"}
 
 
 def _errors(response):

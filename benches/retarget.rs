@@ -25,6 +25,7 @@ use reachgrasp::human::KeypointFrame;
 use reachgrasp::kinematics::{Data, System, forward_kinematics};
 use reachgrasp::mapping::retarget::targets::reachable_stream;
 use reachgrasp::mapping::{MappingModel, RetargetOptions, Retargeter};
+use reachgrasp::service::retarget::KeypointFrameMsg;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
@@ -44,19 +45,7 @@ fn ff16() -> System {
 }
 
 fn frame_json(kp: &KeypointFrame, seq: u64) -> Value {
-    let mut v = json!({
-        "seq": seq,
-        "t": kp.t,
-        "points": kp.points.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>(),
-    });
-    if let Some(q) = kp.wrist_orientation {
-        v["wrist_orientation"] = json!([q.w, q.i, q.j, q.k]);
-    }
-    if let (Some(e), Some(s)) = (kp.elbow, kp.shoulder) {
-        v["elbow"] = json!([e.x, e.y, e.z]);
-        v["shoulder"] = json!([s.x, s.y, s.z]);
-    }
-    v
+    serde_json::to_value(KeypointFrameMsg::new(kp, Some(seq))).expect("serialisable")
 }
 
 fn in_process() {

@@ -294,7 +294,71 @@ fn constrain_schemas(schemas: &mut serde_json::Map<String, Value>) {
     synthetic_study(schemas);
     flatten_plan(schemas);
     demonstration_streams(schemas);
+    keypoint_recordings(schemas);
     robot_sources(schemas);
+}
+
+/// A keypoint recording's rows (21 points of 3 coordinates within 10 m, elbow and shoulder 3
+/// coordinates, the wrist orientation 4 components), at least two samples, elbow and shoulder
+/// together; and an upload is a tracker + glove recording or a keypoint recording, not both
+/// (`human::demo`, `api::demonstrations`: 422 at `$.keypoints`, `$.tracker`, `$.glove`).
+fn keypoint_recordings(schemas: &mut serde_json::Map<String, Value>) {
+    let count = |n: usize| json!({"minItems": n, "maxItems": n});
+    let limit = crate::human::keypoints::MAX_KEYPOINT_DISTANCE_M;
+    let range = json!({"minimum": -limit, "maximum": limit});
+    if let Some(Value::Object(rows)) = schemas
+        .get_mut("KeypointStream")
+        .and_then(|s| s.pointer_mut("/properties/points/items"))
+    {
+        rows.extend(
+            count(crate::human::KEYPOINT_COUNT)
+                .as_object()
+                .cloned()
+                .unwrap_or_default(),
+        );
+    }
+    constrain_rows(
+        schemas,
+        "KeypointStream",
+        "/properties/points/items",
+        count(3),
+        range.clone(),
+    );
+    for column in ["elbow", "shoulder"] {
+        constrain_rows(
+            schemas,
+            "KeypointStream",
+            &format!("/properties/{column}"),
+            count(3),
+            range.clone(),
+        );
+    }
+    constrain_rows(
+        schemas,
+        "KeypointStream",
+        "/properties/wrist_orientation",
+        count(4),
+        json!({}),
+    );
+    if let Some(Value::Object(k)) = schemas.get_mut("KeypointStream") {
+        if let Some(Value::Object(t)) = k.get_mut("properties").and_then(|p| p.get_mut("t")) {
+            t.insert("minItems".into(), json!(2));
+        }
+        k.insert(
+            "dependentRequired".into(),
+            json!({"elbow": ["shoulder"], "shoulder": ["elbow"]}),
+        );
+    }
+    if let Some(Value::Object(upload)) = schemas.get_mut("DemonstrationUpload") {
+        upload.insert(
+            "oneOf".into(),
+            json!([
+                {"required": ["tracker", "glove"], "properties": {"keypoints": {"type": "null"}}},
+                {"required": ["keypoints"], "properties": {
+                    "tracker": {"type": "null"}, "glove": {"type": "null"}}},
+            ]),
+        );
+    }
 }
 
 /// `items` (and the items' items) of an array at `pointer` in `schema`.

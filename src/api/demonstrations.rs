@@ -42,8 +42,9 @@ impl From<HumanError> for ApiError {
 /// quaternions are not zero, and calibrated glove angles are within ±π.
 ///
 /// A keypoint recording (camera, headset, motion-capture suit) gives `keypoints` instead of
-/// `tracker` and `glove`: the 21 MANO / MediaPipe hand points per sample with the elbow and
-/// shoulder, optionally the wrist orientation; it is resampled at `sync.rate_hz` on its own
+/// `tracker` and `glove`: the 21 MANO / MediaPipe hand points per sample, optionally the elbow
+/// and shoulder (without them it maps only onto a hand on a fixed base) and the wrist
+/// orientation; it is resampled at `sync.rate_hz` on its own
 /// clock (`sync.glove_offset_s` does not apply) and becomes the same derived frames.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
@@ -107,17 +108,18 @@ pub struct DemonstrationForm {
     /// holds raw sensor values.
     #[schema(value_type = FormMeta)]
     meta: String,
-    /// CSV `t,shoulder_x,shoulder_y,shoulder_z,elbow_x,...,wrist_z,qw,qx,qy,qz`.
+    /// CSV `t,shoulder_x,shoulder_y,shoulder_z,elbow_x,...,wrist_z,qw,qx,qy,qz` (with `glove`,
+    /// or `keypoints` instead of both).
     #[schema(content_media_type = "text/csv")]
-    tracker: String,
+    tracker: Option<String>,
     /// CSV `t` and the 22 glove channel names (radians, or raw values with a calibration).
     #[schema(content_media_type = "text/csv")]
-    glove: String,
+    glove: Option<String>,
     /// Instead of `tracker` and `glove`: a keypoint recording, CSV `t`, `<keypoint>_x,_y,_z` for
-    /// the 21 keypoints (`wrist`, `thumb_cmc`, ..., `little_tip`), `elbow_x..z`,
-    /// `shoulder_x..z`, and optionally `wrist_qw,wrist_qx,wrist_qy,wrist_qz`.
+    /// the 21 keypoints (`wrist`, `thumb_cmc`, ..., `little_tip`), optionally `elbow_x..z` with
+    /// `shoulder_x..z`, and `wrist_qw,wrist_qx,wrist_qy,wrist_qz`.
     #[schema(content_media_type = "text/csv")]
-    keypoints: String,
+    keypoints: Option<String>,
 }
 
 /// The `meta` part of a multipart upload: the upload's fields other than its streams, and the

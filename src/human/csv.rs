@@ -5,7 +5,7 @@
 //! * Glove: header `t` followed by the 22 channel names of [`GLOVE_CHANNELS`]; values are angles in
 //!   radians, or raw sensor values when a calibration is supplied alongside.
 //! * Keypoints (instead of the two): header `t`, `<keypoint>_x,_y,_z` for the 21 keypoints of
-//!   [`KEYPOINT_NAMES`], `elbow_x..z`, `shoulder_x..z`, and optionally
+//!   [`KEYPOINT_NAMES`], optionally `elbow_x..z` and `shoulder_x..z` (both or neither) and
 //!   `wrist_qw,wrist_qx,wrist_qy,wrist_qz` (all four or none).
 //!
 //! Columns are found by header name (order free, extra columns ignored); `#` starts a comment
@@ -19,10 +19,12 @@ use super::model::GLOVE_CHANNELS;
 
 const WRIST_QUATERNION: [&str; 4] = ["wrist_qw", "wrist_qx", "wrist_qy", "wrist_qz"];
 
-/// The keypoint CSV columns, in [`KeypointStream`] order (without the optional quaternion).
-fn keypoint_columns() -> Vec<String> {
+/// The keypoint CSV columns, in [`KeypointStream`] order (without the optional quaternion),
+/// with or without the arm.
+fn keypoint_columns(arm: bool) -> Vec<String> {
     let mut cols = vec!["t".to_string()];
-    for name in KEYPOINT_NAMES.iter().chain(&["elbow", "shoulder"]) {
+    let arm_points: &[&str] = if arm { &["elbow", "shoulder"] } else { &[] };
+    for name in KEYPOINT_NAMES.iter().chain(arm_points) {
         for axis in ["x", "y", "z"] {
             cols.push(format!("{name}_{axis}"));
         }
@@ -154,7 +156,8 @@ pub fn parse_keypoint_csv(text: &str) -> Result<KeypointStream, HumanError> {
         .unwrap_or("");
     let has = |c: &str| header.split(',').any(|n| n.trim().eq_ignore_ascii_case(c));
     let quaternion = has(WRIST_QUATERNION[0]);
-    let mut cols = keypoint_columns();
+    let arm = has("elbow_x") || has("shoulder_x");
+    let mut cols = keypoint_columns(arm);
     if quaternion {
         cols.extend(WRIST_QUATERNION.iter().map(|c| c.to_string()));
     }
@@ -162,16 +165,21 @@ pub fn parse_keypoint_csv(text: &str) -> Result<KeypointStream, HumanError> {
     let rows = read_table("keypoints", text, &names)?;
     let mut s = KeypointStream {
         wrist_orientation: quaternion.then(Vec::new),
+        elbow: arm.then(Vec::new),
+        shoulder: arm.then(Vec::new),
         ..KeypointStream::default()
     };
+    let q0 = if arm { 70 } else { 64 };
     for r in rows {
         s.t.push(r[0]);
         s.points
             .push(r[1..64].chunks(3).map(<[f64]>::to_vec).collect());
-        s.elbow.push(r[64..67].to_vec());
-        s.shoulder.push(r[67..70].to_vec());
+        if let (Some(e), Some(sh)) = (&mut s.elbow, &mut s.shoulder) {
+            e.push(r[64..67].to_vec());
+            sh.push(r[67..70].to_vec());
+        }
         if let Some(q) = &mut s.wrist_orientation {
-            q.push(r[70..74].to_vec());
+            q.push(r[q0..q0 + 4].to_vec());
         }
     }
     Ok(s)
@@ -179,7 +187,8 @@ pub fn parse_keypoint_csv(text: &str) -> Result<KeypointStream, HumanError> {
 
 /// Keypoint stream as CSV (rows written as they are, so that tests can produce bad files).
 pub fn keypoints_to_csv(s: &KeypointStream) -> String {
-    let mut header = keypoint_columns().join(",");
+    let arm = s.elbow.is_some() && s.shoulder.is_some();
+    let mut header = keypoint_columns(arm).join(",");
     if s.wrist_orientation.is_some() {
         header.push(',');
         header.push_str(&WRIST_QUATERNION.join(","));
@@ -189,8 +198,11 @@ pub fn keypoints_to_csv(s: &KeypointStream) -> String {
         (0..s.t.len()).map(|i| {
             let mut r = vec![s.t[i]];
             r.extend(s.points.get(i).into_iter().flatten().flatten());
-            r.extend(s.elbow.get(i).into_iter().flatten());
-            r.extend(s.shoulder.get(i).into_iter().flatten());
+            if arm {
+                for col in [&s.elbow, &s.shoulder].into_iter().flatten() {
+                    r.extend(col.get(i).into_iter().flatten());
+                }
+            }
             if let Some(q) = &s.wrist_orientation {
                 r.extend(q.get(i).into_iter().flatten());
             }

@@ -386,7 +386,7 @@ impl Default for SyncOptions {
 }
 
 /// A hand keypoint recording (issue 22): per sample the 21 keypoints in the MANO / MediaPipe
-/// order ([`super::KEYPOINT_NAMES`]), and the elbow and shoulder centres; optionally the wrist
+/// order ([`super::KEYPOINT_NAMES`]); optionally the elbow and shoulder centres and the wrist
 /// frame's orientation (otherwise derived from the palm keypoints, see [`super::keypoints`]).
 /// Positions in metres, within 10 m of the recording's origin; one row per `t` in every column.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, utoipa::ToSchema)]
@@ -399,11 +399,13 @@ pub struct KeypointStream {
     /// Per sample `[w, x, y, z]` (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub wrist_orientation: Option<Vec<Vec<f64>>>,
-    /// Per sample `[x, y, z]`: the arm's transport and elbow terms read them, so a stored
-    /// demonstration needs both (the live stream, `GET /v1/robots/{id}/retarget`, does not for
-    /// a hand on a fixed base).
-    pub elbow: Vec<Vec<f64>>,
-    pub shoulder: Vec<Vec<f64>>,
+    /// Per sample `[x, y, z]`, both or neither: the arm's transport and elbow terms read them.
+    /// A recording without them (the hand alone; its frames store the wrist position there)
+    /// maps only onto a hand on a fixed base.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elbow: Option<Vec<Vec<f64>>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shoulder: Option<Vec<Vec<f64>>>,
 }
 
 /// What a client uploads (or the synthetic generator emits): a tracker and data-glove
@@ -565,6 +567,27 @@ fn position(field: &str, index: usize, values: &[f64]) -> Result<Vector3<f64>, H
     Ok(p)
 }
 
+/// A sample's quaternion `[w, x, y, z]`, normalised (a zero one is an error naming it).
+fn orientation(
+    stream: &'static str,
+    field: &str,
+    index: usize,
+    values: &[f64],
+) -> Result<UnitQuaternion<f64>, HumanError> {
+    let q = row(stream, field, index, values, 4)?;
+    let quat = Quaternion::new(q[0], q[1], q[2], q[3]);
+    let norm = quat.norm();
+    if norm < MIN_QUATERNION_NORM {
+        return Err(HumanError::DegenerateQuaternion {
+            stream,
+            index,
+            field: field.into(),
+            norm,
+        });
+    }
+    Ok(UnitQuaternion::from_quaternion(quat))
+}
+
 fn validate_tracker(s: &TrackerStream, max_gap: f64) -> Result<Tracker, HumanError> {
     const STREAM: &str = "tracker";
     check_times(STREAM, &s.t, max_gap)?;
@@ -584,18 +607,12 @@ fn validate_tracker(s: &TrackerStream, max_gap: f64) -> Result<Tracker, HumanErr
         out.shoulder.push(position("shoulder", i, &s.shoulder[i])?);
         out.elbow.push(position("elbow", i, &s.elbow[i])?);
         out.wrist.push(position("wrist", i, &s.wrist[i])?);
-        let q = row(STREAM, "wrist_orientation", i, &s.wrist_orientation[i], 4)?;
-        let quat = Quaternion::new(q[0], q[1], q[2], q[3]);
-        let norm = quat.norm();
-        if norm < MIN_QUATERNION_NORM {
-            return Err(HumanError::DegenerateQuaternion {
-                stream: STREAM,
-                index: i,
-                field: "wrist_orientation".into(),
-                norm,
-            });
-        }
-        out.orientation.push(UnitQuaternion::from_quaternion(quat));
+        out.orientation.push(orientation(
+            STREAM,
+            "wrist_orientation",
+            i,
+            &s.wrist_orientation[i],
+        )?);
     }
     Ok(out)
 }
@@ -810,8 +827,24 @@ fn ingest_keypoints(
     check_times(STREAM, &k.t, input.sync.max_gap_s)?;
     let n = k.t.len();
     check_len(STREAM, "points", n, k.points.len())?;
-    check_len(STREAM, "elbow", n, k.elbow.len())?;
-    check_len(STREAM, "shoulder", n, k.shoulder.len())?;
+    let arm = match (&k.elbow, &k.shoulder) {
+        (Some(e), Some(s)) => {
+            check_len(STREAM, "elbow", n, e.len())?;
+            check_len(STREAM, "shoulder", n, s.len())?;
+            Some((e, s))
+        }
+        (None, None) => None,
+        (e, _) => {
+            return Err(HumanError::InvalidParameter {
+                field: format!(
+                    "keypoints.{}",
+                    if e.is_none() { "elbow" } else { "shoulder" }
+                ),
+                value: f64::NAN,
+                reason: "give the elbow and the shoulder together, or neither (the hand alone)",
+            });
+        }
+    };
     if let Some(q) = &k.wrist_orientation {
         check_len(STREAM, "wrist_orientation", n, q.len())?;
     }
@@ -837,27 +870,18 @@ fn ingest_keypoints(
         }
         let wrist_orientation = match &k.wrist_orientation {
             None => None,
-            Some(qs) => {
-                let q = row(STREAM, "wrist_orientation", i, &qs[i], 4)?;
-                let quat = Quaternion::new(q[0], q[1], q[2], q[3]);
-                let norm = quat.norm();
-                if norm < MIN_QUATERNION_NORM {
-                    return Err(HumanError::DegenerateQuaternion {
-                        stream: STREAM,
-                        index: i,
-                        field: "wrist_orientation".into(),
-                        norm,
-                    });
-                }
-                Some(UnitQuaternion::from_quaternion(quat))
-            }
+            Some(qs) => Some(orientation(STREAM, "wrist_orientation", i, &qs[i])?),
         };
         let sample = KeypointFrame {
             t: k.t[i],
             points,
             wrist_orientation,
-            elbow: Some(Point3::from(vec3("elbow", i, &k.elbow[i])?)),
-            shoulder: Some(Point3::from(vec3("shoulder", i, &k.shoulder[i])?)),
+            elbow: arm
+                .map(|(e, _)| vec3("elbow", i, &e[i]).map(Point3::from))
+                .transpose()?,
+            shoulder: arm
+                .map(|(_, s)| vec3("shoulder", i, &s[i]).map(Point3::from))
+                .transpose()?,
         };
         // Every sample checked (and its palm), not only those the resampling reads.
         human_frame(&sample, input.subject.handedness, STREAM, i)?;

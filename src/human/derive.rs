@@ -1,7 +1,7 @@
 //! Derived hand kinematics: fingertip poses from the glove's hand angles and the tracker's wrist
 //! pose, by forward kinematics of the hand model (the same FK as the robots).
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 
 use super::anthropometry::HandDims;
 use super::demo::Handedness;
@@ -42,6 +42,39 @@ impl HandKinematics {
     /// Fingertip poses in the world frame for a wrist placed at `wrist`.
     pub fn fingertips(&mut self, wrist: &Isometry3<f64>, q: &[f64]) -> [Isometry3<f64>; 5] {
         self.fingertips_local(q).map(|p| wrist * p)
+    }
+
+    /// The hand model's 21 joint centres in the keypoint order of [`super::KEYPOINT_NAMES`]
+    /// (wrist; thumb CMC, MCP, IP, tip; each finger's MCP, PIP, DIP, tip), with the wrist at
+    /// `wrist`, for hand angles `q`: the keypoints a perfect hand tracker would report.
+    pub fn keypoints(
+        &mut self,
+        wrist: &Isometry3<f64>,
+        q: &[f64],
+    ) -> [Point3<f64>; super::KEYPOINT_COUNT] {
+        forward_kinematics(&self.model, &mut self.data, q);
+        std::array::from_fn(|k| {
+            let frame = match k {
+                0 => "wrist".to_string(),
+                1..=4 => [
+                    "thumb_metacarpal",
+                    "thumb_proximal",
+                    "thumb_distal",
+                    "thumb_tip",
+                ][k - 1]
+                    .to_string(),
+                _ => {
+                    let finger = FINGER_NAMES[1 + (k - 5) / 4];
+                    let segment = ["proximal", "middle", "distal", "tip"][(k - 5) % 4];
+                    format!("{finger}_{segment}")
+                }
+            };
+            let id = self
+                .model
+                .frame_id(&frame)
+                .expect("the hand model names every joint centre");
+            wrist * Point3::from(self.data.frame(id).translation.vector)
+        })
     }
 
     /// World pose of any frame of the hand model after the last FK call.

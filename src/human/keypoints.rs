@@ -246,34 +246,21 @@ mod tests {
     use super::*;
     use crate::human::{HandDims, HandKinematics, HumanFrame};
 
-    /// The 21 keypoints of the human hand model at `q` (glove order) with the wrist at `w`: the
-    /// model's joint frames (an independent reference: the glove path's own forward kinematics).
+    /// The 21 keypoints of the human hand model at `q` (glove order) with the wrist at `w`
+    /// ([`HandKinematics::keypoints`], the model's joint centres: an independent reference, the
+    /// glove path's own forward kinematics), and its fingertip poses.
     fn model_keypoints(
         hk: &mut HandKinematics,
         w: &Isometry3<f64>,
         q: &[f64],
     ) -> ([Point3<f64>; KEYPOINT_COUNT], [Isometry3<f64>; 5]) {
+        let points = hk.keypoints(w, q);
         let tips = hk.fingertips(w, q);
-        let names = [
-            "wrist",
-            "thumb_metacarpal",
-            "thumb_proximal",
-            "thumb_distal",
-            "thumb_tip",
-        ];
-        let at = |hk: &HandKinematics, name: &str| -> Point3<f64> {
-            let local = hk.frame(name).expect("hand model frame");
-            w * Point3::from(local.translation.vector)
-        };
-        let mut points = [Point3::origin(); KEYPOINT_COUNT];
-        for (k, n) in names.iter().enumerate() {
-            points[k] = at(hk, n);
+        // The keypoint order: the tips where the fingertip frames are, the wrist at its origin.
+        for (f, tip) in tips.iter().enumerate() {
+            assert!((points[TIPS[f]].coords - tip.translation.vector).norm() < 1e-12);
         }
-        for (f, finger) in ["index", "middle", "ring", "little"].iter().enumerate() {
-            for (j, seg) in ["proximal", "middle", "distal", "tip"].iter().enumerate() {
-                points[5 + 4 * f + j] = at(hk, &format!("{finger}_{seg}"));
-            }
-        }
+        assert!((points[0].coords - w.translation.vector).norm() < 1e-12);
         (points, tips)
     }
 
@@ -403,14 +390,24 @@ mod tests {
         let demo = ingest(&input).unwrap();
         let dims = demo.subject.hand_dims().unwrap();
         let mut hk = HandKinematics::new(&dims, demo.subject.handedness);
-        let mut k = KeypointStream::default();
+        let mut k = KeypointStream {
+            elbow: Some(Vec::new()),
+            shoulder: Some(Vec::new()),
+            ..KeypointStream::default()
+        };
         for (f, g) in demo.frames.iter().zip(&demo.glove) {
             let (points, _) = model_keypoints(&mut hk, &f.wrist, &g[..20]);
             k.t.push(f.t);
             k.points
                 .push(points.iter().map(|p| vec![p.x, p.y, p.z]).collect());
-            k.elbow.push(f.elbow.coords.as_slice().to_vec());
-            k.shoulder.push(f.shoulder.coords.as_slice().to_vec());
+            k.elbow
+                .as_mut()
+                .unwrap()
+                .push(f.elbow.coords.as_slice().to_vec());
+            k.shoulder
+                .as_mut()
+                .unwrap()
+                .push(f.shoulder.coords.as_slice().to_vec());
         }
         let mut kin = DemonstrationInput {
             tracker: Default::default(),
@@ -445,9 +442,36 @@ mod tests {
         both.tracker = input.tracker.clone();
         let e = ingest(&both).unwrap_err();
         assert_eq!(e.path(), "keypoints", "{e}");
-        let mut no_elbow = kin;
-        no_elbow.keypoints.as_mut().unwrap().elbow.clear();
+        let mut short_elbow = kin.clone();
+        short_elbow
+            .keypoints
+            .as_mut()
+            .unwrap()
+            .elbow
+            .as_mut()
+            .unwrap()
+            .pop();
+        let e = ingest(&short_elbow).unwrap_err();
+        assert_eq!(e.path(), "keypoints.elbow", "{e}");
+        let mut no_elbow = kin.clone();
+        no_elbow.keypoints.as_mut().unwrap().elbow = None;
         let e = ingest(&no_elbow).unwrap_err();
         assert_eq!(e.path(), "keypoints.elbow", "{e}");
+        // The hand alone: the frames keep the fingertips and put the arm points on the wrist,
+        // which no arm system can register (tested in `mapping::registration`).
+        let mut hand = kin;
+        let k = hand.keypoints.as_mut().unwrap();
+        (k.elbow, k.shoulder) = (None, None);
+        let alone = ingest(&hand).unwrap();
+        for (a, b) in alone.frames.iter().zip(&from_kp.frames) {
+            assert_eq!(a.fingertips, b.fingertips);
+            assert_eq!(a.elbow.coords, a.wrist.translation.vector);
+        }
+        let csv = crate::human::csv::keypoints_to_csv(hand.keypoints.as_ref().unwrap());
+        assert!(!csv.contains("elbow_x"));
+        assert_eq!(
+            &crate::human::csv::parse_keypoint_csv(&csv).unwrap(),
+            hand.keypoints.as_ref().unwrap()
+        );
     }
 }

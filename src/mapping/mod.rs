@@ -56,7 +56,8 @@ pub enum MappingError {
     #[error("frame {frame}: {field} is not finite")]
     NonFinite { frame: usize, field: &'static str },
     #[error(
-        "frame {frame}: the human {segment} has length {length} m; the arm cannot be registered"
+        "frame {frame}: the human {segment} has length {length} m; the arm cannot be registered \
+         (a keypoint recording without elbow and shoulder maps only onto a hand on a fixed base)"
     )]
     DegenerateArm {
         frame: usize,

@@ -244,6 +244,9 @@ pub struct Registration {
     pub hand_frame: Option<Isometry3<f64>>,
 }
 
+/// Human arm segments shorter than this (m) give the arm no direction.
+const MIN_SEGMENT: f64 = 1e-3;
+
 /// Objects may sink this far into their support before the placement counts as "under" it
 /// (rounding of client-given heights).
 pub const SUPPORT_TOLERANCE: f64 = 1e-3;
@@ -285,6 +288,22 @@ impl Registration {
         }
         if let Some(wrist) = robot.fixed_wrist {
             return Self::resolve_hand(spec, &wrist, robot);
+        }
+        // An arm system registers the arm and reads its elbow: a recording without one (a
+        // keypoint stream of the hand alone stores the wrist there) cannot drive it.
+        for (i, f) in frames.iter().enumerate() {
+            for (segment, length) in [
+                ("upper arm", (f.elbow - f.shoulder).norm()),
+                ("forearm", (f.wrist - f.elbow).norm()),
+            ] {
+                if length < MIN_SEGMENT {
+                    return Err(MappingError::DegenerateArm {
+                        frame: i,
+                        segment,
+                        length,
+                    });
+                }
+            }
         }
         match *spec {
             RegistrationSpec::Explicit { transform, scale } => {
@@ -555,7 +574,7 @@ fn human_reach(frames: &[ArmPoints]) -> Result<f64, MappingError> {
         let fore = (f.wrist - f.elbow).norm();
         let hand = (f.middle_tip - f.wrist).norm();
         for (segment, length) in [("upper arm", upper), ("forearm", fore), ("hand", hand)] {
-            if length < 1e-3 {
+            if length < MIN_SEGMENT {
                 return Err(MappingError::DegenerateArm {
                     frame: i,
                     segment,
@@ -769,6 +788,22 @@ mod tests {
             Err(MappingError::NonFinite {
                 frame: 1,
                 field: "elbow"
+            })
+        ));
+        // The hand alone (a keypoint recording without the arm: elbow and shoulder on the
+        // wrist): no arm system registers it, whatever the scale.
+        let mut hand = arm(Point3::origin());
+        (hand.elbow, hand.shoulder) = (hand.wrist, hand.wrist);
+        let fixed = RegistrationSpec::Scene(SceneRegistration {
+            transport_scale: Scale::One,
+            ..SceneRegistration::default()
+        });
+        assert!(matches!(
+            Registration::resolve(&fixed, &[hand], &r),
+            Err(MappingError::DegenerateArm {
+                frame: 0,
+                segment: "upper arm",
+                ..
             })
         ));
         let mut f = arm(Point3::origin());

@@ -40,6 +40,9 @@ pub struct RetargetQuery {
     pub stature_m: Option<f64>,
     /// Arm systems: where the first frame's wrist lands, robot base frame, `x,y,z` in metres
     /// (default: the scaled human reach above the robot's support).
+    #[param(
+        pattern = r"^-?[0-9]{1,2}(\.[0-9]{1,9})?,-?[0-9]{1,2}(\.[0-9]{1,9})?,-?[0-9]{1,2}(\.[0-9]{1,9})?$"
+    )]
     pub placement: Option<String>,
     /// Weight of the fingertip orientation term (eq. 2-3) against the positions (default
     /// 1e-4, the mappings' tie-break). Keypoints give a fingertip's roll only as an estimate;
@@ -132,6 +135,21 @@ pub struct KeypointFrameMsg {
     pub shoulder: Option<Vec<f64>>,
 }
 
+impl KeypointFrameMsg {
+    /// The wire form of a frame (what a client sends; [`parse_frame`] reads it back).
+    pub fn new(frame: &KeypointFrame, seq: Option<u64>) -> Self {
+        let xyz = |p: &Point3<f64>| vec![p.x, p.y, p.z];
+        Self {
+            seq,
+            t: frame.t,
+            points: frame.points.iter().map(xyz).collect(),
+            wrist_orientation: frame.wrist_orientation.map(|q| vec![q.w, q.i, q.j, q.k]),
+            elbow: frame.elbow.as_ref().map(xyz),
+            shoulder: frame.shoulder.as_ref().map(xyz),
+        }
+    }
+}
+
 /// The first message of a session: what the answers will hold.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct RetargetReady {
@@ -170,7 +188,8 @@ pub struct RetargetJoints {
     pub iterations: usize,
     /// Whether the low-pass or the speed bound moved `q` off the solution.
     pub filtered: bool,
-    /// Time from the frame's arrival to this answer, µs (parse, solve, filter, serialise).
+    /// Time from the frame's arrival to this answer, µs (parse, solve, filter; not the few
+    /// microseconds of writing the answer itself).
     pub latency_us: f64,
 }
 
@@ -315,7 +334,7 @@ fn answer(
     arrived: Instant,
 ) -> String {
     let m = &step.metrics;
-    let mut out = RetargetJoints {
+    let out = RetargetJoints {
         kind: "joints".into(),
         seq,
         index: step.index,
@@ -329,11 +348,8 @@ fn answer(
         converged: m.converged,
         iterations: m.iterations,
         filtered: step.filtered,
-        latency_us: 0.0,
+        latency_us: arrived.elapsed().as_secs_f64() * 1e6,
     };
-    // The latency includes serialising: measure, then write the figure into the same text
-    // (a fixed-width field, so the second serialisation costs what the first did).
-    out.latency_us = arrived.elapsed().as_secs_f64() * 1e6;
     serde_json::to_string(&out).expect("serialisable")
 }
 

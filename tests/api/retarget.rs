@@ -12,6 +12,7 @@ use reachgrasp::human::{
 use reachgrasp::kinematics::System;
 use reachgrasp::mapping::retarget::targets::reachable_stream;
 use reachgrasp::mapping::{MappingModel, RetargetOptions, Retargeter};
+use reachgrasp::service::retarget::KeypointFrameMsg;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
@@ -45,16 +46,7 @@ async fn register_ff16(app: &TestApp) -> String {
 }
 
 fn frame_json(kp: &KeypointFrame, seq: u64) -> Value {
-    let mut v = json!({
-        "seq": seq,
-        "t": kp.t,
-        "points": kp.points.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>(),
-    });
-    if let (Some(e), Some(s)) = (kp.elbow, kp.shoulder) {
-        v["elbow"] = json!([e.x, e.y, e.z]);
-        v["shoulder"] = json!([s.x, s.y, s.z]);
-    }
-    v
+    serde_json::to_value(KeypointFrameMsg::new(kp, Some(seq))).unwrap()
 }
 
 type Ws =
@@ -252,34 +244,22 @@ fn study_keypoints(seed: u64) -> StudyKeypoints {
     let demo = ingest(&input).unwrap();
     let dims = demo.subject.hand_dims().unwrap();
     let mut hk = HandKinematics::new(&dims, demo.subject.handedness);
-    let names: Vec<String> = [
-        "wrist",
-        "thumb_metacarpal",
-        "thumb_proximal",
-        "thumb_distal",
-        "thumb_tip",
-    ]
-    .iter()
-    .map(|s| s.to_string())
-    .chain(["index", "middle", "ring", "little"].iter().flat_map(|f| {
-        ["proximal", "middle", "distal", "tip"]
-            .iter()
-            .map(move |s| format!("{f}_{s}"))
-    }))
-    .collect();
     let mut stream = KeypointStream::default();
     let mut frames = Vec::new();
     for (f, g) in demo.frames.iter().zip(&demo.glove) {
-        hk.fingertips(&f.wrist, &g[..20]);
-        let points: [nalgebra::Point3<f64>; 21] = std::array::from_fn(|k| {
-            f.wrist * nalgebra::Point3::from(hk.frame(&names[k]).unwrap().translation.vector)
-        });
+        let points = hk.keypoints(&f.wrist, &g[..20]);
         stream.t.push(f.t);
         stream
             .points
             .push(points.iter().map(|p| vec![p.x, p.y, p.z]).collect());
-        stream.elbow.push(f.elbow.coords.as_slice().to_vec());
-        stream.shoulder.push(f.shoulder.coords.as_slice().to_vec());
+        stream
+            .elbow
+            .get_or_insert_with(Vec::new)
+            .push(f.elbow.coords.as_slice().to_vec());
+        stream
+            .shoulder
+            .get_or_insert_with(Vec::new)
+            .push(f.shoulder.coords.as_slice().to_vec());
         frames.push(KeypointFrame {
             t: f.t,
             points,
@@ -365,6 +345,58 @@ async fn keypoint_recordings_are_demonstrations_that_map() {
         .post_json(
             "/v1/mappings",
             &json!({"robot": "wam_t42", "demonstrations": [id], "output_rate_hz": 30}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+    let job: Value = res.json().await.unwrap();
+    let done = app
+        .wait_job(job["id"].as_str().unwrap(), |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+
+    // The hand alone (no elbow, no shoulder): stored, refused by an arm system at submission
+    // (the demonstration named), mapped by a hand on a fixed base.
+    let mut hand = s.stream.clone();
+    (hand.elbow, hand.shoulder) = (None, None);
+    let mut labels = d.labels.clone();
+    labels.external_id = Some("kp-hand".into());
+    let res = app
+        .post_json(
+            "/v1/demonstrations",
+            &json!({"subject": d.subject, "object": d.object, "labels": labels,
+                    "sync": {"rate_hz": 60.0}, "keypoints": hand}),
+        )
+        .await;
+    assert_eq!(res.status(), 201, "{}", res.text().await.unwrap());
+    let hand_id = res.json::<Value>().await.unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    let p = assert_problem(
+        app.post_json(
+            "/v1/mappings",
+            &json!({"robot": "wam_t42", "demonstrations": [hand_id]}),
+        )
+        .await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(p["errors"][0]["path"], "$.demonstrations[0]", "{p}");
+    assert!(
+        p["errors"][0]["message"]
+            .as_str()
+            .unwrap()
+            .contains("hand on a fixed base"),
+        "{p}"
+    );
+    let ff16 = register_ff16(&app).await;
+    let res = app
+        .post_json(
+            "/v1/mappings",
+            &json!({"robot": ff16, "demonstrations": [hand_id], "output_rate_hz": 30}),
         )
         .await;
     assert_eq!(res.status(), 202);

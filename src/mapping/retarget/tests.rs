@@ -4,7 +4,6 @@ use nalgebra::Point3;
 
 use super::targets::{ReachableStream, reachable_stream};
 use super::*;
-use crate::human::keypoints::KEYPOINT_COUNT;
 use crate::human::{HandDims, HandKinematics, HumanFrame, StudyConfig, generate_study, ingest};
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::mapping::objective::tests::system;
@@ -245,34 +244,16 @@ pub(crate) fn study_keypoints(seed: u64) -> (Vec<KeypointFrame>, Vec<HumanFrame>
     let demo = ingest(input).unwrap();
     let dims: HandDims = demo.subject.hand_dims().unwrap();
     let mut hk = HandKinematics::new(&dims, demo.subject.handedness);
-    let names: [String; KEYPOINT_COUNT] = std::array::from_fn(|k| match k {
-        0 => "wrist".to_string(),
-        1 => "thumb_metacarpal".into(),
-        2 => "thumb_proximal".into(),
-        3 => "thumb_distal".into(),
-        4 => "thumb_tip".into(),
-        _ => {
-            let f = ["index", "middle", "ring", "little"][(k - 5) / 4];
-            let s = ["proximal", "middle", "distal", "tip"][(k - 5) % 4];
-            format!("{f}_{s}")
-        }
-    });
     let kps = demo
         .frames
         .iter()
         .zip(&demo.glove)
-        .map(|(f, g)| {
-            hk.fingertips(&f.wrist, &g[..20]);
-            let points = std::array::from_fn(|k| {
-                f.wrist * Point3::from(hk.frame(&names[k]).unwrap().translation.vector)
-            });
-            KeypointFrame {
-                t: f.t,
-                points,
-                wrist_orientation: None,
-                elbow: Some(f.elbow),
-                shoulder: Some(f.shoulder),
-            }
+        .map(|(f, g)| KeypointFrame {
+            t: f.t,
+            points: hk.keypoints(&f.wrist, &g[..20]),
+            wrist_orientation: None,
+            elbow: Some(f.elbow),
+            shoulder: Some(f.shoulder),
         })
         .collect();
     (kps, demo.frames)
