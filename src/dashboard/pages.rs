@@ -606,17 +606,29 @@ pub async fn demonstration(State(state): State<AppState>, Path(id): Path<String>
             ("duration", format!("{} s", num(s.duration_s, 3))),
             (
                 "raw samples",
-                format!(
-                    "tracker {} ({} Hz), glove {} ({} Hz)",
-                    s.tracker_samples,
-                    num(s.tracker_rate_hz, 1),
-                    s.glove_samples,
-                    num(s.glove_rate_hz, 1)
-                )
+                match s.source {
+                    crate::human::Source::TrackerGlove => format!(
+                        "tracker {} ({} Hz), glove {} ({} Hz)",
+                        s.tracker_samples,
+                        num(s.tracker_rate_hz, 1),
+                        s.glove_samples,
+                        num(s.glove_rate_hz, 1)
+                    ),
+                    crate::human::Source::Keypoints => format!(
+                        "hand keypoints {} ({} Hz)",
+                        s.tracker_samples,
+                        num(s.tracker_rate_hz, 1)
+                    ),
+                }
             ),
             (
                 "source",
-                if r.synthetic { "synthetic" } else { "recorded" }.into()
+                match (r.synthetic, s.source) {
+                    (true, _) => "synthetic",
+                    (false, crate::human::Source::TrackerGlove) => "recorded (tracker + glove)",
+                    (false, crate::human::Source::Keypoints) => "recorded (hand keypoints)",
+                }
+                .into()
             ),
             (
                 "API",

@@ -299,6 +299,14 @@ async fn keypoint_recordings_are_demonstrations_that_map() {
     let first = &frames["frames"][0];
     assert_eq!(first["glove"].as_array().unwrap().len(), 0, "{first}");
     assert_eq!(first["fingertips"].as_array().unwrap().len(), 5);
+    // The dashboard says what the recording is.
+    let page = app
+        .get(&format!("/ui/demonstrations/{id}"))
+        .await
+        .text()
+        .await
+        .unwrap();
+    assert!(page.contains("recorded (hand keypoints)"), "{page}");
 
     // CSV, under another external id.
     let mut labels = d.labels.clone();
