@@ -623,12 +623,14 @@ pub async fn demonstration(State(state): State<AppState>, Path(id): Path<String>
             ),
             (
                 "source",
-                match (r.synthetic, s.source) {
-                    (true, _) => "synthetic",
-                    (false, crate::human::Source::TrackerGlove) => "recorded (tracker + glove)",
-                    (false, crate::human::Source::Keypoints) => "recorded (hand keypoints)",
-                }
-                .into()
+                format!(
+                    "{} ({})",
+                    if r.synthetic { "synthetic" } else { "recorded" },
+                    match s.source {
+                        crate::human::Source::TrackerGlove => "tracker + glove",
+                        crate::human::Source::Keypoints => "hand keypoints",
+                    }
+                )
             ),
             (
                 "API",

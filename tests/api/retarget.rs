@@ -306,7 +306,11 @@ async fn keypoint_recordings_are_demonstrations_that_map() {
         .text()
         .await
         .unwrap();
-    assert!(page.contains("recorded (hand keypoints)"), "{page}");
+    assert!(
+        page.contains("synthetic (hand keypoints)")
+            && page.contains("hand keypoints 103 (60.0 Hz)"),
+        "{page}"
+    );
 
     // CSV, under another external id.
     let mut labels = d.labels.clone();
