@@ -178,6 +178,9 @@ pub struct SummaryDto {
     /// `tracker_glove` or `keypoints` (then `tracker_*` are the keypoint samples, and frames
     /// have no glove angles).
     pub source: human::Source,
+    /// Whether the frames carry the elbow and shoulder (false: the hand alone, which maps only
+    /// onto a hand on a fixed base).
+    pub arm: bool,
 }
 
 impl From<IngestSummary> for SummaryDto {
@@ -192,6 +195,7 @@ impl From<IngestSummary> for SummaryDto {
             tracker_rate_hz: s.tracker_rate_hz,
             glove_rate_hz: s.glove_rate_hz,
             source: s.source,
+            arm: s.arm,
         }
     }
 }

@@ -615,9 +615,14 @@ pub async fn demonstration(State(state): State<AppState>, Path(id): Path<String>
                         num(s.glove_rate_hz, 1)
                     ),
                     crate::human::Source::Keypoints => format!(
-                        "hand keypoints {} ({} Hz)",
+                        "hand keypoints {} ({} Hz){}",
                         s.tracker_samples,
-                        num(s.tracker_rate_hz, 1)
+                        num(s.tracker_rate_hz, 1),
+                        if s.arm {
+                            ", with elbow and shoulder"
+                        } else {
+                            ", the hand alone: maps onto a hand on a fixed base only"
+                        }
                     ),
                 }
             ),

@@ -442,6 +442,14 @@ pub struct IngestSummary {
     /// glove figures are 0: there are no glove angles).
     #[serde(default)]
     pub source: Source,
+    /// Whether the frames carry the subject's elbow and shoulder (false for a keypoint recording
+    /// of the hand alone, which maps only onto a hand on a fixed base).
+    #[serde(default = "yes")]
+    pub arm: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// Where a demonstration's hand comes from.
@@ -797,6 +805,7 @@ pub fn ingest(input: &DemonstrationInput) -> Result<Demonstration, HumanError> {
             tracker_rate_hz: mean_rate(&tracker.t),
             glove_rate_hz: mean_rate(&gt),
             source: Source::TrackerGlove,
+            arm: true,
         },
         frames,
         glove: angles,
@@ -935,6 +944,7 @@ fn ingest_keypoints(
             tracker_rate_hz: mean_rate(&k.t),
             glove_rate_hz: 0.0,
             source: Source::Keypoints,
+            arm: arm.is_some(),
         },
         glove: vec![[f64::NAN; 22]; count],
         frames,

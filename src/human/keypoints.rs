@@ -463,6 +463,7 @@ mod tests {
         let k = hand.keypoints.as_mut().unwrap();
         (k.elbow, k.shoulder) = (None, None);
         let alone = ingest(&hand).unwrap();
+        assert!(from_kp.summary.arm && !alone.summary.arm);
         for (a, b) in alone.frames.iter().zip(&from_kp.frames) {
             assert_eq!(a.fingertips, b.fingertips);
             assert_eq!(a.elbow.coords, a.wrist.translation.vector);

@@ -289,6 +289,7 @@ async fn keypoint_recordings_are_demonstrations_that_map() {
     assert_eq!(res.status(), 201, "{}", res.text().await.unwrap());
     let demo: Value = res.json().await.unwrap();
     assert_eq!(demo["summary"]["source"], "keypoints", "{demo}");
+    assert_eq!(demo["summary"]["arm"], true, "{demo}");
     let id = demo["id"].as_str().unwrap().to_owned();
     let frames: Value = app
         .get(&format!("/v1/demonstrations/{id}/frames?every=10"))
@@ -308,7 +309,7 @@ async fn keypoint_recordings_are_demonstrations_that_map() {
         .unwrap();
     assert!(
         page.contains("synthetic (hand keypoints)")
-            && page.contains("hand keypoints 103 (60.0 Hz)"),
+            && page.contains("hand keypoints 103 (60.0 Hz), with elbow and shoulder"),
         "{page}"
     );
 
@@ -382,10 +383,9 @@ async fn keypoint_recordings_are_demonstrations_that_map() {
         )
         .await;
     assert_eq!(res.status(), 201, "{}", res.text().await.unwrap());
-    let hand_id = res.json::<Value>().await.unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_owned();
+    let hand_demo: Value = res.json().await.unwrap();
+    assert_eq!(hand_demo["summary"]["arm"], false, "{hand_demo}");
+    let hand_id = hand_demo["id"].as_str().unwrap().to_owned();
     let p = assert_problem(
         app.post_json(
             "/v1/mappings",
