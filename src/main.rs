@@ -279,6 +279,11 @@ struct SynthArgs {
     /// Print `{external_id, subject, object, summary}` per demonstration instead of the streams.
     #[arg(long)]
     summary: bool,
+    /// Write each demonstration as a hand keypoint recording (`keypoints` instead of `tracker`
+    /// and `glove`: the 21 MANO / MediaPipe points of the subject's hand model, with the elbow
+    /// and shoulder), as a camera or headset would deliver it.
+    #[arg(long, conflicts_with = "summary")]
+    keypoints: bool,
 }
 
 /// A failure is one line on stderr (its causes joined by `: `), not a debug dump: the user's
@@ -549,6 +554,26 @@ fn synth(args: SynthArgs) -> anyhow::Result<()> {
             .collect::<anyhow::Result<Vec<_>>>()?;
         bar.finish_and_clear();
         serde_json::to_writer(&mut out, &rows)?;
+    } else if args.keypoints {
+        let bar = progress_bar(study.len(), "keypoints")?;
+        let docs = study
+            .iter()
+            .map(|input| {
+                let demo = ingest(input)?;
+                let recording = reachgrasp::human::keypoints::recording_of(&demo)
+                    .ok_or_else(|| anyhow::anyhow!("no glove angles to take keypoints from"))?;
+                bar.inc(1);
+                Ok(serde_json::json!({
+                    "subject": input.subject,
+                    "object": input.object,
+                    "labels": input.labels,
+                    "sync": {"rate_hz": input.sync.rate_hz, "max_gap_s": input.sync.max_gap_s},
+                    "keypoints": recording,
+                }))
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        bar.finish_and_clear();
+        serde_json::to_writer(&mut out, &docs)?;
     } else {
         serde_json::to_writer(&mut out, &study)?;
     }

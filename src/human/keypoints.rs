@@ -147,6 +147,33 @@ fn tip_orientation(
     frame(x, y)
 }
 
+/// The keypoint recording a perfect hand tracker would have made of an ingested glove
+/// demonstration: at every derived frame, the subject's hand model's 21 joint centres
+/// ([`super::HandKinematics::keypoints`]) at that frame's glove angles and wrist pose, with its
+/// elbow and shoulder. `None` for a demonstration without glove angles (itself a keypoint
+/// recording).
+pub fn recording_of(demo: &super::Demonstration) -> Option<super::KeypointStream> {
+    let dims = demo.subject.hand_dims().ok()?;
+    let mut hand = super::HandKinematics::new(&dims, demo.subject.handedness);
+    let xyz = |p: &Point3<f64>| vec![p.x, p.y, p.z];
+    let mut k = super::KeypointStream {
+        elbow: Some(Vec::with_capacity(demo.frames.len())),
+        shoulder: Some(Vec::with_capacity(demo.frames.len())),
+        ..super::KeypointStream::default()
+    };
+    for (f, g) in demo.frames.iter().zip(&demo.glove) {
+        if !g.iter().all(|a| a.is_finite()) {
+            return None;
+        }
+        k.t.push(f.t);
+        k.points
+            .push(hand.keypoints(&f.wrist, &g[..20]).iter().map(xyz).collect());
+        k.elbow.as_mut()?.push(xyz(&f.elbow));
+        k.shoulder.as_mut()?.push(xyz(&f.shoulder));
+    }
+    Some(k)
+}
+
 /// Checks a keypoint frame: every coordinate finite and within [`MAX_KEYPOINT_DISTANCE_M`], the
 /// orientation (if any) normalisable. `stream` and `index` locate errors (`keypoints`, sample).
 pub fn validate(kp: &KeypointFrame, stream: &'static str, index: usize) -> Result<(), HumanError> {
@@ -376,7 +403,7 @@ mod tests {
     /// ingest's fingertips exactly, and through CSV the same; bad rows name their sample.
     #[test]
     fn a_keypoint_recording_ingests_into_the_glove_recordings_frames() {
-        use crate::human::demo::{DemonstrationInput, KeypointStream, Source};
+        use crate::human::demo::{DemonstrationInput, Source};
         use crate::human::{StudyConfig, generate_study, ingest};
         let cfg = StudyConfig {
             seed: 5,
@@ -390,25 +417,24 @@ mod tests {
         let demo = ingest(&input).unwrap();
         let dims = demo.subject.hand_dims().unwrap();
         let mut hk = HandKinematics::new(&dims, demo.subject.handedness);
-        let mut k = KeypointStream {
-            elbow: Some(Vec::new()),
-            shoulder: Some(Vec::new()),
-            ..KeypointStream::default()
-        };
+        // The model's keypoints at every frame (checked against its fingertips by
+        // `model_keypoints`), as `recording_of` writes them.
         for (f, g) in demo.frames.iter().zip(&demo.glove) {
-            let (points, _) = model_keypoints(&mut hk, &f.wrist, &g[..20]);
-            k.t.push(f.t);
-            k.points
-                .push(points.iter().map(|p| vec![p.x, p.y, p.z]).collect());
-            k.elbow
-                .as_mut()
-                .unwrap()
-                .push(f.elbow.coords.as_slice().to_vec());
-            k.shoulder
-                .as_mut()
-                .unwrap()
-                .push(f.shoulder.coords.as_slice().to_vec());
+            model_keypoints(&mut hk, &f.wrist, &g[..20]);
         }
+        let k = recording_of(&demo).unwrap();
+        assert!(
+            recording_of(
+                &ingest(&DemonstrationInput {
+                    tracker: Default::default(),
+                    glove: Default::default(),
+                    keypoints: Some(k.clone()),
+                    ..input.clone()
+                })
+                .unwrap()
+            )
+            .is_none()
+        );
         let mut kin = DemonstrationInput {
             tracker: Default::default(),
             glove: Default::default(),

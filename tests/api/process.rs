@@ -341,6 +341,45 @@ fn the_example_files_the_help_names_run() {
     let median = rt["target_error_m"][0].as_f64().unwrap();
     assert!(median < 1e-3, "median fingertip error {median} m");
 
+    // `synth --keypoints` writes keypoint recordings that ingest into the glove recordings'
+    // fingertips (the same study, the same seed).
+    let args = [
+        "synth",
+        "--subjects",
+        "1",
+        "--positions",
+        "1",
+        "--trials",
+        "1",
+        "--objects",
+        "ball",
+    ];
+    let glove = cli(&args).output().unwrap();
+    let kp = cli(&[&args[..], &["--keypoints"]].concat())
+        .output()
+        .unwrap();
+    assert!(glove.status.success() && kp.status.success(), "{kp:?}");
+    let glove: Vec<reachgrasp::human::DemonstrationInput> =
+        serde_json::from_slice(&glove.stdout).unwrap();
+    let docs: Value = serde_json::from_slice(&kp.stdout).unwrap();
+    let doc = &docs[0];
+    assert!(
+        doc.get("tracker").is_none() && doc.get("glove").is_none(),
+        "{doc}"
+    );
+    let kp: reachgrasp::human::DemonstrationInput = serde_json::from_value(doc.clone()).unwrap();
+    let (a, b) = (
+        reachgrasp::human::ingest(&glove[0]).unwrap(),
+        reachgrasp::human::ingest(&kp).unwrap(),
+    );
+    assert_eq!(b.summary.source, reachgrasp::human::Source::Keypoints);
+    assert_eq!(a.frames.len(), b.frames.len());
+    for (x, y) in a.frames.iter().zip(&b.frames) {
+        for (p, q) in x.fingertips.iter().zip(&y.fingertips) {
+            assert!((p.translation.vector - q.translation.vector).norm() < 1e-9);
+        }
+    }
+
     // `plan` needs a database with trained models; without one it says so in one line
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("none.db");
