@@ -717,6 +717,16 @@ fn validate_object(o: &ObjectSpec) -> Result<(), HumanError> {
     Ok(())
 }
 
+/// Frames on the grid `start + k·dt` within `[start, end]` (none when `end ≤ start`), with a
+/// hair of tolerance so that an end exactly on the grid is kept despite rounding.
+fn grid_frames(start: f64, end: f64, dt: f64) -> usize {
+    if end > start {
+        ((end - start) / dt + 1e-9).floor() as usize + 1
+    } else {
+        0
+    }
+}
+
 fn mean_rate(t: &[f64]) -> f64 {
     if t.len() < 2 {
         0.0
@@ -745,12 +755,7 @@ pub fn ingest(input: &DemonstrationInput) -> Result<Demonstration, HumanError> {
     let start = t0.max(g0);
     let end = t1.min(g1);
     let dt = 1.0 / input.sync.rate_hz;
-    // A hair of tolerance so that an end exactly on the grid is kept despite rounding.
-    let n = if end > start {
-        ((end - start) / dt + 1e-9).floor() as usize + 1
-    } else {
-        0
-    };
+    let n = grid_frames(start, end, dt);
     if n < 2 {
         return Err(HumanError::NoOverlap {
             tracker_start: t0,
@@ -898,11 +903,7 @@ fn ingest_keypoints(
     }
     let (start, end) = (k.t[0], k.t[n - 1]);
     let dt = 1.0 / input.sync.rate_hz;
-    let count = if end > start {
-        ((end - start) / dt + 1e-9).floor() as usize + 1
-    } else {
-        0
-    };
+    let count = grid_frames(start, end, dt);
     if count < 2 {
         return Err(HumanError::InvalidParameter {
             field: "keypoints.t".into(),

@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use futures::{SinkExt, StreamExt};
 use reachgrasp::human::csv::keypoints_to_csv;
+use reachgrasp::human::keypoints::recording_of;
 use reachgrasp::human::{
     HandKinematics, KeypointFrame, KeypointStream, StudyConfig, generate_study, ingest,
 };
@@ -223,6 +224,24 @@ async fn retargeting_options_are_checked_before_the_upgrade_and_arm_systems_need
     }
 }
 
+/// Maps one demonstration onto `robot` at 30 Hz and waits for the job to succeed.
+async fn map_to_success(app: &TestApp, robot: &str, demonstration: &str) {
+    let res = app
+        .post_json(
+            "/v1/mappings",
+            &json!({"robot": robot, "demonstrations": [demonstration], "output_rate_hz": 30}),
+        )
+        .await;
+    assert_eq!(res.status(), 202);
+    let job: Value = res.json().await.unwrap();
+    let done = app
+        .wait_job(job["id"].as_str().unwrap(), |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(done["status"], "succeeded", "{done}");
+}
+
 struct StudyKeypoints {
     stream: KeypointStream,
     frames: Vec<KeypointFrame>,
@@ -244,30 +263,19 @@ fn study_keypoints(seed: u64) -> StudyKeypoints {
     let demo = ingest(&input).unwrap();
     let dims = demo.subject.hand_dims().unwrap();
     let mut hk = HandKinematics::new(&dims, demo.subject.handedness);
-    let mut stream = KeypointStream::default();
-    let mut frames = Vec::new();
-    for (f, g) in demo.frames.iter().zip(&demo.glove) {
-        let points = hk.keypoints(&f.wrist, &g[..20]);
-        stream.t.push(f.t);
-        stream
-            .points
-            .push(points.iter().map(|p| vec![p.x, p.y, p.z]).collect());
-        stream
-            .elbow
-            .get_or_insert_with(Vec::new)
-            .push(f.elbow.coords.as_slice().to_vec());
-        stream
-            .shoulder
-            .get_or_insert_with(Vec::new)
-            .push(f.shoulder.coords.as_slice().to_vec());
-        frames.push(KeypointFrame {
+    let stream = recording_of(&demo).unwrap();
+    let frames = demo
+        .frames
+        .iter()
+        .zip(&demo.glove)
+        .map(|(f, g)| KeypointFrame {
             t: f.t,
-            points,
+            points: hk.keypoints(&f.wrist, &g[..20]),
             wrist_orientation: None,
             elbow: Some(f.elbow),
             shoulder: Some(f.shoulder),
-        });
-    }
+        })
+        .collect();
     StudyKeypoints {
         stream,
         frames,
@@ -354,20 +362,7 @@ async fn keypoint_recordings_are_demonstrations_that_map() {
     assert_eq!(p["errors"][0]["path"], "$.tracker", "{p}");
 
     // It maps like a glove recording.
-    let res = app
-        .post_json(
-            "/v1/mappings",
-            &json!({"robot": "wam_t42", "demonstrations": [id], "output_rate_hz": 30}),
-        )
-        .await;
-    assert_eq!(res.status(), 202);
-    let job: Value = res.json().await.unwrap();
-    let done = app
-        .wait_job(job["id"].as_str().unwrap(), |j| {
-            j["status"] != "queued" && j["status"] != "running"
-        })
-        .await;
-    assert_eq!(done["status"], "succeeded", "{done}");
+    map_to_success(&app, "wam_t42", &id).await;
 
     // The hand alone (no elbow, no shoulder): stored, refused by an arm system at submission
     // (the demonstration named), mapped by a hand on a fixed base.
@@ -405,18 +400,5 @@ async fn keypoint_recordings_are_demonstrations_that_map() {
         "{p}"
     );
     let ff16 = register_ff16(&app).await;
-    let res = app
-        .post_json(
-            "/v1/mappings",
-            &json!({"robot": ff16, "demonstrations": [hand_id], "output_rate_hz": 30}),
-        )
-        .await;
-    assert_eq!(res.status(), 202);
-    let job: Value = res.json().await.unwrap();
-    let done = app
-        .wait_job(job["id"].as_str().unwrap(), |j| {
-            j["status"] != "queued" && j["status"] != "running"
-        })
-        .await;
-    assert_eq!(done["status"], "succeeded", "{done}");
+    map_to_success(&app, &ff16, &hand_id).await;
 }
