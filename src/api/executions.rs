@@ -54,7 +54,7 @@ pub struct InlineTrajectory {
 pub struct CreateExecution {
     /// Robot system id, e.g. `wam_ihy`.
     pub robot: String,
-    pub mode: Mode,
+    pub mode: crate::store::payload::RequestedMode,
     /// A stored trajectory (`POST /v1/trajectories`).
     pub trajectory_id: Option<String>,
     /// An inline trajectory.
@@ -79,7 +79,7 @@ pub struct ExecutionDto {
     pub state: String,
     /// Why it failed, aborted, was cancelled or interrupted.
     pub reason: Option<String>,
-    /// `trajectory` or `model`.
+    /// `trajectory`, `model` or `stream` (a streaming execution: teleoperation).
     pub kind: String,
     /// The stored trajectory or model it came from (`inline` for an inline trajectory).
     pub source_id: String,
@@ -254,7 +254,7 @@ async fn create_execution(
         service::create(
             &state,
             &body.robot,
-            body.mode,
+            body.mode.into(),
             source,
             goal,
             body.worker.as_deref(),

@@ -14,8 +14,8 @@ use utoipa_axum::routes;
 
 use super::{ApiError, AppState, Path, Problem, Query};
 use crate::service::retarget::{
-    self as service, KeypointFrameMsg, RetargetFrameError, RetargetJoints, RetargetQuery,
-    RetargetReady, Session,
+    self as service, ForwardStatus, KeypointFrameMsg, RetargetFrameError, RetargetJoints,
+    RetargetQuery, RetargetReady, Session,
 };
 
 /// The stream's message schemas (no HTTP operation carries them).
@@ -24,7 +24,8 @@ use crate::service::retarget::{
     KeypointFrameMsg,
     RetargetReady,
     RetargetJoints,
-    RetargetFrameError
+    RetargetFrameError,
+    ForwardStatus
 )))]
 struct StreamDoc;
 
@@ -46,6 +47,13 @@ const MAX_MESSAGE: usize = 64 << 10;
 /// elbow swivel difference and the server-side latency) or `error` (`RetargetFrameError`: the
 /// frame is refused, the stream stays open and unchanged). The first frame is solved from
 /// several starts, later ones warm-started from the previous solution.
+///
+/// Teleoperation: with `forward=true` the session also starts a streaming execution on an idle
+/// connected bridge worker of the robot with the `streaming` capability (409 when there is
+/// none); each answer's `q` goes to it as a setpoint and the answer says what became of it
+/// (`forward`: sent, skipped, closed; the robot's measured joints). Closing the stream ends the
+/// execution (`succeeded`); cancelling the execution stops the robot while the stream goes on
+/// retargeting. A worker brakes to a stop when the setpoints pause for `hold_after_s`.
 #[utoipa::path(get, path = "/v1/robots/{id}/retarget", tag = "robots",
     params(("id" = String, Path, description = "Robot id"), RetargetQuery),
     responses(
@@ -53,6 +61,9 @@ const MAX_MESSAGE: usize = 64 << 10;
         (status = 400, description = "Not a WebSocket upgrade request", body = Problem,
          content_type = "application/problem+json"),
         (status = 404, description = "Unknown robot", body = Problem,
+         content_type = "application/problem+json"),
+        (status = 409, description = "forward=true and no idle worker of the robot with the \
+         streaming capability is connected", body = Problem,
          content_type = "application/problem+json"),
         (status = 422, description = "A bad option (the query parameter named)", body = Problem,
          content_type = "application/problem+json"),
@@ -63,7 +74,7 @@ async fn retarget(
     Query(query): Query<RetargetQuery>,
     ws: Result<WebSocketUpgrade, WebSocketUpgradeRejection>,
 ) -> Response {
-    let session = match service::open(&state, &id, &query).await {
+    let mut session = match service::open(&state, &id, &query).await {
         Ok(s) => s,
         Err(e) => return ApiError::from(e).into_response(),
     };
@@ -74,6 +85,9 @@ async fn retarget(
                 .into_response();
         }
     };
+    if let Err(e) = session.forward(&state, &query).await {
+        return ApiError::from(e).into_response();
+    }
     let shutdown = state.shutdown.clone();
     ws.max_message_size(MAX_MESSAGE)
         .max_frame_size(MAX_MESSAGE)
@@ -83,12 +97,14 @@ async fn retarget(
 async fn serve(mut socket: WebSocket, mut session: Session, shutdown: crate::shutdown::Shutdown) {
     let ready = serde_json::to_string(&session.ready()).expect("serialisable");
     if socket.send(Message::Text(ready.into())).await.is_err() {
+        session.close().await;
         return;
     }
     loop {
         let msg = tokio::select! {
             m = socket.recv() => m,
             () = shutdown.wait() => {
+                session.close().await;
                 let _ = socket.send(Message::Close(None)).await;
                 return;
             }
@@ -104,9 +120,13 @@ async fn serve(mut socket: WebSocket, mut session: Session, shutdown: crate::shu
             ))
             .expect("serialisable"),
             Some(Ok(Message::Ping(_) | Message::Pong(_))) => continue,
-            Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return,
+            Some(Ok(Message::Close(_))) | None | Some(Err(_)) => {
+                session.close().await;
+                return;
+            }
         };
         if socket.send(Message::Text(reply.into())).await.is_err() || !session.alive() {
+            session.close().await;
             return;
         }
     }

@@ -362,6 +362,8 @@ impl Hub {
             let cap = match row.mode {
                 Mode::OpenLoop => Capability::OpenLoop,
                 Mode::ClosedLoop => Capability::ClosedLoop,
+                // Streams start on a claimed worker (`open_stream`) and are never queued.
+                Mode::Streaming => continue,
             };
             // A law with a scene runs only where the worker filters it (an unfiltered law
             // could drive the arm into what the plan avoided). Only a closed-loop payload can
@@ -372,7 +374,7 @@ impl Hub {
                     Some(p) => Some(p),
                     None => continue,
                 },
-                Mode::OpenLoop => None,
+                Mode::OpenLoop | Mode::Streaming => None,
             };
             let filtered = early.as_ref().is_some_and(|p| p.safety().is_some());
             let compatible = |w: &Worker| {
@@ -490,6 +492,117 @@ impl Hub {
             tracing::info!(execution = %row.id, worker = %name, "execution dispatched");
         }
         Ok(())
+    }
+
+    /// Starts a streaming execution (`payload`: a `stream`) on an idle connected worker of
+    /// `robot` with the `streaming` capability (the one named, if any): claims the worker,
+    /// stores the execution as `running` and sends `execute`. The returned handle sends the
+    /// setpoints and ends the stream. A stream is never queued: a teleoperator needs the robot
+    /// now or a clear refusal ([`BridgeError::NoWorker`]).
+    pub async fn open_stream(
+        &self,
+        robot: &str,
+        worker: Option<&WorkerName>,
+        payload: ExecutionPayload,
+    ) -> Result<StreamHandle, BridgeError> {
+        self.check(robot, Mode::Streaming, &payload).await?;
+        let id = uuid::Uuid::new_v4().to_string();
+        let claimed = {
+            let mut s = self.lock();
+            let fits = |w: &Worker| {
+                w.snapshot.robot == robot
+                    && w.snapshot.capabilities.contains(&Capability::Streaming)
+                    && worker.is_none_or(|n| n.as_str() == w.snapshot.name)
+            };
+            let any = s.workers.values().any(fits);
+            let pick = s
+                .workers
+                .iter_mut()
+                .filter(|(_, w)| w.snapshot.execution_id.is_none() && fits(w))
+                .min_by_key(|(c, _)| **c)
+                .map(|(c, w)| {
+                    w.snapshot.execution_id = Some(id.clone());
+                    (*c, w.snapshot.name.clone(), w.tx.clone())
+                });
+            pick.ok_or(any)
+        };
+        let (conn, name, tx) = claimed.map_err(|any| {
+            let which = worker.map_or_else(String::new, |n| format!(" named '{n}'"));
+            BridgeError::NoWorker(if any {
+                format!(
+                    "every connected worker{which} of robot '{robot}' with the streaming \
+                     capability is busy; retry when one is idle (GET /v1/bridges)"
+                )
+            } else {
+                format!(
+                    "no worker{which} of robot '{robot}' with the streaming capability is \
+                     connected (GET /v1/bridges lists the connected workers and what they can do)"
+                )
+            })
+        })?;
+        let release = |hub: &Hub| {
+            let mut s = hub.lock();
+            s.live.remove(&id);
+            if let Some(w) = s.workers.get_mut(&conn)
+                && w.snapshot.execution_id.as_deref() == Some(id.as_str())
+            {
+                w.snapshot.execution_id = None;
+            }
+        };
+        if let Err(e) = repo::insert_running(&self.0.db, &id, robot, &payload, &name).await {
+            release(self);
+            return Err(e.into());
+        }
+        let n = payload.joint_names().len();
+        {
+            let mut s = self.lock();
+            s.live.insert(
+                id.clone(),
+                Live {
+                    conn,
+                    n_joints: n,
+                    feedback: None,
+                    tracking: TrackingSummary::default(),
+                    history: Recorder::new(n),
+                    last_flush: Instant::now(),
+                    cancel_requested: false,
+                },
+            );
+            Self::touch(&mut s, &id, false);
+        }
+        let msg = ServiceMessage::Execute(Execute {
+            execution_id: id.clone(),
+            mode: Mode::Streaming,
+            payload,
+        });
+        if tx.try_send(msg).is_err() {
+            release(self);
+            let why = format!("worker '{name}' is not reading its connection");
+            repo::finish(
+                &self.0.db,
+                &id,
+                ExecutionState::Failed,
+                Some(&why),
+                None,
+                None,
+                None,
+            )
+            .await?;
+            self.notify_final(&id);
+            return Err(BridgeError::NoWorker(why));
+        }
+        tracing::info!(execution = %id, worker = %name, "stream started");
+        Ok(StreamHandle {
+            hub: self.clone(),
+            id,
+            worker: name,
+            tx,
+            seq: 0,
+            last: None,
+            sent: 0,
+            skipped: 0,
+            ended: false,
+        })
     }
 
     /// Cancels a live execution: a queued one at once, a running one by asking its worker
@@ -1205,5 +1318,150 @@ mod tests {
         assert!(WorkerName::parse("").is_err());
         assert!(WorkerName::parse("a b").is_err());
         assert!(WorkerName::parse(&"x".repeat(65)).is_err());
+    }
+}
+
+/// What [`StreamHandle::send`] did with a setpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StreamSend {
+    Sent,
+    /// The worker's outbox was full (it reads slower than the stream): this setpoint is
+    /// dropped, the next one carries on (the worker follows the latest).
+    Skipped,
+    /// The execution is over (cancelled, the worker disconnected or failed it).
+    Closed,
+}
+
+/// The sending end of a streaming execution ([`Hub::open_stream`]). Ending it (or dropping it)
+/// sends `end`: the worker stops and the execution succeeds.
+pub struct StreamHandle {
+    hub: Hub,
+    id: String,
+    worker: String,
+    tx: mpsc::Sender<ServiceMessage>,
+    seq: u64,
+    last: Option<(f64, Vec<f64>)>,
+    /// Setpoints sent and skipped so far.
+    pub sent: u64,
+    pub skipped: u64,
+    ended: bool,
+}
+
+impl fmt::Debug for StreamHandle {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("StreamHandle")
+            .field("id", &self.id)
+            .field("worker", &self.worker)
+            .field("sent", &self.sent)
+            .finish_non_exhaustive()
+    }
+}
+
+impl StreamHandle {
+    pub fn id(&self) -> &str {
+        &self.id
+    }
+
+    pub fn worker(&self) -> &str {
+        &self.worker
+    }
+
+    /// Whether the execution still runs on its worker.
+    pub fn live(&self) -> bool {
+        !self.ended && self.hub.lock().live.contains_key(&self.id)
+    }
+
+    /// The worker's latest feedback (measured positions, tracking error), if any arrived.
+    pub fn feedback(&self) -> Option<Feedback> {
+        self.hub
+            .lock()
+            .live
+            .get(&self.id)
+            .and_then(|l| l.feedback.clone())
+    }
+
+    /// Sends the next setpoint: positions at stream time `t`, with the finite-difference
+    /// velocity from the previous one as feed-forward (zero for the first, and after a time
+    /// that does not increase).
+    pub fn send(&mut self, t: f64, positions: &[f64]) -> StreamSend {
+        if !self.live() {
+            return StreamSend::Closed;
+        }
+        let velocities = match &self.last {
+            Some((t0, q0)) if t > *t0 => positions
+                .iter()
+                .zip(q0)
+                .map(|(q, p)| (q - p) / (t - t0))
+                .collect(),
+            _ => vec![0.0; positions.len()],
+        };
+        let msg = ServiceMessage::Setpoint(super::protocol::Setpoint {
+            execution_id: self.id.clone(),
+            seq: self.seq,
+            t,
+            positions: positions.to_vec(),
+            velocities,
+        });
+        self.seq += 1;
+        self.last = Some((t, positions.to_vec()));
+        match self.tx.try_send(msg) {
+            Ok(()) => {
+                self.sent += 1;
+                StreamSend::Sent
+            }
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                self.skipped += 1;
+                StreamSend::Skipped
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => StreamSend::Closed,
+        }
+    }
+
+    /// Ends the stream: `end` to the worker (which stops and succeeds the execution); where
+    /// that cannot be delivered, the execution is cancelled instead.
+    pub async fn end(mut self) {
+        self.finish().await;
+    }
+
+    async fn finish(&mut self) {
+        if self.ended {
+            return;
+        }
+        self.ended = true;
+        end_stream(&self.hub, &self.id, &self.tx).await;
+    }
+}
+
+/// Sends `end` for stream `id` (cancels it where that cannot be delivered); nothing when it is
+/// already over.
+async fn end_stream(hub: &Hub, id: &str, tx: &mpsc::Sender<ServiceMessage>) {
+    if !hub.lock().live.contains_key(id) {
+        return;
+    }
+    let end = ServiceMessage::End(super::protocol::End {
+        execution_id: id.to_owned(),
+    });
+    let delivered = matches!(
+        tokio::time::timeout(Duration::from_secs(1), tx.send(end)).await,
+        Ok(Ok(()))
+    );
+    if !delivered && let Err(e) = hub.cancel(id).await {
+        tracing::warn!(execution = %id, error = %e, "cannot end a stream");
+    }
+}
+
+impl Drop for StreamHandle {
+    fn drop(&mut self) {
+        if self.ended {
+            return;
+        }
+        self.ended = true;
+        // Dropped without `end` (the sender's task ended abruptly): end it in the background so
+        // the worker does not hold the execution forever. (A runtime shutting down drops the
+        // task; the worker's hold then stops the robot, and its disconnect ends the execution.)
+        if let Ok(rt) = tokio::runtime::Handle::try_current() {
+            let (hub, id, tx) = (self.hub.clone(), self.id.clone(), self.tx.clone());
+            rt.spawn(async move { end_stream(&hub, &id, &tx).await });
+        }
     }
 }

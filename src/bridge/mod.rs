@@ -20,7 +20,7 @@ pub use client::{
     Completion, FakeClient, Finished, HubClient, JointLimits, LimitChecked, Rejected, Trajectory,
     TrajectoryClient,
 };
-pub use hub::{Hub, HubSettings, TrackingSummary, WorkerSnapshot};
+pub use hub::{Hub, HubSettings, StreamHandle, StreamSend, TrackingSummary, WorkerSnapshot};
 pub use protocol::{ExecutionPayload, Mode};
 
 use crate::store::library::LibraryError;
@@ -65,6 +65,8 @@ pub enum PayloadPart {
     JointNames,
     Points,
     Goal,
+    /// A stream's settings.
+    Stream,
 }
 
 /// One problem with a payload: its part, where inside it (`[3].positions[2]`, or empty), and
@@ -96,6 +98,9 @@ pub enum BridgeError {
     InvalidWorkerName(String),
     #[error("the payload does not fit the robot: {}", .0.first().map_or("", |i| i.message.as_str()))]
     InvalidPayload(Vec<PayloadIssue>),
+    /// No connected worker can take a stream now (none with the capability, or all busy).
+    #[error("{0}")]
+    NoWorker(String),
     #[error("no execution '{0}'")]
     UnknownExecution(String),
     #[error("execution {id} has already finished ({state})")]
@@ -218,6 +223,28 @@ pub fn validate_payload(
                         ),
                     ));
                 }
+            }
+        }
+        ExecutionPayload::Stream {
+            rate_hz,
+            hold_after_s,
+            ..
+        } => {
+            if !(hold_after_s.is_finite() && (0.01..=10.0).contains(hold_after_s)) {
+                errors.push(PayloadIssue::new(
+                    P::Stream,
+                    "hold_after_s",
+                    format!("must be in [0.01, 10] s, got {hold_after_s}"),
+                ));
+            }
+            if let Some(r) = rate_hz
+                && !(r.is_finite() && (0.1..=1000.0).contains(r))
+            {
+                errors.push(PayloadIssue::new(
+                    P::Stream,
+                    "rate_hz",
+                    format!("must be in [0.1, 1000] Hz, got {r}"),
+                ));
             }
         }
         ExecutionPayload::Model { params, goal, .. } => {

@@ -2,7 +2,8 @@
 //! at `/v1/bridges/connect`, each an object whose `type` names the message.
 //!
 //! Worker → service: [`WorkerMessage`] (`hello`, `heartbeat`, `feedback`, `result`).
-//! Service → worker: [`ServiceMessage`] (`welcome`, `execute`, `cancel`, `error`).
+//! Service → worker: [`ServiceMessage`] (`welcome`, `execute`, `cancel`, `error`, and for a
+//! streaming execution `setpoint` and `end`).
 //!
 //! The first frame a worker sends is `hello`, carrying the protocol version it speaks; the
 //! service answers `welcome` (or `error` with `fatal: true` and closes). These types are shared
@@ -34,6 +35,10 @@ pub enum Capability {
     /// Runs a closed-loop law through the control-barrier-function safety filter of its
     /// payload's `safety` scene (a payload with a scene goes only to such a worker).
     SafetyFilter,
+    /// Follows live joint setpoints (a `stream` payload, then `setpoint` messages until `end`):
+    /// teleoperation from the retargeting WebSocket. Added to protocol version 1 without a
+    /// version change: a worker that does not announce it never receives either message.
+    Streaming,
 }
 
 /// First message of a worker.
@@ -162,6 +167,30 @@ pub struct Execute {
     pub payload: ExecutionPayload,
 }
 
+/// The next joint setpoint of a streaming execution (sent as fast as the stream produces
+/// them; the worker moves toward the latest within its limits and may skip stale ones).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Setpoint {
+    pub execution_id: String,
+    /// Consecutive from 0 within the execution (a gap: the service skipped a setpoint because
+    /// the worker's outbox was full).
+    pub seq: u64,
+    /// Stream time of the setpoint, s (the retargeted frame's `t`).
+    pub t: f64,
+    /// Joint positions in the payload's `joint_names` order.
+    pub positions: Vec<f64>,
+    /// Feed-forward joint velocities (the finite difference to the previous setpoint; zero on
+    /// the first).
+    pub velocities: Vec<f64>,
+}
+
+/// The end of a streaming execution (the stream closed): the worker stops where it is and
+/// answers with a `result`, outcome `succeeded`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct End {
+    pub execution_id: String,
+}
+
 /// Stop an execution (the worker answers with a `result`, outcome `aborted`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct Cancel {
@@ -214,6 +243,8 @@ pub enum ServiceMessage {
     Execute(Execute),
     Cancel(Cancel),
     Error(ErrorReply),
+    Setpoint(Setpoint),
+    End(End),
 }
 
 /// Why a text frame is not a [`WorkerMessage`].

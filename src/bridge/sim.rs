@@ -13,7 +13,7 @@
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::protocol::{Execute, ExecutionPayload, Feedback, Mode, Outcome, SafetyReport};
+use super::protocol::{Execute, ExecutionPayload, Feedback, Mode, Outcome, SafetyReport, Setpoint};
 use crate::geometry::barrier::SafetyFilter;
 use crate::geometry::{CollisionChecker, PathOptions, Polyline, SceneShape};
 use crate::grasp::{HandArm, Object, scene_checker};
@@ -235,6 +235,35 @@ enum Controller {
         /// The safety filter of a law with a scene.
         filter: Option<Box<SafetyFilter>>,
     },
+    /// A streaming execution: toward the latest setpoint (feed-forward velocity plus the
+    /// tracking gain), braking to a stop once none arrived for `hold_after` s.
+    Follow {
+        /// The latest setpoint's positions and velocities (None: none yet).
+        target: Option<(Vec<f64>, Vec<f64>)>,
+        /// Run time the latest setpoint arrived, s.
+        received_at: f64,
+        /// Stream time between the two latest setpoints, s (at most `hold_after`; 0 before the
+        /// second): how long the feed-forward velocity is applied.
+        interval: f64,
+        /// Stream time of the latest setpoint.
+        stream_t: f64,
+        hold_after: f64,
+        next_seq: u64,
+        stats: StreamStats,
+    },
+}
+
+/// What a streaming execution received.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StreamStats {
+    /// Setpoints taken.
+    pub received: u64,
+    /// Sequence numbers never seen (the service skipped them: a full outbox).
+    pub missing: u64,
+    /// Setpoints refused (wrong length, not finite, older than the latest).
+    pub refused: u64,
+    /// Control periods spent holding because the stream went quiet.
+    pub held_periods: u64,
 }
 
 /// What the safety filter saw over a run (see [`SafetyReport`]).
@@ -459,6 +488,20 @@ impl Run {
                     cursor: 0,
                 }
             }
+            ExecutionPayload::Stream { hold_after_s, .. } => {
+                if !(hold_after_s.is_finite() && *hold_after_s > 0.0) {
+                    return Err(format!("hold_after_s must be positive, got {hold_after_s}"));
+                }
+                Controller::Follow {
+                    target: None,
+                    received_at: 0.0,
+                    interval: 0.0,
+                    stream_t: f64::NAN,
+                    hold_after: *hold_after_s,
+                    next_seq: 0,
+                    stats: StreamStats::default(),
+                }
+            }
             ExecutionPayload::Model {
                 params,
                 goal,
@@ -590,6 +633,66 @@ impl Run {
         match self.controller {
             Controller::Track { .. } => Mode::OpenLoop,
             Controller::Law { .. } => Mode::ClosedLoop,
+            Controller::Follow { .. } => Mode::Streaming,
+        }
+    }
+
+    /// Takes a streaming execution's setpoint (positions clamped into the joint limits, as the
+    /// servo layer would). Refused (and counted): another execution's, one of the wrong
+    /// length or not finite, or one older than the latest (a setpoint that overtook another).
+    pub fn setpoint(&mut self, sp: &Setpoint, robot: &SimRobot) -> Result<(), String> {
+        let now = self.t;
+        let Controller::Follow {
+            target,
+            received_at,
+            interval,
+            stream_t,
+            hold_after,
+            next_seq,
+            stats,
+        } = &mut self.controller
+        else {
+            return Err("not a streaming execution".into());
+        };
+        let n = robot.q.len();
+        let valid = sp.positions.len() == n
+            && sp.velocities.len() == n
+            && sp
+                .positions
+                .iter()
+                .chain(&sp.velocities)
+                .all(|x| x.is_finite());
+        if sp.execution_id != self.id || !valid || sp.seq < *next_seq {
+            stats.refused += 1;
+            return Err(format!("setpoint {} refused", sp.seq));
+        }
+        stats.missing += sp.seq - *next_seq;
+        stats.received += 1;
+        *next_seq = sp.seq + 1;
+        let l = &robot.limits;
+        let q = sp
+            .positions
+            .iter()
+            .zip(l.lower.iter().zip(&l.upper))
+            .map(|(&x, (&lo, &hi))| x.clamp(lo, hi))
+            .collect();
+        *target = Some((q, sp.velocities.clone()));
+        *received_at = now;
+        let gap = sp.t - *stream_t;
+        *interval = if gap.is_finite() && gap > 0.0 {
+            gap.min(*hold_after)
+        } else {
+            0.0
+        };
+        *stream_t = sp.t;
+        Ok(())
+    }
+
+    /// A streaming execution's setpoint account (None for the other modes).
+    pub fn stream_stats(&self) -> Option<StreamStats> {
+        match &self.controller {
+            Controller::Follow { stats, .. } => Some(*stats),
+            _ => None,
         }
     }
 
@@ -674,6 +777,35 @@ impl Run {
                 self.reference
                     .clone_from(stages.get(*stage).unwrap_or(goal));
             }
+            Controller::Follow {
+                target,
+                received_at,
+                hold_after,
+                interval,
+                stats,
+                ..
+            } => match target {
+                Some((q, v)) if self.t - *received_at <= *hold_after => {
+                    // Until the next setpoint is due (one setpoint interval) the reference moves
+                    // on with the latest velocity, so a 30-60 Hz tracker drives a smooth 100 Hz
+                    // servo without a staircase lag; past that (the stream paused or ended) it
+                    // is the last setpoint itself, where the arm settles instead of coasting.
+                    let since = self.t - *received_at;
+                    let ff = if since < *interval { 1.0 } else { 0.0 };
+                    let l = &robot.limits;
+                    for j in 0..n {
+                        let r = (q[j] + ff * v[j] * since).clamp(l.lower[j], l.upper[j]);
+                        self.reference[j] = r;
+                        self.command[j] = ff * v[j] + self.opts.tracking_gain * (r - robot.q[j]);
+                    }
+                }
+                _ => {
+                    // No setpoint yet, or the stream went quiet: brake where the arm is.
+                    self.command.fill(0.0);
+                    self.reference.clone_from(&robot.q);
+                    stats.held_periods += 1;
+                }
+            },
         }
         robot.step(&self.command, dt);
         self.t += dt;
@@ -730,6 +862,8 @@ impl Run {
                     None
                 }
             }
+            // A stream ends only by `end` or `cancel`.
+            Controller::Follow { .. } => None,
             Controller::Law {
                 initial_error,
                 goal,
@@ -818,6 +952,103 @@ mod tests {
         }
         // reached a position limit and stopped there
         assert_eq!(r.q, vec![2.0, -2.0]);
+    }
+
+    /// A streaming run follows a sinusoid sent as 50 Hz setpoints (checked against the
+    /// sinusoid itself, not the setpoints), brakes to a standstill once they stop, and counts
+    /// skipped, stale and malformed setpoints.
+    #[test]
+    fn a_stream_follows_its_setpoints_and_brakes_when_they_stop() {
+        let names: Vec<String> = vec!["a".into(), "b".into()];
+        let mut robot = SimRobot::new(limits(2), vec![0.0, 0.0]);
+        let hold = 0.2;
+        let exec = Execute {
+            execution_id: "s".into(),
+            mode: Mode::Streaming,
+            payload: ExecutionPayload::Stream {
+                source: "test".into(),
+                joint_names: names.clone(),
+                rate_hz: Some(50.0),
+                hold_after_s: hold,
+            },
+        };
+        let mut run = Run::new(&exec, &names, &robot, RunOptions::default(), None, None).unwrap();
+        assert_eq!(run.mode(), Mode::Streaming);
+        // 0.3 rad at 0.5 Hz: at most 0.94 rad/s and 2.96 rad/s² (inside 1 rad/s and 4 rad/s²).
+        let w = std::f64::consts::TAU * 0.5;
+        let reference = |t: f64| {
+            (
+                [0.3 * (w * t).sin(), -0.3 * (w * t).sin()],
+                0.3 * w * (w * t).cos(),
+            )
+        };
+        let sp = |seq: u64, t: f64| {
+            let (q, v) = reference(t);
+            Setpoint {
+                execution_id: "s".into(),
+                seq,
+                t,
+                positions: q.to_vec(),
+                velocities: vec![v, -v],
+            }
+        };
+        let dt = 0.01;
+        let mut worst = 0.0f64;
+        let mut seq = 0;
+        for k in 0..300 {
+            let t = k as f64 * dt;
+            if k % 2 == 0 {
+                run.setpoint(&sp(seq, t), &robot).unwrap();
+                seq += 1;
+            }
+            assert!(
+                run.tick(&mut robot, dt).is_none(),
+                "a stream never ends by itself"
+            );
+            // After the start transient: the arm starts at rest, the sinusoid at full speed,
+            // and at 1 rad/s the arm catches up by at most 0.06 rad/s.
+            if k >= 150 {
+                let (q, _) = reference(t + dt);
+                worst = worst.max(max_abs_diff(&robot.q, &q));
+            }
+        }
+        assert!(
+            worst < 0.01,
+            "tracking error {worst} rad against the sinusoid"
+        );
+        // The setpoints stop at full speed: held for `hold`, then braked at 4 rad/s² from
+        // ≤ 1 rad/s: still within hold + 0.25 s + a period.
+        assert!(
+            robot.qd.iter().any(|v| v.abs() > 0.5),
+            "moving when the stream stops"
+        );
+        for _ in 0..50 {
+            run.tick(&mut robot, dt);
+        }
+        assert!(
+            robot.qd.iter().all(|v| *v == 0.0),
+            "stopped: {:?}",
+            robot.qd
+        );
+        let parked = robot.q.clone();
+        for _ in 0..100 {
+            run.tick(&mut robot, dt);
+        }
+        assert_eq!(robot.q, parked, "and stays where it stopped");
+        // Skipped sequence numbers are counted, a stale or malformed setpoint refused.
+        run.setpoint(&sp(seq + 2, 3.0), &robot).unwrap();
+        assert!(run.setpoint(&sp(seq + 1, 3.0), &robot).is_err());
+        let mut short = sp(seq + 3, 3.0);
+        short.positions.pop();
+        assert!(run.setpoint(&short, &robot).is_err());
+        let mut other = sp(seq + 3, 3.0);
+        other.execution_id = "x".into();
+        assert!(run.setpoint(&other, &robot).is_err());
+        let stats = run.stream_stats().unwrap();
+        assert_eq!(stats.received, 151);
+        assert_eq!(stats.missing, 2);
+        assert_eq!(stats.refused, 3);
+        assert!(stats.held_periods >= 100);
     }
 
     #[test]

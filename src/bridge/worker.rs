@@ -49,7 +49,8 @@ pub struct WorkerOptions {
 }
 
 impl WorkerOptions {
-    /// Defaults for a robot: 100 Hz control, 50 Hz feedback, both modes, backoff 0.2 s → 5 s.
+    /// Defaults for a robot: 100 Hz control, 50 Hz feedback, open and closed loop and
+    /// streaming, backoff 0.2 s → 5 s.
     pub fn new(
         url: impl Into<String>,
         token: impl Into<String>,
@@ -70,7 +71,11 @@ impl WorkerOptions {
             feedback_hz: 50.0,
             run: RunOptions::default(),
             perturb: None,
-            capabilities: vec![Capability::OpenLoop, Capability::ClosedLoop],
+            capabilities: vec![
+                Capability::OpenLoop,
+                Capability::ClosedLoop,
+                Capability::Streaming,
+            ],
             geometry: None,
             backoff_initial: Duration::from_millis(200),
             backoff_max: Duration::from_secs(5),
@@ -123,6 +128,17 @@ pub enum WorkerEvent {
     },
     Cancelled {
         id: String,
+    },
+    /// A streaming execution's setpoint was taken (the instant it was decoded).
+    Setpoint {
+        id: String,
+        seq: u64,
+        at: Instant,
+    },
+    /// A streaming execution ended by `end`, with what it received.
+    StreamEnded {
+        id: String,
+        stats: super::sim::StreamStats,
     },
     /// The service sent an error.
     Error {
@@ -363,6 +379,31 @@ where
                                 reason: Some("cancelled".into()),
                                 positions: robot.q.clone(),
                                 safety,
+                            }));
+                        }
+                    }
+                    Ok(ServiceMessage::Setpoint(sp)) => {
+                        let at = Instant::now();
+                        if let Some(r) = run.as_mut().filter(|r| r.id == sp.execution_id) {
+                            match r.setpoint(&sp, robot) {
+                                Ok(()) => emit(WorkerEvent::Setpoint { id: sp.execution_id, seq: sp.seq, at }),
+                                Err(reason) => tracing::debug!(%reason, "setpoint refused"),
+                            }
+                        }
+                    }
+                    Ok(ServiceMessage::End(end)) => {
+                        if run.as_ref().is_some_and(|r| r.id == end.execution_id) {
+                            let r = run.take().expect("checked");
+                            let stats = r.stream_stats().unwrap_or_default();
+                            tracing::info!(execution = %r.id, received = stats.received, "stream ended");
+                            emit(WorkerEvent::StreamEnded { id: r.id.clone(), stats });
+                            outgoing.push(WorkerMessage::Feedback(r.feedback(robot)));
+                            outgoing.push(WorkerMessage::Result(ExecutionResult {
+                                execution_id: end.execution_id,
+                                outcome: Outcome::Succeeded,
+                                reason: None,
+                                positions: robot.q.clone(),
+                                safety: None,
                             }));
                         }
                     }

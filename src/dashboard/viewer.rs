@@ -506,6 +506,9 @@ async fn execution_page(State(state): State<AppState>, Path(id): Path<String>) -
                 ExecutionPayload::Model { model_id, .. } => {
                     format!("the control law of model {}", esc(short(model_id)))
                 }
+                ExecutionPayload::Stream { source, .. } => {
+                    format!("setpoints streamed live from {}", esc(source))
+                }
             }
         )
     });

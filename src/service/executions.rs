@@ -53,6 +53,7 @@ impl PayloadPaths {
                     PayloadPart::JointNames => &self.joint_names,
                     PayloadPart::Points => &self.points,
                     PayloadPart::Goal => &self.goal,
+                    PayloadPart::Stream => "$",
                 };
                 Invalid::new(format!("{base}{}", i.at), i.message.clone())
             })
@@ -326,6 +327,11 @@ async fn stored_trajectory(
                 points: t.points,
             },
             paths,
+        )),
+        Mode::Streaming => Err(Error::invalid(
+            "$.mode",
+            "a streaming execution starts from the retargeting WebSocket \
+             (GET /v1/robots/{id}/retarget?forward=true)",
         )),
         Mode::ClosedLoop => {
             let model_id = t.model_id.ok_or_else(|| {

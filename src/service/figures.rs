@@ -128,6 +128,7 @@ pub async fn execution(
             ..
         } => (joint_names, points),
         ExecutionPayload::Model { params, .. } => (params.joint_names.clone(), Vec::new()),
+        ExecutionPayload::Stream { joint_names, .. } => (joint_names, Vec::new()),
     };
     Ok((row, joint_names, planned, history))
 }

@@ -217,6 +217,7 @@ impl From<BridgeError> for Error {
             BridgeError::InvalidPayload(issues) => Error::Payload(issues),
             BridgeError::UnknownExecution(id) => Error::not_found("execution", id),
             BridgeError::AlreadyFinished { .. } => Error::Conflict(e.to_string()),
+            BridgeError::NoWorker(m) => Error::Conflict(m),
             BridgeError::Store(e) => e.into(),
             other => Error::internal(other),
         }

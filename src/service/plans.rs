@@ -97,7 +97,7 @@ pub struct PlanIn {
     pub execute: bool,
     /// Execution mode (default `open_loop`: follow the trajectory; `closed_loop`: the worker
     /// runs the model's control law to the grasp configuration).
-    pub mode: Option<Mode>,
+    pub mode: Option<crate::store::payload::RequestedMode>,
     /// Worker to execute on (default: the connected worker of the robot the start was checked
     /// against, or any when none is connected); also the worker whose state `"current"` reads.
     pub worker: Option<String>,
@@ -140,7 +140,7 @@ struct PlanWire {
     rate: Option<f64>,
     #[serde(default)]
     execute: bool,
-    mode: Option<Mode>,
+    mode: Option<crate::store::payload::RequestedMode>,
     worker: Option<String>,
     #[serde(default)]
     obstacles: Vec<crate::geometry::ObstacleSpec>,
@@ -366,9 +366,9 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
 
     let mut execution = match (body.execute, &trajectory) {
         (true, Some(_)) if reason.is_none() => {
-            let mode = body.mode.unwrap_or(Mode::OpenLoop);
+            let mode = body.mode.map_or(Mode::OpenLoop, Mode::from);
             let law = match mode {
-                Mode::OpenLoop => None,
+                Mode::OpenLoop | Mode::Streaming => None,
                 Mode::ClosedLoop => Some((
                     model_id.clone(),
                     model_repo::load_params(&ctx.db, &model_id)
@@ -545,7 +545,8 @@ async fn attempt(
         };
         // The closed-loop law is certified inside the workspace only: a start outside it is
         // entered along a straight line by the open-loop trajectory, which that law cannot run.
-        let closed_loop = body.execute && body.mode == Some(Mode::ClosedLoop);
+        let closed_loop =
+            body.execute && body.mode == Some(crate::store::payload::RequestedMode::ClosedLoop);
         // What the worker's safety filter keeps that law clear of (issue 18 item 3).
         safety = closed_loop.then(|| {
             SafetySpec::new(
@@ -808,6 +809,9 @@ pub fn payload(
         }),
         (Mode::ClosedLoop, None) => Err(Error::internal(anyhow::anyhow!(
             "a closed-loop execution needs the model's law"
+        ))),
+        (Mode::Streaming, _) => Err(Error::internal(anyhow::anyhow!(
+            "a plan's execution follows its trajectory or its model's law, not a stream"
         ))),
     }
 }

@@ -50,6 +50,16 @@ pub struct RetargetQuery {
     /// 0.4 mm).
     #[param(minimum = 0.0, maximum = 1.0)]
     pub orientation_weight: Option<f64>,
+    /// Teleoperation: forward every answer's `q` as a setpoint to a connected bridge worker of
+    /// this robot with the `streaming` capability, as one streaming execution that ends when
+    /// the stream does (default false). 409 before the upgrade when no such worker is idle.
+    pub forward: Option<bool>,
+    /// With `forward`: this worker only (default: any idle one).
+    pub worker: Option<String>,
+    /// With `forward`: the worker brakes to a stop when no setpoint arrived for this long, s
+    /// (default 0.2).
+    #[param(minimum = 0.01, maximum = 10.0)]
+    pub hold_after_s: Option<f64>,
 }
 
 impl RetargetQuery {
@@ -71,6 +81,25 @@ impl RetargetQuery {
         range("hand_scale", self.hand_scale, 0.1, 10.0);
         range("stature_m", self.stature_m, 1.0, 2.3);
         range("orientation_weight", self.orientation_weight, 0.0, 1.0);
+        range("hold_after_s", self.hold_after_s, 0.01, 10.0);
+        if self.forward != Some(true) {
+            for (field, given) in [
+                ("worker", self.worker.is_some()),
+                ("hold_after_s", self.hold_after_s.is_some()),
+            ] {
+                if given {
+                    issues.push(super::Invalid::new(
+                        format!("$.{field}"),
+                        "only applies with forward=true (teleoperation)",
+                    ));
+                }
+            }
+        }
+        if let Some(w) = &self.worker
+            && let Err(e) = crate::bridge::WorkerName::parse(w)
+        {
+            issues.push(super::Invalid::new("$.worker", e.to_string()));
+        }
         let placement = match &self.placement {
             None => None,
             Some(text) => {
@@ -165,6 +194,25 @@ pub struct RetargetReady {
     pub hand_only: bool,
     /// The keypoint order frames must follow.
     pub keypoints: Vec<String>,
+    /// With `forward=true`: the streaming execution the answers' `q` drive
+    /// (`GET /v1/executions/{id}`) and the worker running it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub execution_id: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub worker: Option<String>,
+}
+
+/// With `forward=true`: what became of an answer's `q` on the robot.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ForwardStatus {
+    /// `sent` (queued to the worker), `skipped` (the worker reads slower than the stream: this
+    /// setpoint was dropped, it follows the next) or `closed` (the execution is over:
+    /// cancelled, or the worker left; frames are still retargeted, nothing is forwarded).
+    pub setpoint: String,
+    /// The robot's latest measured joint values (worker feedback, `joint_names` order), rad or m.
+    pub measured: Option<Vec<f64>>,
+    /// Largest joint deviation of the robot from its latest setpoint at that feedback, rad.
+    pub tracking_error: Option<f64>,
 }
 
 /// The answer to one frame.
@@ -188,9 +236,12 @@ pub struct RetargetJoints {
     pub iterations: usize,
     /// Whether the low-pass or the speed bound moved `q` off the solution.
     pub filtered: bool,
-    /// Time from the frame's arrival to this answer, µs (parse, solve, filter; not the few
-    /// microseconds of writing the answer itself).
+    /// Time from the frame's arrival to this answer, µs (parse, solve, filter, forward; not
+    /// the few microseconds of writing the answer itself).
     pub latency_us: f64,
+    /// With `forward=true`: the setpoint's fate and the robot's measured state.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub forward: Option<ForwardStatus>,
 }
 
 /// A refused frame: the stream stays open and unchanged.
@@ -233,6 +284,8 @@ pub struct Session {
     robot: String,
     system: Arc<System>,
     retargeter: Option<Retargeter>,
+    /// Teleoperation: the streaming execution the answers drive.
+    stream: Option<crate::bridge::StreamHandle>,
 }
 
 /// Opens a stream onto robot `id` (404 unknown robot, 422 bad options).
@@ -253,6 +306,7 @@ pub async fn open(ctx: &Context, id: &str, query: &RetargetQuery) -> Result<Sess
         robot: id.to_string(),
         system,
         retargeter: Some(retargeter),
+        stream: None,
     })
 }
 
@@ -269,6 +323,52 @@ impl Session {
             fingers: self.system.fingers.iter().map(|f| f.name.clone()).collect(),
             hand_only: !r.needs_arm(),
             keypoints: KEYPOINT_NAMES.iter().map(|s| s.to_string()).collect(),
+            execution_id: self.stream.as_ref().map(|s| s.id().to_owned()),
+            worker: self.stream.as_ref().map(|s| s.worker().to_owned()),
+        }
+    }
+
+    /// With `forward=true` in `query`: starts the streaming execution the answers will drive
+    /// (409 when no idle worker of the robot can take it). Called once the request is known
+    /// to be a WebSocket upgrade, so that a refused upgrade starts nothing.
+    pub async fn forward(&mut self, ctx: &Context, query: &RetargetQuery) -> Result<(), Error> {
+        if query.forward != Some(true) {
+            return Ok(());
+        }
+        let worker = query
+            .worker
+            .as_deref()
+            .map(crate::bridge::WorkerName::parse)
+            .transpose()?;
+        let payload = crate::bridge::ExecutionPayload::Stream {
+            source: "retarget".into(),
+            joint_names: self.system.model.joint_names().to_vec(),
+            rate_hz: None,
+            hold_after_s: query
+                .hold_after_s
+                .unwrap_or(crate::store::payload::DEFAULT_HOLD_AFTER),
+        };
+        self.stream = Some(
+            ctx.bridges
+                .open_stream(&self.robot, worker.as_ref(), payload)
+                .await
+                .map_err(|e| match e {
+                    crate::bridge::BridgeError::InvalidPayload(issues) => Error::Invalid(
+                        issues
+                            .into_iter()
+                            .map(|i| super::Invalid::new(format!("$.{}", i.at), i.message))
+                            .collect(),
+                    ),
+                    e => e.into(),
+                })?,
+        );
+        Ok(())
+    }
+
+    /// Ends the streaming execution, if any (the worker stops; the execution succeeds).
+    pub async fn close(&mut self) {
+        if let Some(s) = self.stream.take() {
+            s.end().await;
         }
     }
 
@@ -310,7 +410,22 @@ impl Session {
         };
         self.retargeter = Some(r);
         match result {
-            Ok((step, q)) => answer(seq, &frame, step, q, arrived),
+            Ok((step, q)) => {
+                let forward = self.stream.as_mut().map(|s| {
+                    let setpoint = match s.send(frame.t, &q) {
+                        crate::bridge::StreamSend::Sent => "sent",
+                        crate::bridge::StreamSend::Skipped => "skipped",
+                        crate::bridge::StreamSend::Closed => "closed",
+                    };
+                    let fb = s.feedback();
+                    ForwardStatus {
+                        setpoint: setpoint.into(),
+                        measured: fb.as_ref().map(|f| f.positions.clone()),
+                        tracking_error: fb.map(|f| f.tracking_error),
+                    }
+                });
+                answer(seq, &frame, step, q, arrived, forward)
+            }
             Err(e) => {
                 let field = e.field();
                 let field = (!field.is_empty()).then(|| format!("$.{field}"));
@@ -332,6 +447,7 @@ fn answer(
     step: RetargetStep,
     q: Vec<f64>,
     arrived: Instant,
+    forward: Option<ForwardStatus>,
 ) -> String {
     let m = &step.metrics;
     let out = RetargetJoints {
@@ -349,6 +465,7 @@ fn answer(
         iterations: m.iterations,
         filtered: step.filtered,
         latency_us: arrived.elapsed().as_secs_f64() * 1e6,
+        forward,
     };
     serde_json::to_string(&out).expect("serialisable")
 }

@@ -130,7 +130,7 @@ fn split_payload(p: &ExecutionPayload) -> Result<(String, Option<Vec<u8>>), sqlx
                 Some(bytes),
             ))
         }
-        ExecutionPayload::Model { .. } => Ok((
+        ExecutionPayload::Model { .. } | ExecutionPayload::Stream { .. } => Ok((
             serde_json::to_string(p).map_err(|e| sqlx::Error::Encode(Box::new(e)))?,
             None,
         )),
@@ -229,6 +229,38 @@ pub async fn insert_in(
     .execute(conn)
     .await?;
     Ok(row)
+}
+
+/// Inserts execution `id` already `running` on `worker` (a stream: it starts on the worker the
+/// caller claimed, never through the queue).
+pub async fn insert_running(
+    pool: &SqlitePool,
+    id: &str,
+    robot: &str,
+    payload: &ExecutionPayload,
+    worker: &str,
+) -> Result<(), sqlx::Error> {
+    let (json, points) = split_payload(payload)?;
+    let now = now();
+    sqlx::query(
+        "INSERT INTO executions (id, robot, mode, kind, source_id, payload, points, worker, \
+         state, assigned_worker, created_at, dispatched_at) \
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, 'running', ?, ?, ?)",
+    )
+    .bind(id)
+    .bind(robot)
+    .bind(payload.mode())
+    .bind(payload.kind())
+    .bind(payload.source_id())
+    .bind(&json)
+    .bind(&points)
+    .bind(worker)
+    .bind(worker)
+    .bind(&now)
+    .bind(&now)
+    .execute(pool)
+    .await
+    .map(|_| ())
 }
 
 pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<ExecutionRow>, sqlx::Error> {

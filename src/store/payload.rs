@@ -17,6 +17,28 @@ pub enum Mode {
     OpenLoop,
     /// Run the model's closed-loop law `u(q)` on the measured state until the goal is reached.
     ClosedLoop,
+    /// Follow joint setpoints streamed live (teleoperation: the retargeting WebSocket with
+    /// `forward=true` sends each retargeted frame); never queued, it starts on an idle worker
+    /// at once and ends when the stream does.
+    Streaming,
+}
+
+/// The mode a plan or an execution request asks for (a streaming execution starts only from
+/// the retargeting WebSocket, `GET /v1/robots/{id}/retarget?forward=true`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum RequestedMode {
+    OpenLoop,
+    ClosedLoop,
+}
+
+impl From<RequestedMode> for Mode {
+    fn from(m: RequestedMode) -> Mode {
+        match m {
+            RequestedMode::OpenLoop => Mode::OpenLoop,
+            RequestedMode::ClosedLoop => Mode::ClosedLoop,
+        }
+    }
 }
 
 impl Mode {
@@ -24,6 +46,7 @@ impl Mode {
         match self {
             Mode::OpenLoop => "open_loop",
             Mode::ClosedLoop => "closed_loop",
+            Mode::Streaming => "streaming",
         }
     }
 }
@@ -64,7 +87,25 @@ pub enum ExecutionPayload {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         safety: Option<Box<SafetySpec>>,
     },
+    /// Live joint setpoints (streaming): the worker receives them as `setpoint` messages after
+    /// the `execute`, moves toward the latest one within its joint limits, holds where it is
+    /// when none arrived for `hold_after_s`, and ends the execution on `end` (succeeded) or
+    /// `cancel` (aborted).
+    Stream {
+        /// Where the setpoints come from (`retarget`: the retargeting WebSocket).
+        source: String,
+        joint_names: Vec<String>,
+        /// Setpoint rate the sender aims at, Hz (informational: the worker follows the latest).
+        rate_hz: Option<f64>,
+        /// The worker brakes to a stop when no setpoint arrived for this long, s (a lost
+        /// teleoperation link must not leave the robot moving).
+        hold_after_s: f64,
+    },
 }
+
+/// The default of [`ExecutionPayload::Stream`]'s `hold_after_s`, s: a few frames of a 30-100 Hz
+/// tracker.
+pub const DEFAULT_HOLD_AFTER: f64 = 0.2;
 
 /// What a worker's control-barrier-function safety filter keeps the closed-loop law clear of
 /// (issue 18, `geometry::barrier`): the plan's object on its support, its obstacles
@@ -130,6 +171,7 @@ impl ExecutionPayload {
         match self {
             ExecutionPayload::Trajectory { joint_names, .. } => joint_names,
             ExecutionPayload::Model { params, .. } => &params.joint_names,
+            ExecutionPayload::Stream { joint_names, .. } => joint_names,
         }
     }
 
@@ -138,6 +180,7 @@ impl ExecutionPayload {
         match self {
             ExecutionPayload::Trajectory { .. } => Mode::OpenLoop,
             ExecutionPayload::Model { .. } => Mode::ClosedLoop,
+            ExecutionPayload::Stream { .. } => Mode::Streaming,
         }
     }
 
@@ -145,23 +188,26 @@ impl ExecutionPayload {
     pub fn safety(&self) -> Option<&SafetySpec> {
         match self {
             ExecutionPayload::Model { safety, .. } => safety.as_deref(),
-            ExecutionPayload::Trajectory { .. } => None,
+            ExecutionPayload::Trajectory { .. } | ExecutionPayload::Stream { .. } => None,
         }
     }
 
-    /// `trajectory` or `model`.
+    /// `trajectory`, `model` or `stream`.
     pub fn kind(&self) -> &'static str {
         match self {
             ExecutionPayload::Trajectory { .. } => "trajectory",
             ExecutionPayload::Model { .. } => "model",
+            ExecutionPayload::Stream { .. } => "stream",
         }
     }
 
-    /// The stored trajectory or model id (`inline` for an inline trajectory).
+    /// The stored trajectory or model id (`inline` for an inline trajectory; a stream's
+    /// source).
     pub fn source_id(&self) -> &str {
         match self {
             ExecutionPayload::Trajectory { trajectory_id, .. } => trajectory_id,
             ExecutionPayload::Model { model_id, .. } => model_id,
+            ExecutionPayload::Stream { source, .. } => source,
         }
     }
 }

@@ -70,6 +70,7 @@ class Worker:
         self.executed = 0
         self.current: Execution | None = None
         self.cancel_id = None
+        self.end_id = None
         self.push_seed = cfg.push.seed if cfg.push else 0
 
     def hello(self):
@@ -81,7 +82,7 @@ class Worker:
             "worker": self.cfg.name,
             "robot": self.cfg.robot,
             "joint_names": self.info.joint_names,
-            "capabilities": ["open_loop", "closed_loop"],
+            "capabilities": ["open_loop", "closed_loop", "streaming"],
             # The service refuses a plan to execute that starts farther than this from our state.
             "start_tolerance": self.cfg.run.start_tolerance,
             # Ignored by today's service (serde skips unknown fields); see the README.
@@ -150,6 +151,13 @@ class Worker:
                 t = m.get("type")
                 if t == "execute":
                     await queue.put(m)
+                elif t == "setpoint":
+                    cur = self.current
+                    if cur is not None and cur.id == m.get("execution_id") and cur.streaming:
+                        cur.motion.setpoint(m)
+                elif t == "end":
+                    if self.current is not None and self.current.id == m.get("execution_id"):
+                        self.end_id = m.get("execution_id")
                 elif t == "cancel":
                     if self.current is not None and self.current.id == m.get("execution_id"):
                         self.cancel_id = m.get("execution_id")
@@ -206,6 +214,9 @@ class Worker:
         ticks = 0
         wall0 = time.monotonic()
         sim0 = run.sim.t
+        # A stream's setpoints arrive in real time: simulated faster, the arm would see every
+        # pause between two setpoints as a lost link.
+        pace = self.cfg.pace if self.cfg.pace > 0 or not run.streaming else 1.0
         outcome = None
         try:
             while outcome is None:
@@ -214,12 +225,16 @@ class Worker:
                 if self.cancel_id == eid:
                     outcome = ("aborted", "cancelled")
                     break
+                if self.end_id == eid:
+                    outcome = ("succeeded", None)
+                    await send(run.feedback())
+                    break
                 outcome = run.tick()
                 ticks += 1
                 if ticks % every == 0 or outcome is not None:
                     await send(run.feedback())
-                if self.cfg.pace > 0:
-                    ahead = (run.sim.t - sim0) / self.cfg.pace - (time.monotonic() - wall0)
+                if pace > 0:
+                    ahead = (run.sim.t - sim0) / pace - (time.monotonic() - wall0)
                     if ahead > 0:
                         await asyncio.sleep(ahead)
                     elif ticks % 5 == 0:
@@ -229,6 +244,7 @@ class Worker:
         finally:
             self.current = None
             self.cancel_id = None
+            self.end_id = None
             # A simulated lab resets the scene: with an object, the robot is put back where the
             # execution started (the next plan starts there); without one it stays put.
             if self.cfg.reset == "start" and run.scene is not None and run.scene.object is not None:

@@ -13,7 +13,7 @@ from . import build as B
 from .law import Law
 from .scene import Scene, SceneError, parse_scene, scene_from_object_spec
 from .service import Service
-from .sim import CONTROL_DT, ClosedLoop, OpenLoop, Pushes, PushOptions, RunOptions, Sim, Trial, TrialOptions
+from .sim import CONTROL_DT, ClosedLoop, Follow, OpenLoop, Pushes, PushOptions, RunOptions, Sim, Trial, TrialOptions
 
 
 class ExecutionError(ValueError):
@@ -53,9 +53,9 @@ class Execution:
         kind = payload.get("kind")
         names = info.joint_names
         n = len(names)
-        if (mode, kind) not in (("open_loop", "trajectory"), ("closed_loop", "model")):
+        if (mode, kind) not in (("open_loop", "trajectory"), ("closed_loop", "model"), ("streaming", "stream")):
             raise ExecutionError(f"mode {mode} does not fit a {kind} payload")
-        pnames = payload.get("joint_names") if kind == "trajectory" else payload.get("params", {}).get("joint_names")
+        pnames = payload.get("params", {}).get("joint_names") if kind == "model" else payload.get("joint_names")
         if pnames != names:
             raise ExecutionError(f"joint names {pnames} do not match this robot's {names}")
         self.built = B.build(urdf_text, info, scene)
@@ -68,7 +68,16 @@ class Execution:
             return bool(np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6))
 
         self.pushes = None
-        if kind == "trajectory":
+        self.streaming = kind == "stream"
+        if self.streaming:
+            hold = payload.get("hold_after_s")
+            if not isinstance(hold, (int, float)) or not (math.isfinite(hold) and hold > 0):
+                raise ExecutionError(f"hold_after_s must be positive, got {hold}")
+            self.goal = None
+            self.motion = Follow(self.sim, hold)
+            # A teleoperated grasp is the operator's: no scripted trial after it.
+            trial = None
+        elif kind == "trajectory":
             pts = payload.get("points") or []
             if not pts:
                 raise ExecutionError("the trajectory has no points")
@@ -182,6 +191,8 @@ class Execution:
             }
         if self.pushes is not None:
             out["pushes"] = self.pushes.log
+        if self.streaming:
+            out["stream"] = dict(self.motion.stats)
         return out
 
     def final_outcome(self, status, reason):

@@ -61,6 +61,8 @@ class Service:
         """The stored plan whose trajectory (open loop) or grasp configuration (closed loop) this
         execution runs, newest first; None when there is none (e.g. an inline trajectory)."""
         payload = execute.get("payload", {})
+        if payload.get("kind") == "stream":
+            return None  # teleoperation: no plan behind it
         q = urllib.parse.quote(robot, safe="")
         items = self.get_json(f"/v1/plans?robot={q}&limit={newest}").get("items", [])
         if payload.get("kind") == "trajectory":

@@ -412,6 +412,71 @@ class ClosedLoop:
         return arrival(sim, self.goal, self.o, t, self.o.closed_loop_timeout)
 
 
+class Follow:
+    """A streaming execution (teleoperation): the servo reference follows the latest setpoint,
+    moved on with its velocity until the next one is due (one setpoint interval) and then the
+    setpoint itself, and never faster than the joints' velocity limits (a first setpoint far from
+    the robot is approached, not jumped to). When no setpoint arrived for `hold_after` s the arm
+    holds where it is. Ends only by the service's `end` or `cancel`."""
+
+    def __init__(self, sim: Sim, hold_after: float):
+        self.sim = sim
+        self.hold_after = float(hold_after)
+        self.target = None
+        self.velocity = None
+        self.received_at = 0.0
+        self.interval = 0.0
+        self.stream_t = math.nan
+        self.next_seq = 0
+        self.stats = {"received": 0, "missing": 0, "refused": 0, "held_periods": 0}
+        self.q_ref = sim.q()
+        self.tracking_error = 0.0
+        self.progress = 0.0
+
+    def setpoint(self, m: dict) -> bool:
+        n = self.sim.n
+        q, v, seq, t = m.get("positions"), m.get("velocities"), m.get("seq"), m.get("t")
+        ok = (
+            isinstance(q, list) and isinstance(v, list) and len(q) == n and len(v) == n
+            and all(isinstance(x, (int, float)) and math.isfinite(x) for x in q + v)
+            and isinstance(seq, int) and seq >= self.next_seq
+            and isinstance(t, (int, float)) and math.isfinite(t)
+        )
+        if not ok:
+            self.stats["refused"] += 1
+            return False
+        self.stats["missing"] += seq - self.next_seq
+        self.stats["received"] += 1
+        self.next_seq = seq + 1
+        self.target = np.clip(np.asarray(q, float), self.sim.lower, self.sim.upper)
+        self.velocity = np.asarray(v, float)
+        self.received_at = self.sim.t
+        gap = t - self.stream_t
+        self.interval = min(gap, self.hold_after) if math.isfinite(gap) and gap > 0 else 0.0
+        self.stream_t = t
+        return True
+
+    def tick(self):
+        sim = self.sim
+        since = sim.t - self.received_at
+        if self.target is not None and since <= self.hold_after:
+            ff = since < self.interval
+            goal = self.target + (self.velocity * since if ff else 0.0)
+            step = np.clip(goal - self.q_ref, -sim.vlimit * CONTROL_DT, sim.vlimit * CONTROL_DT)
+            self.q_ref = np.clip(self.q_ref + step, sim.lower, sim.upper)
+            sim.set_reference(self.q_ref, self.velocity if ff else np.zeros(sim.n))
+            sim.step_control()
+            self.tracking_error = float(np.max(np.abs(sim.q() - np.clip(goal, sim.lower, sim.upper))))
+        else:
+            # No setpoint yet, or the stream went quiet: hold the measured posture.
+            self.q_ref = sim.q()
+            sim.set_reference(self.q_ref, np.zeros(sim.n))
+            sim.step_control()
+            self.stats["held_periods"] += 1
+            self.tracking_error = 0.0 if self.target is None else float(np.max(np.abs(sim.q() - self.target)))
+        return None
+
+
 # --- the grasp trial -------------------------------------------------------------------------
 def min_jerk(s):
     return s * s * s * (10 - 15 * s + 6 * s * s)

@@ -277,3 +277,58 @@ def test_the_closed_loop_recovers_from_pushes_on_the_arm(seeded_service):
     assert len(pushes.log) >= 2, pushes.log  # the third only if still under way (progress < 0.8)
     # the pushes displaced the arm beyond what the servo holds (its reference band)
     assert max(p["deflection_rad"] for p in pushes.log) >= 0.05, pushes.log
+
+
+def test_a_forwarded_keypoint_stream_teleoperates_the_physics_worker(seeded_service):
+    """Teleoperation in physics: a synthetic subject's keypoint recording (hand, elbow and
+    shoulder) streamed in real time to `GET /v1/robots/wam_t42/retarget?forward=true` drives the
+    MuJoCo worker as one streaming execution: every retargeted frame arrives as a setpoint, the
+    simulated arm ends on the last retargeted joints, and closing the stream ends the execution
+    `succeeded`."""
+    import asyncio
+
+    from websockets.asyncio.client import connect
+
+    from conftest import binary
+
+    svc = seeded_service
+    study = json.loads(subprocess.run(
+        [binary(), "synth", "--subjects", "1", "--positions", "1", "--trials", "1", "--objects", "ball",
+         "--keypoints", "--no-noise"], check=True, capture_output=True, text=True).stdout)
+    k = study[0]["keypoints"]
+    frames = [{"seq": i, "t": k["t"][i], "points": k["points"][i], "elbow": k["elbow"][i],
+               "shoulder": k["shoulder"][i]} for i in range(len(k["t"]))]
+    w = WorkerProc(svc, "wam_t42", "--pace", "1", tag="-tele")
+    try:
+        url = (svc.http.replace("http://", "ws://") + "/v1/robots/wam_t42/retarget"
+               f"?forward=true&worker={w.name}&hold_after_s=1&speed_scale=0.5&cutoff_hz=8")
+
+        async def teleoperate():
+            async with connect(url) as ws:
+                ready = json.loads(await ws.recv())
+                assert ready["worker"] == w.name, ready
+                t0, wall0, answers = frames[0]["t"], time.monotonic(), []
+                for f in frames:
+                    ahead = (f["t"] - t0) - (time.monotonic() - wall0)
+                    if ahead > 0:
+                        await asyncio.sleep(ahead)
+                    await ws.send(json.dumps(f))
+                    answers.append(json.loads(await ws.recv()))
+                await asyncio.sleep(1.0)  # the last setpoint stays fresh (hold_after_s = 1)
+                return ready["execution_id"], answers
+
+        eid, answers = asyncio.run(teleoperate())
+        assert all(a["type"] == "joints" for a in answers), [a for a in answers if a["type"] != "joints"][:1]
+        assert [a["forward"]["setpoint"] for a in answers] == ["sent"] * len(frames)
+        e = wait(svc, eid, timeout=30)
+        assert (e["state"], e["mode"], e["kind"]) == ("succeeded", "streaming", "stream"), e
+        report = w.report(eid)
+        assert report["stream"]["received"] == len(frames), report["stream"]
+        assert report["stream"]["missing"] == 0 and report["stream"]["refused"] == 0, report["stream"]
+        last = np.array(answers[-1]["q"])
+        final = np.array(e["last_feedback"]["positions"])
+        names = svc.get("/v1/robots/wam_t42")["joint_names"]
+        err = np.abs(final - last)
+        assert err.max() < 0.01, dict(zip(names, err))
+    finally:
+        w.close()
