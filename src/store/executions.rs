@@ -567,4 +567,113 @@ mod tests {
             .unwrap()
         );
     }
+
+    /// Migration 0012 rebuilds `executions` on a database that already holds executions with
+    /// stored feedback: every row and its feedback survive (dropping the old table did not
+    /// cascade), the indexes are back, foreign keys still cascade, and a streaming execution
+    /// can be stored.
+    #[tokio::test]
+    async fn the_streaming_migration_keeps_executions_and_their_feedback() {
+        use sqlx::sqlite::SqlitePoolOptions;
+        use std::borrow::Cow;
+        let dir = tempfile::tempdir().unwrap();
+        let options = sqlx::sqlite::SqliteConnectOptions::new()
+            .filename(dir.path().join("old.db"))
+            .create_if_missing(true)
+            .foreign_keys(true);
+        let pool = SqlitePoolOptions::new()
+            .max_connections(2)
+            .connect_with(options)
+            .await
+            .unwrap();
+        let mut before = sqlx::migrate!("./migrations");
+        before.migrations = Cow::Owned(
+            before
+                .migrations
+                .iter()
+                .filter(|m| m.version < 12)
+                .cloned()
+                .collect(),
+        );
+        before.run(&pool).await.unwrap();
+        let p = ExecutionPayload::Trajectory {
+            trajectory_id: "inline".into(),
+            joint_names: vec!["a".into()],
+            points: vec![TrajectoryPoint {
+                t: 0.0,
+                positions: vec![0.5],
+                velocities: vec![0.0],
+                accelerations: vec![0.0],
+            }],
+        };
+        let row = insert(&pool, "wam_ihy", Mode::OpenLoop, &p, Some("w"))
+            .await
+            .unwrap();
+        sqlx::query("INSERT INTO execution_feedback (execution_id, chunk, samples, data) VALUES (?, 0, 3, x'00')")
+            .bind(&row.id)
+            .execute(&pool)
+            .await
+            .unwrap();
+        // Before 0012 the store refuses a streaming execution.
+        let stream = ExecutionPayload::Stream {
+            source: "retarget".into(),
+            joint_names: vec!["a".into()],
+            rate_hz: None,
+            hold_after_s: 0.2,
+        };
+        assert!(
+            insert_running(&pool, "s1", "wam_ihy", &stream, "w")
+                .await
+                .is_err()
+        );
+
+        super::super::MIGRATOR.run(&pool).await.unwrap();
+        let kept = get(&pool, &row.id).await.unwrap().unwrap();
+        assert_eq!(kept.worker.as_deref(), Some("w"));
+        assert_eq!(
+            kept.feedback_samples, 3,
+            "the feedback survived the rebuild"
+        );
+        assert_eq!(payload(&pool, &row.id).await.unwrap().unwrap(), p);
+        let indexes: Vec<String> = sqlx::query_scalar(
+            "SELECT name FROM sqlite_master WHERE type = 'index' AND tbl_name = 'executions' \
+             AND name NOT LIKE 'sqlite_%' ORDER BY name",
+        )
+        .fetch_all(&pool)
+        .await
+        .unwrap();
+        assert_eq!(
+            indexes,
+            [
+                "executions_by_source",
+                "executions_created",
+                "executions_state_created"
+            ]
+        );
+        insert_running(&pool, "s1", "wam_ihy", &stream, "w")
+            .await
+            .unwrap();
+        let s = get(&pool, "s1").await.unwrap().unwrap();
+        assert_eq!((s.mode, s.kind.as_str()), (Mode::Streaming, "stream"));
+        assert_eq!(s.state, ExecutionState::Running);
+        assert_eq!(payload(&pool, "s1").await.unwrap().unwrap(), stream);
+        let fk: i64 = sqlx::query_scalar("PRAGMA foreign_keys")
+            .fetch_one(&pool)
+            .await
+            .unwrap();
+        assert_eq!(fk, 1, "foreign keys are on again after the migration");
+        sqlx::query("DELETE FROM executions WHERE id = ?")
+            .bind(&row.id)
+            .execute(&pool)
+            .await
+            .unwrap();
+        let left: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM execution_feedback")
+            .fetch_one(&pool)
+            .await
+            .unwrap();
+        assert_eq!(
+            left, 0,
+            "deleting an execution still cascades to its feedback"
+        );
+    }
 }
