@@ -10,6 +10,10 @@
 //!    (`RETARGET_WS_SECONDS` to change), one malformed frame every 500; end-to-end latency
 //!    (send to answer received), frames answered, refusals, and whether the stream stayed open
 //!    (targets: median ≤ 2 ms, no frame dropped).
+//! 3. **Teleoperation**: the same stream with `forward=true` to an in-process reference worker
+//!    (`bridge::worker::run_worker`, the hand's URDF limits, 40 rad/s²): per frame the time from
+//!    sending the keypoint frame to the worker decoding its setpoint, setpoints delivered and
+//!    skipped, the execution's end state and the worker's tracking error (same duration).
 //!
 //! Not criterion: the figures are latency distributions and an error, so this prints its own.
 //! The targets file for other tools: `RETARGET_DUMP=targets.json` writes the stream's keypoint
@@ -111,7 +115,11 @@ fn in_process() {
     );
 }
 
-async fn websocket(seconds: f64) -> anyhow::Result<()> {
+const TOKEN: &str = "bench-token";
+
+/// The service on loopback (temp database, no seeding) with the FF16 hand registered over
+/// HTTP: its address, the hand's id, and the directory to keep alive.
+async fn service() -> anyhow::Result<(std::net::SocketAddr, String, tempfile::TempDir)> {
     let dir = tempfile::tempdir()?;
     let config = Config {
         bind: "127.0.0.1:0".parse()?,
@@ -119,6 +127,7 @@ async fn websocket(seconds: f64) -> anyhow::Result<()> {
         robots: root().join("robots"),
         log: "warn".into(),
         no_seed: true,
+        bridge_token: Some(TOKEN.into()),
         ..Config::default()
     };
     let app = App::build(config).await?;
@@ -144,6 +153,11 @@ async fn websocket(seconds: f64) -> anyhow::Result<()> {
         .as_str()
         .unwrap_or_default()
         .to_string();
+    Ok((addr, id, dir))
+}
+
+async fn websocket(seconds: f64) -> anyhow::Result<()> {
+    let (addr, id, _dir) = service().await?;
     let (mut ws, _) =
         tokio_tungstenite::connect_async(format!("ws://{addr}/v1/robots/{id}/retarget")).await?;
     let ready: Value = match ws.next().await {
@@ -212,6 +226,116 @@ async fn websocket(seconds: f64) -> anyhow::Result<()> {
     Ok(())
 }
 
+async fn teleoperation(seconds: f64) -> anyhow::Result<()> {
+    use reachgrasp::bridge::worker::{WorkerEvent, WorkerOptions, run_worker};
+    let (addr, id, _dir) = service().await?;
+    let sys = ff16();
+    let stream = reachable_stream(&sys, seconds, RATE_HZ, 7)?;
+    let opts = RetargetOptions {
+        speed_scale: Some(0.5),
+        cutoff_hz: Some(8.0),
+        ..RetargetOptions::default()
+    };
+    let mut first = Retargeter::new(MappingModel::from_system(&sys)?, opts)?;
+    first.push(&stream.frames[0])?;
+    let mut w = WorkerOptions::for_system(
+        format!("ws://{addr}/v1/bridges/connect"),
+        TOKEN,
+        "bench-tele",
+        &id,
+        &sys,
+        40.0,
+    );
+    w.initial = Some(first.output().to_vec());
+    let (tx, mut events) = tokio::sync::mpsc::unbounded_channel();
+    let worker = tokio::spawn(run_worker(w, Some(tx), std::future::pending()));
+    while !matches!(events.recv().await, Some(WorkerEvent::Connected) | None) {}
+    let (mut ws, _) = tokio_tungstenite::connect_async(format!(
+        "ws://{addr}/v1/robots/{id}/retarget?forward=true&speed_scale=0.5&cutoff_hz=8"
+    ))
+    .await?;
+    let ready: Value = match ws.next().await {
+        Some(Ok(Message::Text(t))) => serde_json::from_str(&t)?,
+        other => anyhow::bail!("no ready message: {other:?}"),
+    };
+    let exec = ready["execution_id"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
+    anyhow::ensure!(!exec.is_empty(), "no streaming execution: {ready}");
+    let period = Duration::from_secs_f64(1.0 / RATE_HZ);
+    let start = tokio::time::Instant::now();
+    let mut sent_at = Vec::with_capacity(stream.frames.len());
+    let mut outcome = std::collections::HashMap::<String, usize>::new();
+    for (k, f) in stream.frames.iter().enumerate() {
+        tokio::time::sleep_until(start + period * k as u32).await;
+        let text = frame_json(f, k as u64).to_string();
+        sent_at.push(Instant::now());
+        ws.send(Message::Text(text.into())).await?;
+        match ws.next().await {
+            Some(Ok(Message::Text(t))) => {
+                let v: Value = serde_json::from_str(&t)?;
+                let s = v["forward"]["setpoint"]
+                    .as_str()
+                    .unwrap_or("none")
+                    .to_owned();
+                *outcome.entry(s).or_default() += 1;
+            }
+            other => anyhow::bail!("frame {k}: {other:?}"),
+        }
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    ws.close(None).await.ok();
+    let mut latency = Vec::new();
+    let mut stats = None;
+    while stats.is_none() {
+        match tokio::time::timeout(Duration::from_secs(10), events.recv()).await {
+            Ok(Some(WorkerEvent::Setpoint { seq, at, .. })) => {
+                latency.push(at.duration_since(sent_at[seq as usize]).as_secs_f64() * 1e6);
+            }
+            Ok(Some(WorkerEvent::StreamEnded { stats: s, .. })) => stats = Some(s),
+            Ok(Some(_)) => {}
+            _ => anyhow::bail!("the stream did not end on the worker"),
+        }
+    }
+    let stats = stats.unwrap_or_default();
+    let client = reqwest::Client::new();
+    let mut e = Value::Null;
+    for _ in 0..100 {
+        e = client
+            .get(format!("http://{addr}/v1/executions/{exec}"))
+            .send()
+            .await?
+            .json()
+            .await?;
+        if e["state"] != "running" {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    worker.abort();
+    latency.sort_by(f64::total_cmp);
+    println!(
+        "Teleoperation, loopback, {} frames at {RATE_HZ} Hz ({seconds} s) to an in-process worker: answers {:?}; worker took {} setpoints, {} missing, {} refused; execution {}",
+        stream.frames.len(),
+        outcome,
+        stats.received,
+        stats.missing,
+        stats.refused,
+        e["state"],
+    );
+    println!(
+        "  frame sent to setpoint decoded on the worker: p50 {:.0} us, p95 {:.0} us, p99 {:.0} us, max {:.0} us; worker tracking error max {:.3} rad, rms {:.3} rad",
+        percentile(&latency, 0.5),
+        percentile(&latency, 0.95),
+        percentile(&latency, 0.99),
+        latency.last().copied().unwrap_or(0.0),
+        e["tracking"]["max_error"].as_f64().unwrap_or(f64::NAN),
+        e["tracking"]["rms_error"].as_f64().unwrap_or(f64::NAN),
+    );
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     in_process();
     let seconds = std::env::var("RETARGET_WS_SECONDS")
@@ -222,7 +346,10 @@ fn main() -> anyhow::Result<()> {
         tokio::runtime::Builder::new_multi_thread()
             .enable_all()
             .build()?
-            .block_on(websocket(seconds))?;
+            .block_on(async {
+                websocket(seconds).await?;
+                teleoperation(seconds).await
+            })?;
     }
     Ok(())
 }

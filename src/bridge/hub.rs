@@ -595,6 +595,7 @@ impl Hub {
         Ok(StreamHandle {
             hub: self.clone(),
             id,
+            conn,
             worker: name,
             tx,
             seq: 0,
@@ -1337,6 +1338,7 @@ pub enum StreamSend {
 pub struct StreamHandle {
     hub: Hub,
     id: String,
+    conn: u64,
     worker: String,
     tx: mpsc::Sender<ServiceMessage>,
     seq: u64,
@@ -1364,6 +1366,16 @@ impl StreamHandle {
 
     pub fn worker(&self) -> &str {
         &self.worker
+    }
+
+    /// The worker's latest measured positions (heartbeat or feedback), when it sent any.
+    pub fn measured(&self) -> Option<Vec<f64>> {
+        self.hub
+            .lock()
+            .workers
+            .get(&self.conn)
+            .map(|w| w.snapshot.positions.clone())
+            .filter(|p| !p.is_empty())
     }
 
     /// Whether the execution still runs on its worker.

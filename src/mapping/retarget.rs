@@ -129,6 +129,8 @@ pub struct Retargeter {
     goals: FrameGoals,
     last_t: Option<f64>,
     out: Vec<f64>,
+    /// The output started from a given posture ([`Retargeter::start_from`]).
+    start: bool,
     vmax: Vec<f64>,
     frames: usize,
 }
@@ -194,6 +196,7 @@ impl Retargeter {
             goals: FrameGoals::default(),
             last_t: None,
             out: vec![0.0; nq],
+            start: false,
             vmax,
             frames: 0,
         })
@@ -217,6 +220,21 @@ impl Retargeter {
     /// The registration in use (after the first accepted frame).
     pub fn registration(&self) -> Option<&Registration> {
         self.reg.as_ref()
+    }
+
+    /// Starts the output from posture `q` (in [`Self::joint_names`] order; e.g. where a robot
+    /// driven by the stream stands): the first frame's output is `q` itself, and from the second
+    /// frame on the low-pass and the speed bound move the output from there towards the
+    /// solutions, so a teleoperated robot is led from its own posture to the operator's at the
+    /// bounded speed rather than sent to a far first setpoint. Before the first frame only;
+    /// ignored when `q` has the wrong length or a value that is not finite.
+    pub fn start_from(&mut self, q: &[f64]) -> bool {
+        let ok = self.frames == 0 && q.len() == self.out.len() && q.iter().all(|x| x.is_finite());
+        if ok {
+            self.out.copy_from_slice(q);
+            self.start = true;
+        }
+        ok
     }
 
     /// The goals of the last accepted frame (robot base frame).
@@ -265,6 +283,7 @@ impl Retargeter {
         let q = self.mapper.solution();
         let mut filtered = false;
         match self.last_t {
+            None if self.start => filtered = self.out != q,
             None => self.out.copy_from_slice(q),
             Some(previous) => {
                 let dt = kp.t - previous;

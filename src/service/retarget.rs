@@ -200,6 +200,11 @@ pub struct RetargetReady {
     pub execution_id: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub worker: Option<String>,
+    /// With `forward=true`: the answers start at the robot's measured posture (the worker's
+    /// latest heartbeat) and move from there to the retargeted one within `speed_scale` and
+    /// `cutoff_hz` (without either, the second answer is already the retargeted posture).
+    #[serde(default)]
+    pub starts_from_robot: bool,
 }
 
 /// With `forward=true`: what became of an answer's `q` on the robot.
@@ -286,6 +291,7 @@ pub struct Session {
     retargeter: Option<Retargeter>,
     /// Teleoperation: the streaming execution the answers drive.
     stream: Option<crate::bridge::StreamHandle>,
+    starts_from_robot: bool,
 }
 
 /// Opens a stream onto robot `id` (404 unknown robot, 422 bad options).
@@ -307,6 +313,7 @@ pub async fn open(ctx: &Context, id: &str, query: &RetargetQuery) -> Result<Sess
         system,
         retargeter: Some(retargeter),
         stream: None,
+        starts_from_robot: false,
     })
 }
 
@@ -325,6 +332,7 @@ impl Session {
             keypoints: KEYPOINT_NAMES.iter().map(|s| s.to_string()).collect(),
             execution_id: self.stream.as_ref().map(|s| s.id().to_owned()),
             worker: self.stream.as_ref().map(|s| s.worker().to_owned()),
+            starts_from_robot: self.starts_from_robot,
         }
     }
 
@@ -348,20 +356,25 @@ impl Session {
                 .hold_after_s
                 .unwrap_or(crate::store::payload::DEFAULT_HOLD_AFTER),
         };
-        self.stream = Some(
-            ctx.bridges
-                .open_stream(&self.robot, worker.as_ref(), payload)
-                .await
-                .map_err(|e| match e {
-                    crate::bridge::BridgeError::InvalidPayload(issues) => Error::Invalid(
-                        issues
-                            .into_iter()
-                            .map(|i| super::Invalid::new(format!("$.{}", i.at), i.message))
-                            .collect(),
-                    ),
-                    e => e.into(),
-                })?,
-        );
+        let stream = ctx
+            .bridges
+            .open_stream(&self.robot, worker.as_ref(), payload)
+            .await
+            .map_err(|e| match e {
+                crate::bridge::BridgeError::InvalidPayload(issues) => Error::Invalid(
+                    issues
+                        .into_iter()
+                        .map(|i| super::Invalid::new(format!("$.{}", i.at), i.message))
+                        .collect(),
+                ),
+                e => e.into(),
+            })?;
+        // The answers start where the robot stands and lead it to the operator's posture at
+        // the stream's speed bound, instead of sending it a far first setpoint.
+        if let (Some(q), Some(r)) = (stream.measured(), self.retargeter.as_mut()) {
+            self.starts_from_robot = r.start_from(&q);
+        }
+        self.stream = Some(stream);
         Ok(())
     }
 

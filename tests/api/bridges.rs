@@ -1677,7 +1677,6 @@ async fn refused_upgrade(url: &str) -> u16 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     use reachgrasp::mapping::retarget::targets::reachable_stream;
-    use reachgrasp::mapping::{MappingModel, RetargetOptions, Retargeter};
     use reachgrasp::service::retarget::KeypointFrameMsg;
 
     let app = spawn(|_| {}).await;
@@ -1701,18 +1700,10 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     .await;
     assert_eq!(p["errors"][0]["path"], "$.worker", "{p}");
 
-    // The stream: 1.5 s of reachable targets at 100 Hz. The worker's hand starts where the
-    // first frame retargets to (as an operator's robot is brought to the operator's pose
-    // before teleoperation; from elsewhere it would first travel there at its limits).
+    // The stream: 1.5 s of reachable targets at 100 Hz; the worker's hand starts at its home
+    // posture, away from the operator's.
     let stream = reachable_stream(&sys, 1.5, 100.0, 11).unwrap();
-    let mut local = Retargeter::new(
-        MappingModel::from_system(&sys).unwrap(),
-        RetargetOptions::default(),
-    )
-    .unwrap();
-    local.push(&stream.frames[0]).unwrap();
     let mut opts = WorkerOptions::for_system(&app.ws, TOKEN, "tele", &robot, &sys, 40.0);
-    opts.initial = Some(local.output().to_vec());
     opts.backoff_initial = Duration::from_millis(50);
     let mut w = Worker::start(opts);
     w.until(10, |e| *e == WorkerEvent::Connected).await;
@@ -1730,6 +1721,8 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     .unwrap();
     let ready = answer(&mut ws).await;
     assert_eq!(ready["worker"], "tele", "{ready}");
+    assert_eq!(ready["starts_from_robot"], true, "{ready}");
+    let home = floats(&app.get("/v1/bridges").await["items"][0]["connection"]["positions"]);
     let id = ready["execution_id"].as_str().unwrap().to_owned();
     let e = app.get(&format!("/v1/executions/{id}")).await;
     assert_eq!(
@@ -1751,6 +1744,10 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
         ws.send(Message::Text(msg.into())).await.unwrap();
         let a = answer(&mut ws).await;
         assert_eq!(a["forward"]["setpoint"], "sent", "frame {k}: {a}");
+        if k == 0 {
+            // The answers start where the robot stands, then lead it at the speed bound.
+            assert_eq!(floats(&a["q"]), home, "{a}");
+        }
         if a["forward"]["measured"].is_array() {
             measured += 1;
         }

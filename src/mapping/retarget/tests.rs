@@ -185,6 +185,70 @@ fn the_low_pass_and_the_speed_bound_match_their_closed_forms() {
     assert!(capped, "the step is large enough for the bound to act");
 }
 
+/// A stream started from a robot's posture (teleoperation): the first output is that posture,
+/// each later one moves at most the speed bound per frame (closed form), and once the bounded
+/// output has caught up it is the unstarted retargeter's output (a second retargeter, the
+/// reference), because the solver never sees the output.
+#[test]
+fn a_stream_started_from_the_robot_leads_it_to_the_operator_at_the_speed_bound() {
+    let sys = ff16();
+    let mm = MappingModel::from_system(&sys).unwrap();
+    let stream = reachable_stream(&sys, 2.0, 100.0, 3).unwrap();
+    let opts = RetargetOptions {
+        speed_scale: Some(0.5),
+        ..RetargetOptions::default()
+    };
+    let mut plain = Retargeter::new(mm.clone(), opts.clone()).unwrap();
+    let mut started = Retargeter::new(mm, opts).unwrap();
+    let robot = vec![0.0; 16];
+    assert!(!started.start_from(&[0.0; 3]), "wrong length: ignored");
+    assert!(started.start_from(&robot));
+    let vmax = sys.model.velocity_limits().to_vec();
+    let dt = 0.01;
+    let mut caught_up = None;
+    for (k, f) in stream.frames.iter().enumerate() {
+        plain.push(f).unwrap();
+        let prev = started.output().to_vec();
+        let step = started.push(f).unwrap();
+        if k == 0 {
+            assert_eq!(
+                started.output(),
+                &robot[..],
+                "the first answer is the robot's posture"
+            );
+            assert!(step.filtered);
+            continue;
+        }
+        for i in 0..16 {
+            let d = (started.output()[i] - prev[i]).abs();
+            assert!(
+                d <= 0.5 * vmax[i] * dt + 1e-12,
+                "frame {k}: joint {i} moved {d}"
+            );
+        }
+        let gap = started
+            .output()
+            .iter()
+            .zip(plain.output())
+            .fold(0.0_f64, |m, (a, b)| m.max((a - b).abs()));
+        if gap < 1e-12 && caught_up.is_none() {
+            caught_up = Some(k);
+        }
+        if caught_up.is_some() {
+            assert!(
+                gap < 1e-12,
+                "frame {k}: {gap} off the unstarted output after catching up"
+            );
+        }
+    }
+    let k = caught_up.expect("the started output catches up within 2 s");
+    assert!(
+        k > 1,
+        "the robot's posture was far enough for the bound to act ({k})"
+    );
+    assert!(!started.start_from(&robot), "only before the first frame");
+}
+
 /// Bad frames are refused one by one and change nothing; a frame stream goes on after them.
 #[test]
 fn refused_frames_leave_the_stream_as_it_was() {

@@ -306,7 +306,7 @@ def test_a_forwarded_keypoint_stream_teleoperates_the_physics_worker(seeded_serv
         async def teleoperate():
             async with connect(url) as ws:
                 ready = json.loads(await ws.recv())
-                assert ready["worker"] == w.name, ready
+                assert ready["worker"] == w.name and ready["starts_from_robot"], ready
                 t0, wall0, answers = frames[0]["t"], time.monotonic(), []
                 for f in frames:
                     ahead = (f["t"] - t0) - (time.monotonic() - wall0)
