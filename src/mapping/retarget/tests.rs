@@ -198,7 +198,7 @@ fn a_stream_started_from_the_robot_leads_it_to_the_operator_at_the_speed_bound()
         speed_scale: Some(0.5),
         ..RetargetOptions::default()
     };
-    let mut plain = Retargeter::new(mm.clone(), opts.clone()).unwrap();
+    let mut plain = Retargeter::new(mm.clone(), opts).unwrap();
     let mut started = Retargeter::new(mm, opts).unwrap();
     let robot = vec![0.0; 16];
     assert!(!started.start_from(&[0.0; 3]), "wrong length: ignored");
