@@ -54,7 +54,7 @@ pub struct InlineTrajectory {
 pub struct CreateExecution {
     /// Robot system id, e.g. `wam_ihy`.
     pub robot: String,
-    pub mode: crate::store::payload::RequestedMode,
+    pub mode: crate::bridge::RequestedMode,
     /// A stored trajectory (`POST /v1/trajectories`).
     pub trajectory_id: Option<String>,
     /// An inline trajectory.

@@ -21,7 +21,7 @@ pub use client::{
     TrajectoryClient,
 };
 pub use hub::{Hub, HubSettings, StreamHandle, StreamSend, TrackingSummary, WorkerSnapshot};
-pub use protocol::{ExecutionPayload, Mode};
+pub use protocol::{ExecutionPayload, Mode, RequestedMode};
 
 use crate::store::library::LibraryError;
 

@@ -23,7 +23,7 @@ pub const PROTOCOL_VERSION: u32 = 1;
 /// and the connection closed).
 pub const MAX_WORKER_MESSAGE_BYTES: usize = 64 * 1024;
 
-pub use crate::store::payload::{ExecutionPayload, Mode, TrajectoryPointSchema};
+pub use crate::store::payload::{ExecutionPayload, Mode, RequestedMode, TrajectoryPointSchema};
 
 /// What a worker can do (announced in `hello`); executions are only sent to a worker with the
 /// capability of their mode.

@@ -821,7 +821,7 @@ fn default_study_is_mapped_above_the_table_with_humanlike_elbows_on_every_system
 /// move it (found by perturbation), on a 2° grid over those joints, and not below the support
 /// plane (z = 0: the elbow point lies inside its link's collision shape, which must stay above
 /// the table). Independent of the mapping code: plain FK of the system.
-fn lowest_elbow_height(sys: &System) -> f64 {
+pub(super) fn lowest_elbow_height(sys: &System) -> f64 {
     let mm = MappingModel::from_system(sys).unwrap();
     let model = &sys.model;
     let elbow = sys.elbow_frames[0];
@@ -882,7 +882,7 @@ fn lowest_elbow_height(sys: &System) -> f64 {
 /// `â × r̂` is horizontal), so the allowed swivels are `|φ| ≥ acos((c_z − z_min) / (r |r̂_z|))`.
 /// A necessary condition only: the other joint limits may forbid more. `None` when the wrist is
 /// out of the links' reach or the axis is vertical.
-struct ElbowCircle {
+pub(super) struct ElbowCircle {
     centre: nalgebra::Point3<f64>,
     radius: f64,
     /// Unit vectors across the axis: towards the lowest point, and `â × r̂`.
@@ -893,7 +893,7 @@ struct ElbowCircle {
 }
 
 impl ElbowCircle {
-    fn new(
+    pub(super) fn new(
         s: &nalgebra::Point3<f64>,
         w: &nalgebra::Point3<f64>,
         upper: f64,
@@ -928,7 +928,7 @@ impl ElbowCircle {
     }
 
     /// The smallest swivel difference to the human's `human` swivel the allowed arc permits.
-    fn swivel_floor(&self, human: f64) -> f64 {
+    pub(super) fn swivel_floor(&self, human: f64) -> f64 {
         (self.edge - human.abs()).max(0.0)
     }
 

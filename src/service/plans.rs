@@ -97,7 +97,7 @@ pub struct PlanIn {
     pub execute: bool,
     /// Execution mode (default `open_loop`: follow the trajectory; `closed_loop`: the worker
     /// runs the model's control law to the grasp configuration).
-    pub mode: Option<crate::store::payload::RequestedMode>,
+    pub mode: Option<crate::bridge::RequestedMode>,
     /// Worker to execute on (default: the connected worker of the robot the start was checked
     /// against, or any when none is connected); also the worker whose state `"current"` reads.
     pub worker: Option<String>,
@@ -140,7 +140,7 @@ struct PlanWire {
     rate: Option<f64>,
     #[serde(default)]
     execute: bool,
-    mode: Option<crate::store::payload::RequestedMode>,
+    mode: Option<crate::bridge::RequestedMode>,
     worker: Option<String>,
     #[serde(default)]
     obstacles: Vec<crate::geometry::ObstacleSpec>,
@@ -546,7 +546,7 @@ async fn attempt(
         // The closed-loop law is certified inside the workspace only: a start outside it is
         // entered along a straight line by the open-loop trajectory, which that law cannot run.
         let closed_loop =
-            body.execute && body.mode == Some(crate::store::payload::RequestedMode::ClosedLoop);
+            body.execute && body.mode == Some(crate::bridge::RequestedMode::ClosedLoop);
         // What the worker's safety filter keeps that law clear of (issue 18 item 3).
         safety = closed_loop.then(|| {
             SafetySpec::new(

@@ -371,8 +371,52 @@ fn an_arm_hand_system_follows_a_keypoint_stream_with_a_humanlike_elbow() {
     );
     assert!((ms - mg).abs().to_degrees() < 5.0);
     assert!((ts - tg).abs() < 5e-3);
+    // Issue 16's swivel claim as the robot's joint limits allow it (the floors of
+    // `mapping::tests`): the streamed elbow's median swivel difference above the smallest one
+    // the robot's shoulder and wrist permit at each frame.
+    let above = swivel_above_floor(&sys, &kps);
+    eprintln!(
+        "wam_ihy streamed keypoints: median swivel difference above the floor {:.1} deg",
+        above.to_degrees()
+    );
+    assert!(
+        above.to_degrees() <= 15.0,
+        "{} deg above",
+        above.to_degrees()
+    );
     // Without the arm a frame is refused for an arm system.
     let mut bare = kps[0];
     bare.elbow = None;
     assert!(matches!(r.push(&bare), Err(RetargetError::MissingArm)));
+}
+
+/// Median over a stream of `kps` onto `sys` (default options) of the swivel difference minus
+/// its floor, rad: the smallest difference the robot's joint limits allow at the retargeted
+/// shoulder and wrist (`mapping::tests::ElbowCircle`, the lowest elbow height the limits reach).
+fn swivel_above_floor(sys: &System, kps: &[KeypointFrame]) -> f64 {
+    use crate::mapping::tests::{ElbowCircle, lowest_elbow_height};
+    let mm = MappingModel::from_system(sys).unwrap();
+    let mut r = Retargeter::new(mm, RetargetOptions::default()).unwrap();
+    let z_min = lowest_elbow_height(sys);
+    let mut data = Data::new(&sys.model);
+    let mut excess = Vec::new();
+    for kp in kps {
+        let step = r.push(kp).unwrap();
+        forward_kinematics(&sys.model, &mut data, r.output());
+        let p = |frame| Point3::from(data.frame(frame).translation.vector);
+        let (s, e, w) = (
+            p(sys.shoulder_frame),
+            p(sys.elbow_frames[0]),
+            p(sys.wrist_frame),
+        );
+        if let Some(c) = ElbowCircle::new(&s, &w, (e - s).norm(), (w - e).norm(), z_min) {
+            let floor = c.swivel_floor(step.metrics.swivel_human);
+            assert!(
+                step.metrics.swivel_difference >= floor - 1e-6,
+                "a frame beats its floor: the floor is wrong"
+            );
+            excess.push(step.metrics.swivel_difference - floor);
+        }
+    }
+    median(&mut excess)
 }
