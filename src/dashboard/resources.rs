@@ -540,6 +540,20 @@ pub async fn trajectory(State(state): State<AppState>, Path(id): Path<String>) -
     ))
 }
 
+/// What a worker's capabilities let it run, in words.
+fn capability_words(caps: &[crate::bridge::protocol::Capability]) -> String {
+    use crate::bridge::protocol::Capability as C;
+    caps.iter()
+        .map(|c| match c {
+            C::OpenLoop => "open loop",
+            C::ClosedLoop => "closed loop",
+            C::SafetyFilter => "safety filter",
+            C::Streaming => "teleoperation (streaming)",
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 pub async fn bridges(State(state): State<AppState>) -> Page {
     let live = state.bridges.workers();
     let known = execution_repo::list_bridges(&state.db).await?;
@@ -559,6 +573,7 @@ pub async fn bridges(State(state): State<AppState>) -> Page {
                     .as_deref()
                     .map(|e| link(&format!("/ui/executions/{e}"), short(e)))
                     .unwrap_or_default(),
+                capability_words(&w.capabilities),
                 esc(&w.connected_at),
             ]
         })
@@ -572,17 +587,24 @@ pub async fn bridges(State(state): State<AppState>) -> Page {
             esc(&r.robot),
             "disconnected".into(),
             String::new(),
+            serde_json::from_str::<Vec<crate::bridge::protocol::Capability>>(&r.capabilities)
+                .map(|c| capability_words(&c))
+                .unwrap_or_default(),
             esc(&r.last_seen_at),
         ]);
     }
     let body = format!(
-        "{}<p>Start a simulated worker with <code>reachgrasp bridge --sim</code>.</p>",
+        "{}<p>Start a simulated worker with <code>reachgrasp bridge --sim</code>. A worker that \
+         can stream is teleoperated from a keypoint stream: \
+         <code>GET /v1/robots/{{id}}/retarget?forward=true</code> (README, Retargeting keypoint \
+         streams).</p>",
         table(
             &[
                 "worker",
                 "robot",
                 "status",
                 "execution",
+                "runs",
                 "connected / last seen"
             ],
             &trs

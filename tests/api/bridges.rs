@@ -1707,6 +1707,16 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     opts.backoff_initial = Duration::from_millis(50);
     let mut w = Worker::start(opts);
     w.until(10, |e| *e == WorkerEvent::Connected).await;
+    let page = app
+        .client
+        .get(format!("{}/ui/bridges", app.base))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(page.contains("teleoperation (streaming)"), "{page}");
     assert_eq!(
         refused_upgrade(&url("forward=true&worker=someone-else")).await,
         409
