@@ -2,7 +2,9 @@
 //! one task per WebSocket connection.
 //!
 //! Ownership rules: the dispatcher task is the only one that moves an execution `queued` →
-//! `running` (so an execution is never sent twice), and a worker holds at most one execution
+//! `running` (so an execution is never sent twice; a stream, [`Hub::open_stream`], is never
+//! queued: it claims an idle worker under the state lock and is stored `running` at once), and a
+//! worker holds at most one execution
 //! (it drives one physical robot; executions for the same robot system run in parallel on
 //! different workers). Everything else (feedback, results, cancellation, disconnects) is
 //! handled on the connection's own task; one misbehaving connection never blocks the others

@@ -225,25 +225,12 @@ pub fn validate_payload(
                 }
             }
         }
-        ExecutionPayload::Stream {
-            rate_hz,
-            hold_after_s,
-            ..
-        } => {
+        ExecutionPayload::Stream { hold_after_s, .. } => {
             if !(hold_after_s.is_finite() && (0.01..=10.0).contains(hold_after_s)) {
                 errors.push(PayloadIssue::new(
                     P::Stream,
                     "hold_after_s",
                     format!("must be in [0.01, 10] s, got {hold_after_s}"),
-                ));
-            }
-            if let Some(r) = rate_hz
-                && !(r.is_finite() && (0.1..=1000.0).contains(r))
-            {
-                errors.push(PayloadIssue::new(
-                    P::Stream,
-                    "rate_hz",
-                    format!("must be in [0.1, 1000] Hz, got {r}"),
                 ));
             }
         }

@@ -968,7 +968,6 @@ mod tests {
             payload: ExecutionPayload::Stream {
                 source: "test".into(),
                 joint_names: names.clone(),
-                rate_hz: Some(50.0),
                 hold_after_s: hold,
             },
         };

@@ -351,7 +351,6 @@ impl Session {
         let payload = crate::bridge::ExecutionPayload::Stream {
             source: "retarget".into(),
             joint_names: self.system.model.joint_names().to_vec(),
-            rate_hz: None,
             hold_after_s: query
                 .hold_after_s
                 .unwrap_or(crate::store::payload::DEFAULT_HOLD_AFTER),

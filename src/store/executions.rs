@@ -618,7 +618,6 @@ mod tests {
         let stream = ExecutionPayload::Stream {
             source: "retarget".into(),
             joint_names: vec!["a".into()],
-            rate_hz: None,
             hold_after_s: 0.2,
         };
         assert!(

@@ -95,8 +95,6 @@ pub enum ExecutionPayload {
         /// Where the setpoints come from (`retarget`: the retargeting WebSocket).
         source: String,
         joint_names: Vec<String>,
-        /// Setpoint rate the sender aims at, Hz (informational: the worker follows the latest).
-        rate_hz: Option<f64>,
         /// The worker brakes to a stop when no setpoint arrived for this long, s (a lost
         /// teleoperation link must not leave the robot moving).
         hold_after_s: f64,
