@@ -32,6 +32,15 @@ PROTOCOL_VERSION = 1
 log = logging.getLogger("reachgrasp_mujoco")
 
 
+def advance(run: Execution, periods: int):
+    """Up to `periods` control periods of `run` (fewer when it ends): (outcome, periods run)."""
+    out, n = None, 0
+    while n < periods and out is None:
+        out = run.tick()
+        n += 1
+    return out, n
+
+
 class Refused(RuntimeError):
     """The service refused the token or the hello: stop for good."""
 
@@ -229,18 +238,20 @@ class Worker:
                     outcome = ("succeeded", None)
                     await send(run.feedback())
                     break
-                outcome = run.tick()
-                ticks += 1
+                # The simulation runs on a thread, never on the event loop: one control period
+                # can take seconds (the grasp trial's lift path is hundreds of IK solves), and a
+                # loop blocked that long sends no heartbeat, so a loaded machine used to lose the
+                # connection and the execution mid-trial (`interrupted`). Paced runs step one
+                # period at a time, unpaced ones up to the next feedback.
+                batch = 1 if pace > 0 else every - ticks % every
+                outcome, n = await loop.run_in_executor(None, advance, run, batch)
+                ticks += n
                 if ticks % every == 0 or outcome is not None:
                     await send(run.feedback())
                 if pace > 0:
                     ahead = (run.sim.t - sim0) / pace - (time.monotonic() - wall0)
                     if ahead > 0:
                         await asyncio.sleep(ahead)
-                    elif ticks % 5 == 0:
-                        await asyncio.sleep(0)
-                elif ticks % 5 == 0:
-                    await asyncio.sleep(0)
         finally:
             self.current = None
             self.cancel_id = None
