@@ -8,6 +8,7 @@ synchronous and deterministic for a given model, execution and seed; the bridge 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 
 import mujoco
@@ -422,6 +423,8 @@ class Follow:
     def __init__(self, sim: Sim, hold_after: float):
         self.sim = sim
         self.hold_after = float(hold_after)
+        # Setpoints arrive on the event loop while the simulation ticks on a worker thread.
+        self.lock = threading.Lock()
         self.target = None
         self.velocity = None
         self.received_at = 0.0
@@ -434,6 +437,10 @@ class Follow:
         self.progress = 0.0
 
     def setpoint(self, m: dict) -> bool:
+        with self.lock:
+            return self._setpoint(m)
+
+    def _setpoint(self, m: dict) -> bool:
         n = self.sim.n
         q, v, seq, t = m.get("positions"), m.get("velocities"), m.get("seq"), m.get("t")
         ok = (
@@ -457,6 +464,10 @@ class Follow:
         return True
 
     def tick(self):
+        with self.lock:
+            return self._tick()
+
+    def _tick(self):
         sim = self.sim
         since = sim.t - self.received_at
         if self.target is not None and since <= self.hold_after:
