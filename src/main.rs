@@ -201,7 +201,8 @@ struct BridgeArgs {
     /// limits at the control rate).
     #[arg(long)]
     sim: bool,
-    /// Robot system id (bundled in the robots folder, a descriptor file, or registered).
+    /// Robot system id (bundled in the robots folder, a descriptor file, registered in the local
+    /// database, or else loaded from the service at `--url`).
     #[arg(long)]
     robot: String,
     /// The service's bridge WebSocket.
@@ -746,11 +747,24 @@ fn bridge(args: BridgeArgs) -> anyhow::Result<()> {
             .is_none_or(|x| x > 0.0 && x.is_finite()),
         "--perturb-max-displacement must be positive"
     );
-    let system = reachgrasp::store::library::resolve_for_cli(
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    // A worker on another machine has neither the descriptor file nor the service's database:
+    // a robot that is not found locally is loaded from the service it connects to.
+    let system = match reachgrasp::store::library::resolve_for_cli(
         &args.sources.robots,
         &args.sources.db,
         &args.robot,
-    )?;
+    ) {
+        Ok(s) => s,
+        Err(local) => runtime
+            .block_on(reachgrasp::bridge::worker::fetch_system(
+                &args.url,
+                &args.robot,
+            ))
+            .map_err(|e| anyhow::anyhow!("{local}; nor from the service: {e:#}"))?,
+    };
     let name = args.name.unwrap_or_else(|| format!("sim-{}", args.robot));
     let mut opts = WorkerOptions::for_system(
         args.url,
@@ -782,9 +796,6 @@ fn bridge(args: BridgeArgs) -> anyhow::Result<()> {
         max_displacement: args.perturb_max_displacement,
         ..Perturbation::default()
     });
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()?;
     runtime.block_on(async { run_worker(opts, None, shutdown_signal()).await })?;
     Ok(())
 }

@@ -111,6 +111,60 @@ impl WorkerOptions {
     }
 }
 
+/// The service's HTTP base for its bridge URL (`ws://host:port/v1/bridges/connect` →
+/// `http://host:port`; `wss` → `https`).
+pub fn http_base(url: &str) -> Option<String> {
+    let (scheme, rest) = url.split_once("://")?;
+    let scheme = match scheme {
+        "ws" => "http",
+        "wss" => "https",
+        _ => return None,
+    };
+    let authority = rest.split('/').next().filter(|a| !a.is_empty())?;
+    Some(format!("{scheme}://{authority}"))
+}
+
+/// Loads a robot registered with the service over its HTTP API (`GET /v1/robots/{id}` for the
+/// descriptor, `GET /v1/robots/{id}/urdf` for the combined URDF): what a worker on another
+/// machine than the service (a container on the lab network) needs. Meshes are not fetched:
+/// a registered system whose collision geometry uses uploaded meshes fails to build here with
+/// a message naming the mesh.
+pub async fn fetch_system(
+    bridge_url: &str,
+    robot: &str,
+) -> anyhow::Result<crate::kinematics::System> {
+    use anyhow::Context;
+    let base = http_base(bridge_url)
+        .with_context(|| format!("cannot derive the service's HTTP address from {bridge_url}"))?;
+    let client = reqwest::Client::builder()
+        .timeout(Duration::from_secs(30))
+        .build()?;
+    let id = robot.replace('/', "%2F");
+    let detail: serde_json::Value = client
+        .get(format!("{base}/v1/robots/{id}"))
+        .send()
+        .await?
+        .error_for_status()
+        .with_context(|| format!("robot '{robot}' is not registered with the service at {base}"))?
+        .json()
+        .await?;
+    let urdf = client
+        .get(format!("{base}/v1/robots/{id}/urdf"))
+        .send()
+        .await?
+        .error_for_status()?
+        .text()
+        .await?;
+    let desc: crate::kinematics::SystemDescriptor =
+        serde_json::from_value(detail["descriptor"].clone())
+            .context("the service's robot detail has no readable descriptor")?;
+    Ok(crate::kinematics::System::from_sources(
+        desc,
+        crate::kinematics::UrdfSources::Combined(&urdf),
+        &crate::kinematics::NoMeshes,
+    )?)
+}
+
 /// What happens inside a worker (for tests and the benchmark).
 #[derive(Debug, Clone, PartialEq)]
 pub enum WorkerEvent {
@@ -453,5 +507,24 @@ where
                 return SessionEnd::Lost(e.to_string());
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::http_base;
+
+    #[test]
+    fn the_http_base_comes_from_the_bridge_url() {
+        assert_eq!(
+            http_base("ws://10.0.0.5:8080/v1/bridges/connect").as_deref(),
+            Some("http://10.0.0.5:8080")
+        );
+        assert_eq!(
+            http_base("wss://lab.example/v1/bridges/connect").as_deref(),
+            Some("https://lab.example")
+        );
+        assert_eq!(http_base("http://x/v1"), None);
+        assert_eq!(http_base("ws:///v1"), None);
     }
 }

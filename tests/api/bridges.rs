@@ -1703,7 +1703,18 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     // The stream: 1.5 s of reachable targets at 100 Hz; the worker's hand starts at its home
     // posture, away from the operator's.
     let stream = reachable_stream(&sys, 1.5, 100.0, 11).unwrap();
-    let mut opts = WorkerOptions::for_system(&app.ws, TOKEN, "tele", &robot, &sys, 40.0);
+    // A worker elsewhere on the lab network loads the registered hand from the service itself.
+    let fetched = reachgrasp::bridge::worker::fetch_system(&app.ws, &robot)
+        .await
+        .unwrap();
+    assert_eq!(fetched.model.joint_names(), sys.model.joint_names());
+    assert_eq!(fetched.model.upper_limits(), sys.model.upper_limits());
+    assert!(
+        reachgrasp::bridge::worker::fetch_system(&app.ws, "no-such-robot")
+            .await
+            .is_err()
+    );
+    let mut opts = WorkerOptions::for_system(&app.ws, TOKEN, "tele", &robot, &fetched, 40.0);
     opts.backoff_initial = Duration::from_millis(50);
     let mut w = Worker::start(opts);
     w.until(10, |e| *e == WorkerEvent::Connected).await;
