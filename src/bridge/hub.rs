@@ -115,6 +115,9 @@ impl WorkerSnapshot {
     }
 }
 
+/// A claimed worker: its connection, name and outbox.
+type Claimed = (u64, String, mpsc::Sender<ServiceMessage>);
+
 struct Worker {
     snapshot: WorkerSnapshot,
     last_heartbeat: Option<Instant>,
@@ -385,20 +388,7 @@ impl Hub {
                     && (!filtered || w.snapshot.capabilities.contains(&Capability::SafetyFilter))
                     && row.worker.as_ref().is_none_or(|n| *n == w.snapshot.name)
             };
-            let (pick, any) = {
-                let mut s = self.lock();
-                let any = s.workers.values().any(&compatible);
-                let pick = s
-                    .workers
-                    .iter_mut()
-                    .filter(|(_, w)| w.snapshot.execution_id.is_none() && compatible(w))
-                    .min_by_key(|(c, _)| **c)
-                    .map(|(c, w)| {
-                        w.snapshot.execution_id = Some(row.id.clone());
-                        (*c, w.snapshot.name.clone(), w.tx.clone())
-                    });
-                (pick, any)
-            };
+            let (pick, any) = self.claim(&row.id, compatible);
             let Some((conn, name, tx)) = pick else {
                 if !any
                     && let Some(d) = &deadline
@@ -437,15 +427,7 @@ impl Hub {
                 }
                 continue;
             };
-            let release = |hub: &Hub| {
-                let mut s = hub.lock();
-                s.live.remove(&row.id);
-                if let Some(w) = s.workers.get_mut(&conn)
-                    && w.snapshot.execution_id.as_deref() == Some(row.id.as_str())
-                {
-                    w.snapshot.execution_id = None;
-                }
-            };
+            let release = |hub: &Hub| hub.release(conn, &row.id);
             let payload = match early {
                 Some(p) => p,
                 None => match repo::payload(&self.0.db, &row.id).await {
@@ -509,26 +491,12 @@ impl Hub {
     ) -> Result<StreamHandle, BridgeError> {
         self.check(robot, Mode::Streaming, &payload).await?;
         let id = uuid::Uuid::new_v4().to_string();
-        let claimed = {
-            let mut s = self.lock();
-            let fits = |w: &Worker| {
-                w.snapshot.robot == robot
-                    && w.snapshot.capabilities.contains(&Capability::Streaming)
-                    && worker.is_none_or(|n| n.as_str() == w.snapshot.name)
-            };
-            let any = s.workers.values().any(fits);
-            let pick = s
-                .workers
-                .iter_mut()
-                .filter(|(_, w)| w.snapshot.execution_id.is_none() && fits(w))
-                .min_by_key(|(c, _)| **c)
-                .map(|(c, w)| {
-                    w.snapshot.execution_id = Some(id.clone());
-                    (*c, w.snapshot.name.clone(), w.tx.clone())
-                });
-            pick.ok_or(any)
-        };
-        let (conn, name, tx) = claimed.map_err(|any| {
+        let (pick, any) = self.claim(&id, |w: &Worker| {
+            w.snapshot.robot == robot
+                && w.snapshot.capabilities.contains(&Capability::Streaming)
+                && worker.is_none_or(|n| n.as_str() == w.snapshot.name)
+        });
+        let (conn, name, tx) = pick.ok_or(any).map_err(|any| {
             let which = worker.map_or_else(String::new, |n| format!(" named '{n}'"));
             BridgeError::NoWorker(if any {
                 format!(
@@ -542,15 +510,7 @@ impl Hub {
                 )
             })
         })?;
-        let release = |hub: &Hub| {
-            let mut s = hub.lock();
-            s.live.remove(&id);
-            if let Some(w) = s.workers.get_mut(&conn)
-                && w.snapshot.execution_id.as_deref() == Some(id.as_str())
-            {
-                w.snapshot.execution_id = None;
-            }
-        };
+        let release = |hub: &Hub| hub.release(conn, &id);
         if let Err(e) = repo::insert_running(&self.0.db, &id, robot, &payload, &name).await {
             release(self);
             return Err(e.into());
@@ -606,6 +566,35 @@ impl Hub {
             skipped: 0,
             ended: false,
         })
+    }
+
+    /// Claims for execution `id` the idle worker `fits` accepts with the lowest connection
+    /// number: its connection, name and outbox; and whether any connected worker fits at all.
+    fn claim(&self, id: &str, fits: impl Fn(&Worker) -> bool) -> (Option<Claimed>, bool) {
+        let mut s = self.lock();
+        let any = s.workers.values().any(&fits);
+        let pick = s
+            .workers
+            .iter_mut()
+            .filter(|(_, w)| w.snapshot.execution_id.is_none() && fits(w))
+            .min_by_key(|(c, _)| **c)
+            .map(|(c, w)| {
+                w.snapshot.execution_id = Some(id.to_owned());
+                (*c, w.snapshot.name.clone(), w.tx.clone())
+            });
+        (pick, any)
+    }
+
+    /// Undoes a claim: forgets the execution's live state and frees worker `conn` if it still
+    /// holds `id`.
+    fn release(&self, conn: u64, id: &str) {
+        let mut s = self.lock();
+        s.live.remove(id);
+        if let Some(w) = s.workers.get_mut(&conn)
+            && w.snapshot.execution_id.as_deref() == Some(id)
+        {
+            w.snapshot.execution_id = None;
+        }
     }
 
     /// Cancels a live execution: a queued one at once, a running one by asking its worker
