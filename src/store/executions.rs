@@ -193,7 +193,6 @@ pub async fn insert_in(
     payload: &ExecutionPayload,
     worker: Option<&str>,
 ) -> Result<ExecutionRow, sqlx::Error> {
-    let (json, points) = split_payload(payload)?;
     let row = ExecutionRow {
         id: Uuid::new_v4().to_string(),
         robot: robot.to_owned(),
@@ -212,22 +211,7 @@ pub async fn insert_in(
         finished_at: None,
         feedback_samples: 0,
     };
-    sqlx::query(
-        "INSERT INTO executions (id, robot, mode, kind, source_id, payload, points, worker, state, created_at) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-    )
-    .bind(&row.id)
-    .bind(&row.robot)
-    .bind(row.mode)
-    .bind(&row.kind)
-    .bind(&row.source_id)
-    .bind(&json)
-    .bind(&points)
-    .bind(&row.worker)
-    .bind(row.state)
-    .bind(&row.created_at)
-    .execute(conn)
-    .await?;
+    write_row(conn, &row, payload).await?;
     Ok(row)
 }
 
@@ -240,25 +224,54 @@ pub async fn insert_running(
     payload: &ExecutionPayload,
     worker: &str,
 ) -> Result<(), sqlx::Error> {
-    let (json, points) = split_payload(payload)?;
     let now = now();
+    let row = ExecutionRow {
+        id: id.to_owned(),
+        robot: robot.to_owned(),
+        mode: payload.mode(),
+        kind: payload.kind().to_owned(),
+        source_id: payload.source_id().to_owned(),
+        worker: Some(worker.to_owned()),
+        state: ExecutionState::Running,
+        assigned_worker: Some(worker.to_owned()),
+        reason: None,
+        cancel_requested: false,
+        last_feedback: None,
+        tracking: None,
+        created_at: now.clone(),
+        dispatched_at: Some(now),
+        finished_at: None,
+        feedback_samples: 0,
+    };
+    let mut conn = pool.acquire().await?;
+    write_row(&mut conn, &row, payload).await
+}
+
+/// Writes a new execution row with its payload (the columns a new execution has).
+async fn write_row(
+    conn: &mut sqlx::SqliteConnection,
+    row: &ExecutionRow,
+    payload: &ExecutionPayload,
+) -> Result<(), sqlx::Error> {
+    let (json, points) = split_payload(payload)?;
     sqlx::query(
         "INSERT INTO executions (id, robot, mode, kind, source_id, payload, points, worker, \
          state, assigned_worker, created_at, dispatched_at) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, 'running', ?, ?, ?)",
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
     )
-    .bind(id)
-    .bind(robot)
-    .bind(payload.mode())
-    .bind(payload.kind())
-    .bind(payload.source_id())
+    .bind(&row.id)
+    .bind(&row.robot)
+    .bind(row.mode)
+    .bind(&row.kind)
+    .bind(&row.source_id)
     .bind(&json)
     .bind(&points)
-    .bind(worker)
-    .bind(worker)
-    .bind(&now)
-    .bind(&now)
-    .execute(pool)
+    .bind(&row.worker)
+    .bind(row.state)
+    .bind(&row.assigned_worker)
+    .bind(&row.created_at)
+    .bind(&row.dispatched_at)
+    .execute(conn)
     .await
     .map(|_| ())
 }
