@@ -25,7 +25,8 @@ use crate::service::retarget::{
     RetargetReady,
     RetargetJoints,
     RetargetFrameError,
-    ForwardStatus
+    ForwardStatus,
+    crate::bridge::StreamSend
 )))]
 struct StreamDoc;
 

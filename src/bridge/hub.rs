@@ -1313,9 +1313,12 @@ mod tests {
     }
 }
 
-/// What [`StreamHandle::send`] did with a setpoint.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// What became of a streamed setpoint (`StreamHandle::send`; the retargeting answers'
+/// `forward.setpoint`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
 pub enum StreamSend {
+    /// Queued to the worker.
     Sent,
     /// The worker's outbox was full (it reads slower than the stream): this setpoint is
     /// dropped, the next one carries on (the worker follows the latest).

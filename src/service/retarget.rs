@@ -213,7 +213,7 @@ pub struct ForwardStatus {
     /// `sent` (queued to the worker), `skipped` (the worker reads slower than the stream: this
     /// setpoint was dropped, it follows the next) or `closed` (the execution is over:
     /// cancelled, or the worker left; frames are still retargeted, nothing is forwarded).
-    pub setpoint: String,
+    pub setpoint: crate::bridge::StreamSend,
     /// The robot's latest measured joint values (worker feedback, `joint_names` order), rad or m.
     pub measured: Option<Vec<f64>>,
     /// Largest joint deviation of the robot from its latest setpoint at that feedback, rad.
@@ -424,14 +424,10 @@ impl Session {
         match result {
             Ok((step, q)) => {
                 let forward = self.stream.as_mut().map(|s| {
-                    let setpoint = match s.send(frame.t, &q) {
-                        crate::bridge::StreamSend::Sent => "sent",
-                        crate::bridge::StreamSend::Skipped => "skipped",
-                        crate::bridge::StreamSend::Closed => "closed",
-                    };
+                    let setpoint = s.send(frame.t, &q);
                     let fb = s.feedback();
                     ForwardStatus {
-                        setpoint: setpoint.into(),
+                        setpoint,
                         measured: fb.as_ref().map(|f| f.positions.clone()),
                         tracking_error: fb.map(|f| f.tracking_error),
                     }
