@@ -275,6 +275,81 @@ pub fn q_agp_point_gradient(contacts: &[Point3<f64>], out: &mut [Vector3<f64>]) 
     a
 }
 
+/// Opposition of the contact normals: the distance from the origin to the convex hull of the
+/// unit normals `n_i`, `d = min_{w ≥ 0, Σw = 1} ‖Σ w_i n_i‖`, with the minimising weights
+/// written into `w` (one per normal). `d = 0`: positive normal forces can balance each other
+/// (an antipodal pair, three fingers around an object); `d = 1`: all normals equal. A frictional
+/// grasp cannot balance its contact forces when `d > sin(atan μ)`: the closest point's
+/// direction then makes an angle below `90° − atan μ` with every normal, so a plane separates
+/// all friction cones from their negatives and closing the hand squeezes the object out.
+///
+/// The weights say which contacts the imbalance comes from and give the gradient
+/// (`∂d/∂n_i = w_i v/‖v‖`, envelope theorem). Hand-rolled rather than parry's GJK, which keeps
+/// its simplex to itself, because the sets are a hand's few fingers: in 3-D the closest point
+/// of a hull the origin is outside of lies on a vertex, edge or triangle, so every subset of at
+/// most three normals is tried and the one whose affine closest point has nonnegative weights
+/// and satisfies the optimality condition `v·(n_j − v) ≥ 0` for every `j` is kept. When none does the origin lies inside the hull: `d = 0` and `w = 0`. Allocates
+/// nothing; more than 16 normals are refused by a panic (no hand has them).
+pub fn normal_balance(normals: &[Vector3<f64>], w: &mut [f64]) -> f64 {
+    let m = normals.len();
+    assert!(m <= 16 && w.len() == m, "normal_balance: {m} normals");
+    w.iter_mut().for_each(|x| *x = 0.0);
+    if m == 0 {
+        return 0.0;
+    }
+    const EPS: f64 = 1e-12;
+    let optimal = |v: &Vector3<f64>| {
+        let vv = v.norm_squared();
+        normals.iter().all(|n| v.dot(n) >= vv - 1e-10)
+    };
+    let mut best: Option<(f64, [usize; 3], [f64; 3], usize)> = None;
+    let mut consider = |idx: [usize; 3], wt: [f64; 3], k: usize| {
+        let v: Vector3<f64> = (0..k).map(|i| normals[idx[i]] * wt[i]).sum();
+        if optimal(&v) {
+            let d = v.norm();
+            if best.is_none_or(|b| d < b.0 - EPS) {
+                best = Some((d, idx, wt, k));
+            }
+        }
+    };
+    for a in 0..m {
+        consider([a, 0, 0], [1.0, 0.0, 0.0], 1);
+        for b in a + 1..m {
+            let e = normals[b] - normals[a];
+            let ee = e.norm_squared();
+            if ee > EPS {
+                let t = -normals[a].dot(&e) / ee;
+                if t > 0.0 && t < 1.0 {
+                    consider([a, b, 0], [1.0 - t, t, 0.0], 2);
+                }
+            }
+            for c in b + 1..m {
+                let e2 = normals[c] - normals[a];
+                let (g11, g12, g22) = (ee, e.dot(&e2), e2.norm_squared());
+                let det = g11 * g22 - g12 * g12;
+                if det <= EPS * g11.max(g22).max(1.0) {
+                    continue;
+                }
+                let (r1, r2) = (-normals[a].dot(&e), -normals[a].dot(&e2));
+                let s = (r1 * g22 - r2 * g12) / det;
+                let t = (r2 * g11 - r1 * g12) / det;
+                if s > 0.0 && t > 0.0 && s + t < 1.0 {
+                    consider([a, b, c], [1.0 - s - t, s, t], 3);
+                }
+            }
+        }
+    }
+    match best {
+        Some((d, idx, wt, k)) => {
+            for i in 0..k {
+                w[idx[i]] = wt[i];
+            }
+            d
+        }
+        None => 0.0,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -469,6 +544,149 @@ mod tests {
                 let fd_agp = (q_agp(&p) - q_agp(&m)) / (2.0 * h);
                 assert!((g_dc[i][a] - fd_dc).abs() < 1e-7);
                 assert!((g_agp[i][a] - fd_agp).abs() < 1e-7);
+            }
+        }
+    }
+
+    fn unit(x: f64, y: f64, z: f64) -> Vector3<f64> {
+        Vector3::new(x, y, z).normalize()
+    }
+
+    /// A second method: projected gradient on the simplex (sort-based Euclidean projection),
+    /// run to convergence.
+    fn hull_distance_by_projected_gradient(n: &[Vector3<f64>]) -> f64 {
+        let m = n.len();
+        let mut w = vec![1.0 / m as f64; m];
+        let step = 1.0 / (2.0 * m as f64);
+        for _ in 0..200_000 {
+            let v: Vector3<f64> = n.iter().zip(&w).map(|(ni, wi)| ni * *wi).sum();
+            let mut y: Vec<f64> = w
+                .iter()
+                .zip(n)
+                .map(|(wi, ni)| wi - step * 2.0 * ni.dot(&v))
+                .collect();
+            let mut s = y.clone();
+            s.sort_by(|a, b| b.total_cmp(a));
+            let (mut acc, mut theta) = (0.0, 0.0);
+            for (k, sk) in s.iter().enumerate() {
+                acc += sk;
+                let t = (acc - 1.0) / (k + 1) as f64;
+                if sk - t > 0.0 {
+                    theta = t;
+                }
+            }
+            y.iter_mut().for_each(|x| *x = (*x - theta).max(0.0));
+            w = y;
+        }
+        n.iter()
+            .zip(&w)
+            .map(|(ni, wi)| ni * *wi)
+            .sum::<Vector3<f64>>()
+            .norm()
+    }
+
+    #[test]
+    fn normal_balance_matches_closed_forms() {
+        let mut w = [0.0; 4];
+        // Two unit normals at angle θ: the hull is their chord, closest at its midpoint, cos(θ/2).
+        for deg in [0.0_f64, 30.0, 90.0, 150.0, 179.0, 180.0] {
+            let t = deg.to_radians();
+            let n = [Vector3::x(), Vector3::new(t.cos(), t.sin(), 0.0)];
+            let d = normal_balance(&n, &mut w[..2]);
+            assert!((d - (t / 2.0).cos().abs()).abs() < 1e-12, "{deg}: {d}");
+            if deg > 0.0 {
+                assert!(
+                    (w[0] - 0.5).abs() < 1e-9 && (w[1] - 0.5).abs() < 1e-9,
+                    "{w:?}"
+                );
+            }
+        }
+        // Three normals 120° apart in a plane: their triangle holds the origin.
+        let n: Vec<_> = (0..3)
+            .map(|k| {
+                let a = k as f64 * 2.0 * std::f64::consts::PI / 3.0;
+                Vector3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        assert!(normal_balance(&n, &mut w[..3]) < 1e-12);
+        // The same three tilted by φ out of the plane: closest point on the axis, at sin φ.
+        let phi = 0.4_f64;
+        let tilted: Vec<_> = n
+            .iter()
+            .map(|v| v * phi.cos() + Vector3::z() * phi.sin())
+            .collect();
+        let d = normal_balance(&tilted, &mut w[..3]);
+        assert!((d - phi.sin()).abs() < 1e-12, "{d}");
+        // A tetrahedron's vertex directions: the origin is inside the hull.
+        let tet = [
+            unit(1.0, 1.0, 1.0),
+            unit(1.0, -1.0, -1.0),
+            unit(-1.0, 1.0, -1.0),
+            unit(-1.0, -1.0, 1.0),
+        ];
+        assert_eq!(normal_balance(&tet, &mut w), 0.0);
+        // Three fingers on one side, a thumb not quite opposite (the OB4F's shape of grasp).
+        let hand = [
+            unit(1.0, 0.0, 0.1),
+            unit(1.0, 0.1, 0.0),
+            unit(1.0, -0.1, 0.0),
+            unit(-1.0, 0.0, 0.0),
+        ];
+        assert!(normal_balance(&hand, &mut w) < 0.1);
+    }
+
+    #[test]
+    fn normal_balance_agrees_with_projected_gradient_and_its_gradient_with_differences() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut w = [0.0; 5];
+        let mut w2 = [0.0; 5];
+        for case in 0..40 {
+            let m = 2 + case % 4;
+            // Normals in a cap of random width about a random axis, from balanced to one-sided.
+            let axis = unit(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            let spread = rng.random_range(0.2..2.5);
+            let n: Vec<Vector3<f64>> = (0..m)
+                .map(|_| {
+                    let r = Vector3::new(
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..1.0),
+                        rng.random_range(-1.0..1.0),
+                    );
+                    (axis + r * spread).normalize()
+                })
+                .collect();
+            let d = normal_balance(&n, &mut w[..m]);
+            let reference = hull_distance_by_projected_gradient(&n);
+            assert!(
+                (d - reference).abs() < 1e-6,
+                "case {case}: {d} vs {reference}"
+            );
+            assert!((w[..m].iter().sum::<f64>() - 1.0).abs() < 1e-9 || d == 0.0);
+            if d < 1e-6 {
+                continue;
+            }
+            // ∂d/∂n_i = w_i v/‖v‖ against central differences of d in each coordinate.
+            let v: Vector3<f64> = n.iter().zip(&w[..m]).map(|(ni, wi)| ni * *wi).sum();
+            let h = 1e-7;
+            for i in 0..m {
+                for a in 0..3 {
+                    let (mut np, mut nm) = (n.clone(), n.clone());
+                    np[i][a] += h;
+                    nm[i][a] -= h;
+                    let fd = (normal_balance(&np, &mut w2[..m])
+                        - normal_balance(&nm, &mut w2[..m]))
+                        / (2.0 * h);
+                    let g = w[i] * v[a] / d;
+                    assert!(
+                        (g - fd).abs() < 1e-5,
+                        "case {case} n[{i}][{a}]: {g} vs {fd}"
+                    );
+                }
             }
         }
     }

@@ -1498,6 +1498,39 @@ fn an_infeasible_first_round_escalates_until_a_start_is_feasible() {
     );
 }
 
+/// A request whose first round has feasible starts, none with contacts that can balance (the
+/// opposition `d` of the contact normals above [`FIRM_BALANCE`]), runs further rounds and answers
+/// with a firm one. The reported opposition is checked against the closed form for two
+/// contacts, `d = ‖n₁ + n₂‖/2 = cos(θ/2)` with θ the angle between their normals.
+#[test]
+fn a_feasible_start_whose_contacts_cannot_balance_escalates_until_a_firm_one() {
+    let (sys, mut req) = wam_t42_request("kitchen_timer", Vector3::y(), Transmission::Velocity);
+    let two_contact = |r: &GraspResult| {
+        let n: Vec<Vector3<f64>> = r.contacts.iter().map(|c| Vector3::from(c.normal)).collect();
+        assert_eq!(n.len(), 2);
+        let d = (n[0].normalize() + n[1].normalize()).norm() / 2.0;
+        assert!(
+            (d - r.exact.normal_balance).abs() < 1e-9,
+            "{d} vs {}",
+            r.exact.normal_balance
+        );
+        d
+    };
+    req.starts = 4;
+    req.max_starts = 4;
+    let first = plan_grasp(&sys, &req).unwrap();
+    req.max_starts = 32;
+    let escalated = plan_grasp(&sys, &req).unwrap();
+    assert!(
+        first.feasible && first.starts_feasible >= 1,
+        "{:?}",
+        first.reason
+    );
+    assert!(two_contact(&first) > FIRM_BALANCE);
+    assert!(escalated.feasible && escalated.starts_used > 4);
+    assert!(two_contact(&escalated) <= FIRM_BALANCE);
+}
+
 /// Determinism: the same request twice, the second time while busy threads load every core,
 /// gives a bit-identical answer (timings aside). With the former 150 ms per-start wall cap the
 /// second answer ended at other iterates whenever the load slowed a start down.
