@@ -7,7 +7,8 @@ Robot (from the service's combined URDF):
 - Every robot body is gravity-compensated (`gravcomp = 1`), as the arm's controller does on the
   real robot; the object's weight still loads the arm through the contacts.
 - Arm and hand joints not driven by a tendon are position servos (PD, force limited by the URDF
-  `effort`, gains from the joint's own inertia so every joint has the same bandwidth).
+  `effort`, gains from the joint's largest inertia over sampled postures, as a real arm's servo
+  is tuned for its worst case: every joint has at least the same bandwidth in every posture).
 - Underactuated fingers: a `<mimic>` joint whose leader is one of its ancestors (a distal phalanx
   following the proximal) is driven by a fixed tendon through both joints with joint springs
   that give exactly the mimic ratio in free motion (`k_follower = k_leader / multiplier`), so
@@ -37,6 +38,7 @@ from .scene import Scene
 TIMESTEP = 0.002
 LINK_DENSITY = 1000.0  # kg/m^3, where a URDF link has no <inertial>
 ARM_BANDWIDTH = 40.0  # rad/s, natural frequency of the arm joint servos
+GAIN_POSTURES = 64  # sampled postures whose largest inertia sets the servo gains
 HAND_BANDWIDTH = 60.0  # rad/s
 ARM_ARMATURE = 0.05  # kg m^2, reflected rotor inertia of a geared arm joint
 HAND_ARMATURE = 2e-4
@@ -400,19 +402,34 @@ def build(
     except Exception as e:  # MuJoCo's compiler error names the element
         raise BuildError(f"MuJoCo could not compile the robot: {e}") from None
 
-    # Servo gains from the joint-space inertia at the zero posture (a position servo per joint
-    # with the same bandwidth and critical damping).
+    # Servo gains from each joint's largest diagonal inertia over the zero posture and
+    # `GAIN_POSTURES` postures drawn (seeded) within the limits: a position servo per joint with
+    # at least `ARM_BANDWIDTH` / `HAND_BANDWIDTH` everywhere, critically damped where the inertia
+    # is largest and overdamped elsewhere (the damping is integrated implicitly). Gains from the
+    # zero posture alone left the PA10's first and third joints 10x too soft where the elbow is
+    # bent: the arm lagged its trajectory, took another path into the object and stopped
+    # 0.015-0.03 rad short against it (5 of 10 pa10_ihy plans in the survey).
     d = mujoco.MjData(m)
-    mujoco.mj_forward(m, d)
     M = np.zeros((m.nv, m.nv))
-    mujoco.mj_fullM(m, d, M)
+    diag = np.zeros(m.nv)
+    rng = np.random.default_rng(0)
+    for k in range(GAIN_POSTURES + 1):
+        d.qpos[:] = m.qpos0
+        if k > 0:
+            for jid in range(m.njnt):
+                if int(m.jnt_type[jid]) in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+                    lo, hi = m.jnt_range[jid] if m.jnt_limited[jid] else (-math.pi, math.pi)
+                    d.qpos[m.jnt_qposadr[jid]] = rng.uniform(lo, hi)
+        mujoco.mj_forward(m, d)
+        mujoco.mj_fullM(m, d, M)
+        diag = np.maximum(diag, np.diag(M))
     drives = []
     for n, aname, gain, tname, foll, j, hand in drives_spec:
         aid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, aname)
         jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)
         if tname is None:
             dof = m.jnt_dofadr[jid]
-            inertia = M[dof, dof]
+            inertia = diag[dof]
             w = HAND_BANDWIDTH if hand else ARM_BANDWIDTH
             kp = inertia * w * w
             kv = 2.0 * inertia * w
