@@ -734,6 +734,23 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
         .collect();
     let term_facts: Vec<(&str, String)> =
         owned.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
+    // The exact check decides `feasible`: penetrations and separations on the URDF shapes, the
+    // pads' distance and angle, the contacts' opposition.
+    let exact = serde_json::to_value(&result.exact).map_err(PageError::internal)?;
+    let exact_owned = number_facts(&exact);
+    let exact_facts: Vec<(&str, String)> = exact_owned
+        .iter()
+        .map(|(k, v)| {
+            (
+                k.as_str(),
+                if v == "null" {
+                    "–".to_owned()
+                } else {
+                    v.clone()
+                },
+            )
+        })
+        .collect();
     let joints: Vec<Vec<String>> = result
         .q_arm
         .iter()
@@ -754,6 +771,7 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
                 c.point.map(|v| num(v, 4)).join(", "),
                 c.normal.map(|v| num(v, 3)).join(", "),
                 num(c.surface_distance * 1000.0, 2),
+                num(c.pad_angle_deg, 1),
             ]
         })
         .collect();
@@ -773,7 +791,8 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
     let ellipsoid = "<label>ellipsoid <select name=\"ellipsoid\"><option value=\"\">auto\
                      </option><option>velocity</option><option>force</option></select></label>";
     let body = format!(
-        "{}{}<h2>Cost terms and residuals</h2>{}<h2>Joint values</h2>{}<h2>Contacts</h2>{}",
+        "{}{}<h2>Cost terms and residuals</h2>{}<h2>Exact check</h2>{}<h2>Joint values</h2>{}\
+         <h2>Contacts</h2>{}",
         facts(&[
             ("robot", esc(&g.robot)),
             (
@@ -809,9 +828,16 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
             ellipsoid
         ),
         facts(&term_facts),
+        facts(&exact_facts),
         table(&["joint", "part", "value (rad)"], &joints),
         table(
-            &["finger", "point (m)", "normal", "surface distance (mm)"],
+            &[
+                "finger",
+                "point (m)",
+                "normal",
+                "surface distance (mm)",
+                "pad angle (°)"
+            ],
             &contacts
         ),
     );

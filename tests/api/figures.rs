@@ -153,6 +153,23 @@ async fn demonstration_and_grasp_figures_render_from_stored_data() {
         let html = res.text().await.unwrap();
         assert!(html.contains("plot.svg"), "{page}");
     }
+    // The grasp page shows the exact check that decided `feasible`, with the value the API gave.
+    let html = app
+        .get(&format!("/ui/grasps/{id}"))
+        .await
+        .text()
+        .await
+        .unwrap();
+    assert!(html.contains("Exact check") && html.contains("pad angle"));
+    let balance = grasp["result"]["exact"]["normal_balance"].as_f64().unwrap();
+    let at = html
+        .find(">normal_balance<")
+        .expect("normal_balance listed");
+    assert!(
+        html[at..at + 120].contains(&format!("{balance:.5}")),
+        "{}",
+        &html[at..at + 120]
+    );
     let list = app.get("/ui/grasps").await.text().await.unwrap();
     assert!(list.contains(&format!("/ui/grasps/{id}")));
 }
