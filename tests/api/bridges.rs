@@ -1624,17 +1624,8 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
 /// Registers the FF16 hand on a fixed base; its id and system.
 async fn register_ff16(app: &BridgeApp) -> (String, System) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut descriptor: toml::Table = toml::from_str(
-        &std::fs::read_to_string(root.join("robots/examples/ff16_hand.toml")).unwrap(),
-    )
-    .unwrap();
-    descriptor.remove("urdf");
-    let urdf = std::fs::read_to_string(root.join("robots/hands/ff16.urdf")).unwrap();
     let res = app
-        .post(
-            "/v1/robots",
-            &json!({"descriptor": serde_json::to_value(&descriptor).unwrap(), "urdf": urdf}),
-        )
+        .post("/v1/robots", &crate::helpers::ff16_registration())
         .await;
     assert_eq!(res.status(), 201);
     let id = res.json::<Value>().await.unwrap()["id"]

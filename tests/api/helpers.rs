@@ -198,3 +198,16 @@ pub async fn trained_with_mapping(app: &TestApp, robot: &str) -> (String, String
     let start = json!({"joint_names": t["joint_names"], "positions": t["positions"][0]});
     (mapping, model, start)
 }
+
+/// The body of `POST /v1/robots` that registers the FF16 hand on a fixed base as the README
+/// shows (its example descriptor with the URDF inline).
+pub fn ff16_registration() -> Value {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut descriptor: toml::Table = toml::from_str(
+        &std::fs::read_to_string(root.join("robots/examples/ff16_hand.toml")).unwrap(),
+    )
+    .unwrap();
+    descriptor.remove("urdf");
+    let urdf = std::fs::read_to_string(root.join("robots/hands/ff16.urdf")).unwrap();
+    json!({"descriptor": serde_json::to_value(&descriptor).unwrap(), "urdf": urdf})
+}

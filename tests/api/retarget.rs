@@ -29,17 +29,8 @@ async fn app() -> TestApp {
 
 /// Registers the FF16 hand on a fixed base as the README shows; its id.
 async fn register_ff16(app: &TestApp) -> String {
-    let mut descriptor: toml::Table = toml::from_str(
-        &std::fs::read_to_string(root().join("robots/examples/ff16_hand.toml")).unwrap(),
-    )
-    .unwrap();
-    descriptor.remove("urdf");
-    let urdf = std::fs::read_to_string(root().join("robots/hands/ff16.urdf")).unwrap();
     let res = app
-        .post_json(
-            "/v1/robots",
-            &json!({"descriptor": serde_json::to_value(&descriptor).unwrap(), "urdf": urdf}),
-        )
+        .post_json("/v1/robots", &crate::helpers::ff16_registration())
         .await;
     assert_eq!(res.status(), 201);
     let robot: Value = res.json().await.unwrap();
