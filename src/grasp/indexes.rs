@@ -288,8 +288,9 @@ pub fn q_agp_point_gradient(contacts: &[Point3<f64>], out: &mut [Vector3<f64>]) 
 /// its simplex to itself, because the sets are a hand's few fingers: in 3-D the closest point
 /// of a hull the origin is outside of lies on a vertex, edge or triangle, so every subset of at
 /// most three normals is tried and the one whose affine closest point has nonnegative weights
-/// and satisfies the optimality condition `v·(n_j − v) ≥ 0` for every `j` is kept. When none does the origin lies inside the hull: `d = 0` and `w = 0`. Allocates
-/// nothing; more than 16 normals are refused by a panic (no hand has them).
+/// and satisfies the optimality condition `v·(n_j − v) ≥ 0` for every `j` is kept. When none
+/// does, the origin lies inside the hull: `d = 0` and `w = 0`. Allocates nothing; more than 16
+/// normals are refused by a panic (no hand has them).
 pub fn normal_balance(normals: &[Vector3<f64>], w: &mut [f64]) -> f64 {
     let m = normals.len();
     assert!(m <= 16 && w.len() == m, "normal_balance: {m} normals");
