@@ -2,8 +2,9 @@
 
 Robot (from the service's combined URDF):
 - one body per URDF link (fixed links kept, so fingertip frames are bodies), one hinge or slide
-  per movable joint with the URDF limits; collision shapes as geoms; inertia from `<inertial>`
-  where given, else from the collision geoms at `LINK_DENSITY` (the bundled URDFs carry none).
+  per movable joint with the URDF limits (hard stops); collision shapes as geoms; inertia from
+  `<inertial>` where given, else from the collision geoms at `LINK_DENSITY` (the bundled URDFs
+  carry none).
 - Every robot body is gravity-compensated (`gravcomp = 1`), as the arm's controller does on the
   real robot; the object's weight still loads the arm through the contacts.
 - Arm and hand joints not driven by a tendon are position servos (PD, force limited by the URDF
@@ -52,6 +53,10 @@ ROBOT_FRICTION = 1.0
 # forces (tens of N) leave millimetres, not a centimetre, of overlap; 2 x the timestep is the
 # stiffest the solver resolves. (Priority geoms' contact parameters decide the contact.)
 CONTACT_SOLREF = (2 * TIMESTEP, 1.0)
+# Joint limits as hard stops: MuJoCo's default (0.02 s) let the T42's proximal joints pass their
+# 0 rad stop by 0.11-0.16 rad under the tendon's load, bending the fingers backwards until a
+# shake flung the bottle out of them.
+LIMIT_SOLREF = (2 * TIMESTEP, 1.0)
 CONTACT_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)  # robot geoms never decide a friction (object/support have priority)
 
 
@@ -290,6 +295,7 @@ def build(
                 if j.kind != "continuous":
                     jt.range = [j.lower, j.upper]
                     jt.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+                    jt.solref_limit = list(LIMIT_SOLREF)
                 hand_joint = in_hand(j.child)
                 jt.armature = HAND_ARMATURE if hand_joint else ARM_ARMATURE
                 if hand_joint:
