@@ -1259,11 +1259,20 @@ impl Eval<'_> {
     /// exact pad contact normal (the contact sphere's without pad shapes). 0 for a one-finger
     /// hand.
     fn exact_balance(&mut self, u: &[f64]) -> f64 {
+        if self.n_eq() < 2 {
+            return 0.0;
+        }
+        self.clearance(u);
+        self.balance_at_last_check()
+    }
+
+    /// [`Eval::exact_balance`] at the posture of the last exact check (a verdict or clearance),
+    /// whose pad contacts it reuses.
+    fn balance_at_last_check(&mut self) -> f64 {
         let m = self.n_eq();
         if m < 2 {
             return 0.0;
         }
-        self.clearance(u);
         for i in 0..m {
             self.scratch.normals[i] =
                 self.exact.pads[i].map_or(self.kin.tip_q[i].normal, |d| -d.normal);
@@ -1792,7 +1801,8 @@ fn run_start_with(
     } else {
         violation
     };
-    let balance = e.exact_balance(&u);
+    // `exact_score` has just checked `u` exactly (and `cost` leaves that check alone).
+    let balance = e.balance_at_last_check();
     drop(e);
     StartOutcome {
         start,
@@ -2090,7 +2100,7 @@ pub(crate) fn describe(
         })
         .collect();
     let points: Vec<Point3<f64>> = contacts.iter().map(|c| Point3::from(c.point)).collect();
-    let normal_balance = e.exact_balance(u);
+    let normal_balance = e.balance_at_last_check();
     let label = |c: Category| {
         v.clearance.category(c).map(|cl| {
             let l = e.exact.checker.label(cl.pair);
