@@ -632,7 +632,7 @@ struct Scratch {
     region_diff: Vec<f64>,
     /// The palm IK of the seeding and the repair ([`palm_ik`]).
     ik: IkSolver,
-    /// Per finger: contact normal and hull weight ([`Eval::exact_balance`]).
+    /// Per finger: contact normal and hull weight ([`Eval::balance_at_last_check`]).
     normals: Vec<Vector3<f64>>,
     weights: Vec<f64>,
 }
@@ -1255,19 +1255,9 @@ impl Eval<'_> {
         )
     }
 
-    /// Opposition of the contact normals ([`indexes::normal_balance`]) at `u`: each finger's
-    /// exact pad contact normal (the contact sphere's without pad shapes). 0 for a one-finger
-    /// hand.
-    fn exact_balance(&mut self, u: &[f64]) -> f64 {
-        if self.n_eq() < 2 {
-            return 0.0;
-        }
-        self.clearance(u);
-        self.balance_at_last_check()
-    }
-
-    /// [`Eval::exact_balance`] at the posture of the last exact check (a verdict or clearance),
-    /// whose pad contacts it reuses.
+    /// Opposition of the contact normals ([`indexes::normal_balance`]) at the posture of the
+    /// last exact check (a verdict or clearance), from each finger's exact pad contact normal
+    /// (the contact sphere's without pad shapes). 0 for a one-finger hand.
     fn balance_at_last_check(&mut self) -> f64 {
         let m = self.n_eq();
         if m < 2 {
@@ -1720,7 +1710,7 @@ struct StartOutcome {
     timed_out: bool,
     report: SolveReport,
     feasible: bool,
-    /// The contacts' opposition at `u` ([`Eval::exact_balance`]).
+    /// The contacts' opposition at `u` ([`Eval::balance_at_last_check`]).
     balance: f64,
     score: f64,
     /// What the contact repair could not do, if anything.
@@ -1842,7 +1832,8 @@ fn polish_start(sys: &HandArm, req: &GraspRequest, o: &mut StartOutcome) {
     if passed {
         o.feasible = true;
         o.score = e.cost(&u) - PAD_WEIGHT * e.pad_penalty();
-        o.balance = e.exact_balance(&u);
+        // The polish's last exact check passed at `u`.
+        o.balance = e.balance_at_last_check();
         o.u = u;
         o.note = note;
     } else if score < o.score {
