@@ -139,9 +139,18 @@ pub async fn fetch_system(
     let client = reqwest::Client::builder()
         .timeout(Duration::from_secs(30))
         .build()?;
-    let id = robot.replace('/', "%2F");
+    // The id as one percent-encoded path segment, whatever characters it has.
+    let base = reqwest::Url::parse(&base)?;
+    let url = |tail: Option<&str>| -> anyhow::Result<reqwest::Url> {
+        let mut u = base.clone();
+        u.path_segments_mut()
+            .map_err(|()| anyhow::anyhow!("{base} cannot carry a path"))?
+            .extend(["v1", "robots", robot])
+            .extend(tail);
+        Ok(u)
+    };
     let detail: serde_json::Value = client
-        .get(format!("{base}/v1/robots/{id}"))
+        .get(url(None)?)
         .send()
         .await?
         .error_for_status()
@@ -149,7 +158,7 @@ pub async fn fetch_system(
         .json()
         .await?;
     let urdf = client
-        .get(format!("{base}/v1/robots/{id}/urdf"))
+        .get(url(Some("urdf"))?)
         .send()
         .await?
         .error_for_status()?
