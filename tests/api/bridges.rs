@@ -1625,7 +1625,10 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
 async fn register_ff16(app: &BridgeApp) -> (String, System) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let res = app
-        .post("/v1/robots", &crate::helpers::ff16_registration())
+        .post(
+            "/v1/robots",
+            &crate::helpers::hand_registration("ff16_hand", "ff16"),
+        )
         .await;
     assert_eq!(res.status(), 201);
     let id = res.json::<Value>().await.unwrap()["id"]

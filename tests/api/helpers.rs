@@ -199,15 +199,16 @@ pub async fn trained_with_mapping(app: &TestApp, robot: &str) -> (String, String
     (mapping, model, start)
 }
 
-/// The body of `POST /v1/robots` that registers the FF16 hand on a fixed base as the README
-/// shows (its example descriptor with the URDF inline).
-pub fn ff16_registration() -> Value {
+/// The body of `POST /v1/robots` that registers a hand-only system as the README shows: the
+/// example descriptor `robots/examples/{example}.toml` with the hand URDF
+/// `robots/hands/{hand}.urdf` inline.
+pub fn hand_registration(example: &str, hand: &str) -> Value {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut descriptor: toml::Table = toml::from_str(
-        &std::fs::read_to_string(root.join("robots/examples/ff16_hand.toml")).unwrap(),
+        &std::fs::read_to_string(root.join(format!("robots/examples/{example}.toml"))).unwrap(),
     )
     .unwrap();
     descriptor.remove("urdf");
-    let urdf = std::fs::read_to_string(root.join("robots/hands/ff16.urdf")).unwrap();
+    let urdf = std::fs::read_to_string(root.join(format!("robots/hands/{hand}.urdf"))).unwrap();
     json!({"descriptor": serde_json::to_value(&descriptor).unwrap(), "urdf": urdf})
 }

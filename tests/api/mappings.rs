@@ -538,17 +538,10 @@ async fn a_study_is_mapped_in_the_order_its_trials_were_generated() {
 #[tokio::test]
 async fn a_hand_only_system_registered_over_http_maps_demonstrations() {
     let app = app().await;
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut descriptor: toml::Table = toml::from_str(
-        &std::fs::read_to_string(root.join("robots/examples/ihy_hand.toml")).unwrap(),
-    )
-    .unwrap();
-    descriptor.remove("urdf");
-    let urdf = std::fs::read_to_string(root.join("robots/hands/ihy.urdf")).unwrap();
     let res = app
         .post_json(
             "/v1/robots",
-            &json!({"descriptor": serde_json::to_value(&descriptor).unwrap(), "urdf": urdf}),
+            &crate::helpers::hand_registration("ihy_hand", "ihy"),
         )
         .await;
     assert_eq!(res.status(), 201);

@@ -30,7 +30,10 @@ async fn app() -> TestApp {
 /// Registers the FF16 hand on a fixed base as the README shows; its id.
 async fn register_ff16(app: &TestApp) -> String {
     let res = app
-        .post_json("/v1/robots", &crate::helpers::ff16_registration())
+        .post_json(
+            "/v1/robots",
+            &crate::helpers::hand_registration("ff16_hand", "ff16"),
+        )
         .await;
     assert_eq!(res.status(), 201);
     let robot: Value = res.json().await.unwrap();
