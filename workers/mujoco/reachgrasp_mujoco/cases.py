@@ -32,7 +32,7 @@ def pinch(svc: Service, robot: str = "wam_t42", height: float = 0.15, duration: 
         raise RuntimeError(f"pinch pose IK residual {err}")
     sim.set_posture(goal)
     offs = [np.array([0, 0, height * (10 * u**3 - 15 * u**4 + 6 * u**5)]) for u in (k / n for k in range(n + 1))]
-    path, err = sim.arm_ik_path(goal, offs)
+    path, err = sim.arm_ik_path(goal, offs, duration / n)
     if err > 1e-5:
         raise RuntimeError(f"descent IK residual {err}")
     path = np.array(path[::-1])

@@ -58,8 +58,13 @@ class TrialOptions:
     lift_time: float = 1.5
     hold_time: float = 2.0
     shakes: int = 2
-    shake_amplitude: float = 0.04  # m
-    shake_frequency: float = 2.0  # Hz: peak acceleration A(2 pi f)^2 = 6.3 m/s^2
+    # One shake: x(s) = A sin(2 pi s) sin^2(pi s) over one period (s in [0, 1]), a Hann-windowed
+    # sine that starts and ends at rest. A = 0.029 m at 2 Hz: peak acceleration 6.3 m/s^2 (peak
+    # displacement 19 mm). The plain sine it replaces (4 cm, the same peak acceleration) began and
+    # ended at 0.5 m/s, a velocity step through the servos at each of the four ends, which flung
+    # held bottles out of pinches that carried the shakes themselves.
+    shake_amplitude: float = 0.029  # m, A above
+    shake_frequency: float = 2.0  # Hz
     settle_time: float = 0.5
     # Held: object above the support by at least this share of the lift and touching the hand.
     held_lift_share: float = 0.5
@@ -233,9 +238,12 @@ class Sim:
             q[arm] = np.clip(q[arm] + dq, self.lower[arm], self.upper[arm])
         return q, err
 
-    def arm_ik_path(self, q0, offsets):
+    def arm_ik_path(self, q0, offsets, dt=CONTROL_DT):
         """Joint paths putting the hand root at its pose for `q0` shifted by each world offset
-        (orientation kept): damped least squares on the arm joints, warm-started along the path."""
+        (orientation kept), one every `dt` seconds: damped least squares on the arm joints,
+        warm-started along the path, each joint within its limits and within its velocity limit
+        of the previous point (where the pose needs faster joints the hand lags and catches up,
+        as the servos would make it). Returns the path and the largest pose error on it."""
         m, kd = self.m, self._kin
         kd.qpos[:] = self.d.qpos
         kd.qpos[self.qadr] = q0
@@ -244,6 +252,7 @@ class Sim:
         R0 = kd.xmat[self.b.hand_body].reshape(3, 3).copy()
         arm = np.where(self.arm)[0]
         cols = self.vadr[arm]
+        step = self.vlimit[arm] * dt
         jp = np.zeros((3, m.nv))
         jr = np.zeros((3, m.nv))
         q = np.asarray(q0, float).copy()
@@ -251,20 +260,33 @@ class Sim:
         worst = 0.0
         for off in offsets:
             target = p0 + off
+            lo = np.maximum(self.lower[arm], q[arm] - step)
+            hi = np.minimum(self.upper[arm], q[arm] + step)
             for _ in range(30):
                 kd.qpos[self.qadr] = q
                 mujoco.mj_kinematics(m, kd)
-                mujoco.mj_comPos(m, kd)
                 p = kd.xpos[self.b.hand_body]
                 R = kd.xmat[self.b.hand_body].reshape(3, 3)
-                ep = target - p
-                e = np.concatenate([ep, rotation_error(R0, R)])
+                e = np.concatenate([target - p, rotation_error(R0, R)])
                 if np.linalg.norm(e) < 1e-6:
                     break
+                mujoco.mj_comPos(m, kd)
                 mujoco.mj_jacBody(m, kd, jp, jr, self.b.hand_body)
                 J = np.vstack([jp[:, cols], jr[:, cols]])
-                dq = J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(6), e)
-                q[arm] = np.clip(q[arm] + dq, self.lower[arm], self.upper[arm])
+                # Active set: a joint on a bound whose step would push past it is locked and
+                # the step re-solved with the others (a 7-joint arm keeps the 6-D pose with one
+                # joint locked; clipping its share of every step instead left the hand rotating
+                # off its pose, 0.15 rad and more at the WAM's wrist limits).
+                qa = q[arm]
+                free = np.ones(len(arm), bool)
+                for _ in range(len(arm)):
+                    Jf = J * free
+                    dq = Jf.T @ np.linalg.solve(Jf @ Jf.T + 1e-6 * np.eye(6), e)
+                    on = ((qa + dq < lo) & (qa <= lo + 1e-12)) | ((qa + dq > hi) & (qa >= hi - 1e-12))
+                    if not (free & on).any():
+                        break
+                    free &= ~on
+                q[arm] = np.clip(qa + dq, lo, hi)
             worst = max(worst, float(np.linalg.norm(e)))
             path.append(q.copy())
         return path, worst
@@ -543,7 +565,8 @@ class Trial:
         for s in range(o.shakes):
             ax = axes[s % 2]
             for i in range(1, n_shake + 1):
-                a = o.shake_amplitude * math.sin(2 * math.pi * i / n_shake)
+                u = i / n_shake
+                a = o.shake_amplitude * math.sin(2 * math.pi * u) * math.sin(math.pi * u) ** 2
                 offs.append((f"shake{s + 1}", np.array([0, 0, o.lift]) + a * ax))
         for _ in range(int(round(o.settle_time / CONTROL_DT))):
             offs.append(("settle", np.array([0, 0, o.lift])))

@@ -8,7 +8,7 @@ import pytest
 
 from reachgrasp_mujoco import build as B
 from reachgrasp_mujoco.scene import parse_scene
-from reachgrasp_mujoco.sim import Sim, Trial, TrialOptions
+from reachgrasp_mujoco.sim import CONTROL_DT, Sim, Trial, TrialOptions
 
 from test_model import load
 
@@ -84,3 +84,53 @@ def test_an_object_with_no_grasp_falls(t42):
     assert not out["held"]
     # fell freely for the whole trial (~6 s): far below where it started
     assert out["object_lift_m"] < -1.0, out
+
+
+def test_the_trial_moves_the_hand_without_velocity_steps(t42):
+    """The hand root's reference path (lift, hold, shakes, settle) has no velocity step: its
+    second differences stay within the shakes' peak acceleration, 6.3 m/s^2 at 2 Hz (a shake
+    that starts or stops at speed is a step of 0.5 m/s in one 10 ms control period, 50 m/s^2),
+    and each shake reaches that peak."""
+    urdf, info, q = t42
+    sim = Sim(B.build(urdf, info, None))
+    sim.set_posture(q)
+    tr = Trial(sim, TrialOptions())
+    path = np.array([np.zeros(3)] + [off for _, off in tr.plan])
+    acc = np.linalg.norm(np.diff(path, 2, axis=0), axis=1) / CONTROL_DT**2
+    assert acc.max() <= 6.4, acc.max()
+    phases = np.array([p for p, _ in tr.plan])
+    for s in ("shake1", "shake2"):
+        k = np.flatnonzero(phases == s)
+        assert acc[k[0] - 1 : k[-1]].max() >= 6.0, s
+
+
+def test_the_lift_keeps_the_hand_pose_with_a_joint_at_its_limit(t42):
+    """A 7-joint arm with one joint locked at its limit still has six for the hand's 6-D pose:
+    the trial's lift IK reaches every pose of a 10 cm lift exactly (orientation kept) and never
+    passes a limit. Here the WAM's wrist joint 6 sits on its upper limit and the lift pushes it
+    outwards; clipping its share of each step instead left the hand 1.7 mm off."""
+    urdf, info, _ = t42
+    sim = Sim(B.build(urdf, info, None))
+    q = np.array([-0.912, 1.7, 0.895, 2.712, -3.873, 1.6, -0.096, 0.04, 0.01])
+    assert q[5] == sim.upper[5]
+    sim.set_posture(q)
+    lift = [np.array([0.0, 0.0, 0.1 * k / 50]) for k in range(1, 51)]
+    path, worst = sim.arm_ik_path(q, lift)
+    assert worst < 1e-6, worst
+    P = np.array(path)
+    assert (P >= sim.lower - 1e-12).all() and (P <= sim.upper + 1e-12).all()
+    # one point per control period, no joint faster than its velocity limit
+    steps = np.abs(np.diff(np.vstack([q, P]), axis=0))
+    assert (steps <= sim.vlimit * CONTROL_DT + 1e-12).all()
+    # the hand really rose 10 cm with its orientation kept (FK of the last posture)
+    kd = mujoco.MjData(sim.m)
+
+    def hand(qq):
+        kd.qpos[:] = 0
+        kd.qpos[sim.qadr] = qq
+        mujoco.mj_kinematics(sim.m, kd)
+        return kd.xpos[sim.b.hand_body].copy(), kd.xmat[sim.b.hand_body].reshape(3, 3).copy()
+
+    (p0, R0), (p1, R1) = hand(q), hand(P[-1])
+    assert np.allclose(p1 - p0, [0, 0, 0.1], atol=1e-6), p1 - p0
+    assert np.allclose(R1, R0, atol=1e-6)
