@@ -2,7 +2,7 @@
 
   survey.py grasps --http URL     grasp trial at each grasp's exact joint values:
                                    seeded objects x six systems x default tasks
-  survey.py plans  --http URL --token T [--approach-standoff M]
+  survey.py plans  --http URL --token T [--approach-standoff M] [--mode closed_loop]
                                    the same matrix as plans executed on MuJoCo workers
                                    (trajectory, then the trial), one worker per system
   survey.py fig5   --http URL     Q_DC-optimal grasp vs random feasible grasps (same object)
@@ -129,6 +129,8 @@ def cmd_plans(a):
                             "execute": True, "worker": f"survey-{robot}"}
                     if a.approach_standoff is not None:
                         body["approach_standoff"] = a.approach_standoff
+                    if a.mode is not None:
+                        body["mode"] = a.mode
                     p = svc.post_json("/v1/plans", body)
                     row = {"robot": robot, "object": oname, "task": tname, "plan": p["id"], "feasible": p["feasible"]}
                     if p["feasible"] and p.get("execution_id"):
@@ -196,8 +198,9 @@ def cmd_fig5(a):
 
 
 def cmd_pushes(a):
-    """Closed-loop executions with pushes on the arm, then the grasp trial. `--case plan`: to the
-    grasp of a plan (robot, object, force along z) from zero; `--case pinch`: to the T42 pinch of
+    """Closed-loop executions with pushes on the arm, then the grasp trial. `--case plan`: a plan
+    (robot, object, force along z) from zero executed in closed loop, the law run in the
+    approach's stages through the worker's safety filter; `--case pinch`: to the T42 pinch of
     the reference block (reachgrasp_mujoco.cases) from `--height` above it, the law of the
     robot's default model."""
     from reachgrasp_mujoco.cases import BLOCK, pinch
@@ -215,18 +218,22 @@ def cmd_pushes(a):
         goal = {"joint_names": names, "positions": list(goal)}
     else:
         robot = a.robot
-        p = svc.post_json("/v1/plans", {"robot": robot, "object_id": objects(svc)[a.object],
-                                        "task_directions": TASKS["force_z"], "start": zeros_start(svc, robot)})
-        if not p["feasible"]:
-            raise RuntimeError(f"plan infeasible: {p['reason']}")
-        model = p["model_id"]
-        goal = {"joint_names": p["trajectory"]["joint_names"], "positions": p["trajectory"]["goal"]}
     w = start_worker(a, robot, rep, extra)
     rows = []
     try:
         for i in range(a.runs):
-            e = svc.post_json("/v1/executions", {"robot": robot, "mode": "closed_loop", "model_id": model,
-                                                 "goal": goal, "worker": f"survey-{robot}"})
+            if a.case == "pinch":
+                e = svc.post_json("/v1/executions", {"robot": robot, "mode": "closed_loop", "model_id": model,
+                                                     "goal": goal, "worker": f"survey-{robot}"})
+            else:
+                # the plan executed in closed loop: the service sends the law with its scene and
+                # the grasp's pre-grasp, which the worker runs in stages through its safety filter
+                p = svc.post_json("/v1/plans", {"robot": robot, "object_id": objects(svc)[a.object],
+                                                "task_directions": TASKS["force_z"], "start": zeros_start(svc, robot),
+                                                "execute": True, "mode": "closed_loop", "worker": f"survey-{robot}"})
+                if not p["feasible"]:
+                    raise RuntimeError(f"plan infeasible: {p['reason']}")
+                e = {"id": p["execution_id"]}
             e = wait_execution(svc, e["id"])
             r = json.loads((Path(rep) / f"{e['id']}.json").read_text())
             t = r.get("trial") or {}
@@ -289,6 +296,8 @@ def main():
     ap.add_argument("--height", type=float, default=0.05)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--mode", choices=["open_loop", "closed_loop"], default=None,
+                    help="plans: execution mode (default: the service's, open loop)")
     ap.add_argument("--approach-standoff", type=float, default=None,
                     help="plans: the pre-grasp standoff (m) to ask for (default: the service's)")
     a = ap.parse_args()

@@ -91,7 +91,7 @@ class Worker:
             "worker": self.cfg.name,
             "robot": self.cfg.robot,
             "joint_names": self.info.joint_names,
-            "capabilities": ["open_loop", "closed_loop", "streaming"],
+            "capabilities": ["open_loop", "closed_loop", "safety_filter", "streaming"],
             # The service refuses a plan to execute that starts farther than this from our state.
             "start_tolerance": self.cfg.run.start_tolerance,
             # Ignored by today's service (serde skips unknown fields); see the README.
@@ -281,6 +281,8 @@ class Worker:
             # as the measured state a next plan is checked against; where the motion ended is
             # in the report.
             "positions": [float(x) for x in self.q],
+            # The safety filter's account (a law with a scene), as the reference worker sends it.
+            **({"safety": report["safety"]} if report.get("safety") else {}),
             # Ignored by today's service; the trial's verdict and numbers (README: protocol).
             "physics": report,
         })

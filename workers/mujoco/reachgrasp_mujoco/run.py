@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from . import build as B
+from . import safety as S
 from .law import Law
 from .scene import Scene, SceneError, parse_scene, scene_from_object_spec
 from .service import Service
@@ -68,6 +69,7 @@ class Execution:
             return bool(np.all(q >= lo - 1e-6) and np.all(q <= hi + 1e-6))
 
         self.pushes = None
+        self.safety = None
         self.streaming = kind == "stream"
         if self.streaming:
             hold = payload.get("hold_after_s")
@@ -115,7 +117,12 @@ class Execution:
             self.goal = np.asarray(goal, float)
             if push is not None and (push.target == "arm" or scene is not None and scene.object is not None):
                 self.pushes = Pushes(push, self.sim, push.seed)
-            self.motion = ClosedLoop(self.sim, law, self.goal, run, self.pushes if push and push.target == "arm" else None)
+            stages = []
+            spec = payload.get("safety")
+            if spec is not None:
+                self.safety, stages = self._safety(spec, inside)
+            self.motion = ClosedLoop(self.sim, law, self.goal, run, self.pushes if push and push.target == "arm" else None,
+                                     self.safety, stages)
         if trial is not None and push is not None and push.target == "object":
             trial = dataclasses.replace(trial, object_push=push.force)
         self.trial_opts = trial
@@ -126,6 +133,26 @@ class Execution:
         self.object_moved = None
         b = self.built
         self.object_p0 = self.sim.d.xpos[b.object_body].copy() if b.object_body >= 0 else None
+
+    def _safety(self, spec, inside):
+        """The safety filter and approach stages of a law with a scene (`safety.py`)."""
+        if not isinstance(spec, dict):
+            raise ExecutionError("the payload's safety scene must be an object")
+        if self.scene is None or self.scene.object is None:
+            raise ExecutionError("a law with a safety scene needs the execution's object (no stored plan runs it)")
+        n = self.sim.n
+        stages = []
+        pre = spec.get("pre_grasp")
+        pairs = S.Pairs(self.sim)
+        if pre is not None:
+            if not isinstance(pre, list) or len(pre) != n or not _finite(pre) or not inside(np.asarray(pre, float)):
+                raise ExecutionError(f"the pre-grasp needs {n} finite values inside the joint limits")
+            stages = S.approach_stages(self.sim, pairs, self.q_start, pre, self.goal)
+        try:
+            f = S.SafetyFilter(self.sim, spec, [*stages, self.goal], self.sim.vlimit)
+        except (KeyError, TypeError, ValueError) as e:
+            raise ExecutionError(f"the safety scene is unreadable: {e}") from None
+        return f, stages
 
     def tick(self):
         """One control period; the (status, reason) of the motion once everything is done."""
@@ -191,6 +218,8 @@ class Execution:
             }
         if self.pushes is not None:
             out["pushes"] = self.pushes.log
+        if self.safety is not None:
+            out["safety"] = self.safety.report(self.sim)
         if self.streaming:
             out["stream"] = dict(self.motion.stats)
         return out

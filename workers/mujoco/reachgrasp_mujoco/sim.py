@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from .build import Built
+from .safety import STAGE_TOLERANCE
 
 CONTROL_DT = 0.01  # s (100 Hz control, as the reference worker)
 
@@ -402,12 +403,18 @@ class ClosedLoop:
     """Runs the model's law `u(q)` on the measured state (velocity command, servo reference
     integrated from it and kept within `reference_band` of the measured state)."""
 
-    def __init__(self, sim: Sim, law, goal, opts: RunOptions, pushes: Pushes | None):
+    def __init__(self, sim: Sim, law, goal, opts: RunOptions, pushes: Pushes | None,
+                 safety=None, stages=()):
         self.sim = sim
         self.law = law
         self.goal = np.asarray(goal, float)
         self.o = opts
         self.pushes = pushes
+        # `safety.SafetyFilter` of a payload with a scene, and the approach stages the law runs
+        # to before the goal (`safety.approach_stages`).
+        self.safety = safety
+        self.stages = [np.asarray(s, float) for s in stages]
+        self.stage = 0
         self.t0 = sim.t
         self.q_ref = sim.q()
         self.initial = max(float(np.max(np.abs(self.q_ref - self.goal))), 1e-9)
@@ -417,7 +424,13 @@ class ClosedLoop:
     def tick(self):
         sim = self.sim
         q = sim.q()
-        u = np.clip(self.law.control(q, self.goal), -sim.vlimit, sim.vlimit)
+        while self.stage < len(self.stages) and np.max(np.abs(q - self.stages[self.stage])) <= STAGE_TOLERANCE:
+            self.stage += 1
+        target = self.stages[self.stage] if self.stage < len(self.stages) else self.goal
+        u = self.law.control(q, target)
+        if self.safety is not None:
+            u = self.safety.filter(sim.d.qpos, u, sim.t - self.t0)
+        u = np.clip(u, -sim.vlimit, sim.vlimit)
         band = self.o.reference_band
         self.q_ref = q + np.clip(self.q_ref + u * CONTROL_DT - q, -band, band)
         sim.set_reference(self.q_ref, u)

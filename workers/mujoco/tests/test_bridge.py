@@ -279,6 +279,34 @@ def test_the_closed_loop_recovers_from_pushes_on_the_arm(seeded_service):
     assert max(p["deflection_rad"] for p in pushes.log) >= 0.05, pushes.log
 
 
+def test_a_closed_loop_plan_approaches_through_the_safety_filter_and_holds(seeded_service):
+    """A plan executed in closed loop (wam_ihy, ball, force along z): the service sends the law
+    with its scene and the grasp's pre-grasp because this worker announces `safety_filter`; the
+    law runs to the pre-grasp, then in with the hand open, then closes, and the ball is held
+    where it lay. The plain law (the same model to the same goal, no scene) closes the hand on
+    the way in and shoves the ball: measured 27 mm and a 22 s arrival against about 5 mm and 5 s."""
+    svc = seeded_service
+    w = WorkerProc(svc, "wam_ihy", tag="-cl")
+    try:
+        status, plan = svc.post("/v1/plans", {
+            "robot": "wam_ihy", "object_id": BALL, "task_directions": FORCE_Z, "start": start(svc, "wam_ihy"),
+            "execute": True, "mode": "closed_loop", "worker": w.name})
+        assert status == 201 and plan["feasible"], plan
+        e = wait(svc, plan["execution_id"])
+        rep = w.report(e["id"])
+        assert e["state"] == "succeeded", (e["reason"], rep["motion"], rep.get("safety"))
+        s = rep["safety"]
+        assert s["periods"] > 100 and s["filtered_periods"] > 0, s
+        # nothing came more than 1 mm into the object or the table before the hand closed on it
+        assert s["min_distance_m"] > -1e-3, s
+        assert max(abs(x) for x in rep["motion"]["object_moved_m"]) < 0.01, rep["motion"]
+        assert rep["trial"]["held"], rep["trial"]
+        # the service stored the filter's account with the execution
+        assert e["tracking"]["safety"]["periods"] == s["periods"], e["tracking"]
+    finally:
+        w.close()
+
+
 def test_a_forwarded_keypoint_stream_teleoperates_the_physics_worker(seeded_service):
     """Teleoperation in physics: a synthetic subject's keypoint recording (hand, elbow and
     shoulder) streamed in real time to `GET /v1/robots/wam_t42/retarget?forward=true` drives the
