@@ -31,7 +31,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from reachgrasp_mujoco.offline import grasp_trial  # noqa: E402
-from reachgrasp_mujoco.service import Service  # noqa: E402
+from reachgrasp_mujoco.service import Service, ServiceError  # noqa: E402
 
 SYSTEMS = ["wam_t42", "wam_ihy", "wam_ob4f", "pa10_t42", "pa10_ihy", "pa10_ob4f"]
 TASKS = {
@@ -131,7 +131,15 @@ def cmd_plans(a):
                         body["approach_standoff"] = a.approach_standoff
                     if a.mode is not None:
                         body["mode"] = a.mode
-                    p = svc.post_json("/v1/plans", body)
+                    try:
+                        p = svc.post_json("/v1/plans", body)
+                    except ServiceError as e:
+                        # refused, e.g. a closed-loop start outside the model's certified workspace
+                        row = {"robot": robot, "object": oname, "task": tname, "plan": None, "feasible": False,
+                               "reason": str(e)}
+                        rows.append(row)
+                        print(json.dumps(row), flush=True)
+                        continue
                     row = {"robot": robot, "object": oname, "task": tname, "plan": p["id"], "feasible": p["feasible"]}
                     if p["feasible"] and p.get("execution_id"):
                         e = wait_execution(svc, p["execution_id"])
