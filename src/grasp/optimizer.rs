@@ -1526,8 +1526,8 @@ fn seed_start(
     // Hand preshape: mid-range, jittered on later starts. Where fingers cross each other there
     // (the T42's and the iHY's overlap at mid-range) the hand is opened towards the lower limits,
     // where the bundled hands are open, a tenth of the range at a time until the fingers are
-    // clear: a start with crossed fingers does not untangle them. A hand that no opening clears (the
-    // OB4F, whose thumb base sits 10 mm from its middle finger's) keeps mid-range.
+    // clear: a start with crossed fingers does not untangle them (a hand that no opening clears
+    // keeps mid-range).
     let jitter: Vec<f64> = sys
         .hand_joints
         .iter()
@@ -1545,16 +1545,26 @@ fn seed_start(
             q[h] = (l + (frac + j) * (u - l)).clamp(l, u);
         }
     };
-    let mut chosen = 0.5;
+    // The most closed preshape (of mid-range and on towards open) whose fingers are clear of each
+    // other and whose thumb pad faces the other fingertips; else the most closed one with the
+    // fingers clear; else mid-range. At mid-range the OB4F's fingers are clear but its thumb pad
+    // faces away from the other tips (cosine -0.4), and its starts found grips with the thumb
+    // on top of the object and the fingers on a side.
+    let mut clear = None;
+    let mut chosen = None;
     for step in 0..=5 {
         let frac = 0.5 - 0.1 * step as f64;
         preshape(frac, &mut q);
         forward_kinematics(model, data, &q);
         if sys.min_crossing_gap(data) >= FINGER_CLEARANCE {
-            chosen = frac;
-            break;
+            clear.get_or_insert(frac);
+            if thumb_facing(sys, data) >= THUMB_FACING {
+                chosen = Some(frac);
+                break;
+            }
         }
     }
+    let chosen = chosen.or(clear).unwrap_or(0.5);
     preshape(chosen, &mut q);
     // A seed's hand posture (a plan's demonstrated final grasp) replaces the preshape where its
     // fingers are clear of each other.
@@ -1644,6 +1654,33 @@ fn seed_start(
     for (k, &i) in sys.arm_joints.iter().chain(&sys.hand_joints).enumerate() {
         u[k] = q[i];
     }
+}
+
+/// Cosine between the thumb's pad normal and the direction from its contact point to the other
+/// fingers' mean contact point a seed's preshape must reach (60°).
+const THUMB_FACING: f64 = 0.5;
+
+/// Cosine between the thumb's pad normal and the direction from its contact point to the other
+/// fingers' mean contact point, at the FK in `data` (1 for a hand without thumb or other fingers).
+fn thumb_facing(sys: &HandArm, data: &Data) -> f64 {
+    let Some(t) = sys.thumb else { return 1.0 };
+    if sys.fingers.len() < 2 {
+        return 1.0;
+    }
+    let tip = sys.fingers[t].contact_point(data);
+    let others = sys
+        .fingers
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| *i != t)
+        .map(|(_, f)| f.contact_point(data).coords)
+        .sum::<Vector3<f64>>()
+        / (sys.fingers.len() - 1) as f64;
+    let Some(dir) = (others - tip.coords).try_normalize(1e-9) else {
+        return 1.0;
+    };
+    let f = &sys.fingers[t];
+    (data.frame(f.tip).rotation * f.pad_normal).dot(&dir)
 }
 
 fn finite_or(v: f64, d: f64) -> f64 {

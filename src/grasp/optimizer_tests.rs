@@ -1504,7 +1504,7 @@ fn an_infeasible_first_round_escalates_until_a_start_is_feasible() {
 /// contacts, `d = ‖n₁ + n₂‖/2 = cos(θ/2)` with θ the angle between their normals.
 #[test]
 fn a_feasible_start_whose_contacts_cannot_balance_escalates_until_a_firm_one() {
-    let (sys, mut req) = wam_t42_request("kitchen_timer", Vector3::y(), Transmission::Velocity);
+    let (sys, mut req) = wam_t42_request("sunglasses", Vector3::y(), Transmission::Force);
     let two_contact = |r: &GraspResult| {
         let n: Vec<Vector3<f64>> = r.contacts.iter().map(|c| Vector3::from(c.normal)).collect();
         assert_eq!(n.len(), 2);
