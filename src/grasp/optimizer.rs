@@ -1547,9 +1547,9 @@ fn seed_start(
     };
     // The most closed preshape (of mid-range and on towards open) whose fingers are clear of each
     // other and whose thumb pad faces the other fingertips; else the most closed one with the
-    // fingers clear; else mid-range. At mid-range the OB4F's fingers are clear but its thumb pad
-    // faces away from the other tips (cosine -0.4), and its starts found grips with the thumb
-    // on top of the object and the fingers on a side.
+    // fingers clear; else mid-range. At mid-range the OB4F's thumb pad faces away from the other
+    // tips (cosine -0.44), and its starts found grips with the thumb on top of the object and the
+    // fingers on a side.
     let mut clear = None;
     let mut chosen = None;
     for step in 0..=5 {

@@ -218,16 +218,16 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         "{note}"
     );
 
-    // With the seeded pa10_ihy model, the ball grasp of seed 0 (the default) has no
-    // collision-free motion from the zero posture (measured: the thumb presses 5.0 mm into the
-    // ball while the hand closes). Left to the service, the plan drops it and takes seed 1's
-    // grasp; with the seed set, the plan is that grasp's, infeasible.
-    let ball = "00000000-0000-4000-8000-000000000001";
-    let ball_plan = |seed: Option<u64>| {
+    // With the seeded pa10_ihy model, the bottle grasp of seed 0 (the default) for a velocity
+    // along x has no collision-free motion from the zero posture (measured: a finger's proximal
+    // link 3.4 mm inside the bottle), nor has seed 1's. Left to the service, the plan drops both
+    // and takes seed 2's grasp; with the seed set, the plan is that grasp's, infeasible.
+    let bottle = "00000000-0000-4000-8000-000000000002";
+    let bottle_plan = |seed: Option<u64>| {
         let extra = seed.map_or(serde_json::json!({}), |s| serde_json::json!({"seed": s}));
-        zero_start_plan(&app, "pa10_ihy", ball, [0, 0, 1], "force", extra)
+        zero_start_plan(&app, "pa10_ihy", bottle, [1, 0, 0], "velocity", extra)
     };
-    let pinned = ball_plan(Some(0)).await;
+    let pinned = bottle_plan(Some(0)).await;
     assert_eq!(pinned["feasible"], false, "{}", pinned["reason"]);
     assert!(
         pinned["reason"]
@@ -238,17 +238,18 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         pinned["reason"]
     );
     assert!(pinned["timings"]["rejected_grasps"].is_null());
-    let chosen = ball_plan(None).await;
+    let chosen = bottle_plan(None).await;
     assert_eq!(chosen["feasible"], true, "{}", chosen["reason"]);
     assert_eq!(
         chosen["trajectory"]["report"]["clearance"]["collision_free"],
         true
     );
     let rejected = chosen["timings"]["rejected_grasps"].as_array().unwrap();
-    assert_eq!(rejected.len(), 1, "{rejected:?}");
+    assert_eq!(rejected.len(), 2, "{rejected:?}");
     assert_eq!(rejected[0]["seed"], 0);
     assert_eq!(rejected[0]["reason"], pinned["reason"]);
-    assert_eq!(chosen["grasp"]["request"]["seed"], 1, "{}", chosen["grasp"]);
+    assert_eq!(rejected[1]["seed"], 1);
+    assert_eq!(chosen["grasp"]["request"]["seed"], 2, "{}", chosen["grasp"]);
     // the plan's page lists the dropped grasp
     let page = client
         .get(format!(
