@@ -180,23 +180,31 @@ class SafetyFilter:
         return u
 
     def report(self, sim):
+        """The filter's account in the protocol's `SafetyReport` form (None before a period)."""
         if self.periods == 0:
             return None
-        label = None
+        link = other = None
         if self.closest is not None:
             g1, g2 = self.p.pairs[self.closest]
-            name = lambda g: mujoco.mj_id2name(sim.m, mujoco.mjtObj.mjOBJ_BODY, int(sim.m.geom_bodyid[g]))  # noqa: E731
-            label = (name(g1), "support" if g2 == sim.b.support_geom else name(g2))
-        fin = lambda x: x if math.isfinite(x) else None  # noqa: E731
+            link = _body_name(sim, g1)
+            other = "support" if g2 == sim.b.support_geom else _body_name(sim, g2)
         return {
-            "min_barrier_m": fin(self.min_barrier),
-            "min_distance_m": fin(self.min_distance),
-            "link": label[0] if label else None,
-            "other": label[1] if label else None,
+            "min_barrier_m": _finite_or_none(self.min_barrier),
+            "min_distance_m": _finite_or_none(self.min_distance),
+            "link": link,
+            "other": other,
             "time_s": self.time,
             "periods": self.periods,
             "filtered_periods": self.filtered,
         }
+
+
+def _body_name(sim, geom):
+    return mujoco.mj_id2name(sim.m, mujoco.mjtObj.mjOBJ_BODY, int(sim.m.geom_bodyid[geom]))
+
+
+def _finite_or_none(x):
+    return x if math.isfinite(x) else None
 
 
 def approach_bound(rate, braking, h):
