@@ -12,7 +12,7 @@ use serde_json::Value;
 
 use super::html::{self, PageError, esc, facts, field, figure, form, link, num, table};
 use super::pages::task_fields;
-use super::resources::{execution_fraction, execution_progress, report_facts, short};
+use super::resources::{execution_fraction, execution_progress, report_facts, safety_fact, short};
 use crate::grasp::{GraspResult, ObjectSpec};
 use crate::service::Context as AppState;
 use crate::service::grasps::GraspSettings;
@@ -664,6 +664,10 @@ async fn execution_section(
                                 .unwrap_or("(not assigned yet)"))
                         ),
                         ("tracking error", tracking),
+                        (
+                            "safety filter",
+                            safety_fact(&view).unwrap_or_else(|| "–".into())
+                        ),
                         ("finished", esc(dto.finished_at.as_deref().unwrap_or("–"))),
                     ]),
                     // `data-execution`: the script reloads this figure when the run ends.

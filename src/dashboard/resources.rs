@@ -46,6 +46,30 @@ pub(super) fn execution_fraction(view: &crate::service::executions::ExecutionVie
     }
 }
 
+/// The safety filter's account of a closed-loop execution with a scene (its worker's
+/// `result`): the closest pair and when, the smallest barrier, how often the filter acted.
+pub(super) fn safety_fact(view: &crate::service::executions::ExecutionView) -> Option<String> {
+    let s = view.tracking.as_ref()?.safety.as_ref()?;
+    let mm = |x: Option<f64>| x.map_or_else(|| "–".to_owned(), |v| format!("{:.1} mm", v * 1e3));
+    let pair = match (&s.link, &s.other) {
+        (Some(l), Some(o)) => format!(
+            " ({} / {}{})",
+            esc(l),
+            esc(o),
+            s.time_s
+                .map_or_else(String::new, |t| format!(", at {t:.2} s"))
+        ),
+        _ => String::new(),
+    };
+    Some(format!(
+        "closest {}{pair}; smallest barrier {}; filtered {} of {} periods",
+        mm(s.min_distance_m),
+        mm(s.min_barrier_m),
+        s.filtered_periods,
+        s.periods
+    ))
+}
+
 fn train_form(robot: &str, mapping: &str) -> String {
     form(
         "train-form",
@@ -683,6 +707,7 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
         "model" => link(&format!("/ui/models/{}", dto.source_id), &dto.source_id),
         _ => esc(&dto.source_id),
     };
+    let safety = safety_fact(&view);
     let body = format!(
         "{}{}",
         facts(&[
@@ -703,6 +728,7 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
                 esc(dto.assigned_worker.as_deref().unwrap_or("(not assigned)"))
             ),
             ("tracking error", tracking),
+            ("safety filter", safety.unwrap_or_else(|| "–".into())),
             (
                 "measured history",
                 format!(

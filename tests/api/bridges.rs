@@ -1620,6 +1620,26 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
         report["min_distance_m"].as_f64().unwrap() > -CLOSING_PRESS,
         "{done}"
     );
+    // the execution's page shows that account: the closest pair and the filtered periods
+    let page = app
+        .client
+        .get(format!("{}/ui/executions/{id}", app.base))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    let shown = format!(
+        "filtered {} of {} periods",
+        report["filtered_periods"], report["periods"]
+    );
+    assert!(
+        page.contains("safety filter")
+            && page.contains(&shown)
+            && page.contains(report["link"].as_str().unwrap()),
+        "the execution page does not show the safety filter's account ({shown})"
+    );
 }
 
 // ------------------------------------------------------------------ teleoperation (issue 22)
