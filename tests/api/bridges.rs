@@ -1622,11 +1622,8 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     );
     // the execution's page shows that account: the closest pair and the filtered periods
     let page = app
-        .client
-        .get(format!("{}/ui/executions/{id}", app.base))
-        .send()
+        .raw(&format!("/ui/executions/{id}"))
         .await
-        .unwrap()
         .text()
         .await
         .unwrap();
@@ -1735,15 +1732,7 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     opts.backoff_initial = Duration::from_millis(50);
     let mut w = Worker::start(opts);
     w.until(10, |e| *e == WorkerEvent::Connected).await;
-    let page = app
-        .client
-        .get(format!("{}/ui/bridges", app.base))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let page = app.raw("/ui/bridges").await.text().await.unwrap();
     assert!(page.contains("teleoperation (streaming)"), "{page}");
     assert_eq!(
         refused_upgrade(&url("forward=true&worker=someone-else")).await,
