@@ -711,6 +711,8 @@ fn number_facts(v: &serde_json::Value) -> Vec<(String, String)> {
                     .collect::<Vec<_>>()
                     .join(", "),
                 serde_json::Value::String(s) => esc(s),
+                // an absent value (a link label where no pair was near)
+                serde_json::Value::Null => "–".to_owned(),
                 other => esc(&other.to_string()),
             };
             out.push((k.clone(), text));
@@ -740,16 +742,7 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
     let exact_owned = number_facts(&exact);
     let exact_facts: Vec<(&str, String)> = exact_owned
         .iter()
-        .map(|(k, v)| {
-            (
-                k.as_str(),
-                if v == "null" {
-                    "–".to_owned()
-                } else {
-                    v.clone()
-                },
-            )
-        })
+        .map(|(k, v)| (k.as_str(), v.clone()))
         .collect();
     let joints: Vec<Vec<String>> = result
         .q_arm
