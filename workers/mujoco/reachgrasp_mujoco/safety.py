@@ -58,13 +58,6 @@ class Pairs:
         self.scene = set(scene)
         self.fromto = np.zeros(6)
         self.jp = np.zeros((3, sim.m.nv))
-        # dof columns of each independent joint (its own and its followers', with multipliers)
-        self.cols = []
-        for k, dr in enumerate(b.drives):
-            c = [(int(sim.vadr[k]), 1.0)]
-            for jid, mult in dr.followers:
-                c.append((int(sim.m.jnt_dofadr[jid]), float(mult)))
-            self.cols.append(c)
 
     def pose(self, q_full):
         """Kinematics at full MuJoCo `qpos` values."""
@@ -73,13 +66,10 @@ class Pairs:
         mujoco.mj_comPos(self.m, self.d)
 
     def pose_joints(self, q):
-        """Kinematics at independent joint values `q` (followers from their couplings)."""
-        sim = self.sim
-        qpos = sim.d.qpos.copy()
-        for k, dr in enumerate(sim.b.drives):
-            qpos[sim.qadr[k]] = q[k]
-            for jid, mult in dr.followers:
-                qpos[self.m.jnt_qposadr[jid]] = mult * q[k]
+        """Kinematics at independent joint values `q` (coupled joints as `Sim.set_posture` puts
+        them)."""
+        qpos = self.sim.d.qpos.copy()
+        self.sim.couple(qpos, q)
         self.pose(qpos)
 
     def distance(self, i, reach):
@@ -112,7 +102,7 @@ class Pairs:
         body = int(self.m.geom_bodyid[g1])
         mujoco.mj_jac(self.m, self.d, self.jp, None, p1, body)
         g = s * (n @ self.jp)
-        for k, cols in enumerate(self.cols):
+        for k, cols in enumerate(self.sim.coupled_dofs):
             out[k] = sum(mult * g[c] for c, mult in cols)
         return True
 

@@ -112,23 +112,52 @@ class Sim:
             self._geom_class[built.support_geom] = 4
         for g in built.obstacle_geoms:
             self._geom_class[g] = 5
+        # Rigid joint equalities (mimic joints outside their leader's chain, e.g. the iHY's
+        # geared spread pair): (qpos of j1, dof of j1, qpos of j2, dof of j2, offset, factor)
+        # for j1 = offset + factor * j2.
+        m = self.m
+        self.equalities = [
+            (
+                int(m.jnt_qposadr[m.eq_obj1id[e]]),
+                int(m.jnt_dofadr[m.eq_obj1id[e]]),
+                int(m.jnt_qposadr[m.eq_obj2id[e]]),
+                int(m.jnt_dofadr[m.eq_obj2id[e]]),
+                float(m.eq_data[e][0]),
+                float(m.eq_data[e][1]),
+            )
+            for e in range(m.neq)
+            if m.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT
+        ]
+        # Per independent joint, the dofs its value moves and by how much (its own, its tendon
+        # followers', then the equalities led by any of those): d qvel / d q_k.
+        self.coupled_dofs = []
+        for k, dr in enumerate(built.drives):
+            cols = {int(self.vadr[k]): 1.0}
+            for jid, mult in dr.followers:
+                cols[int(m.jnt_dofadr[jid])] = float(mult)
+            for _, dof1, _, dof2, _, factor in self.equalities:
+                if dof2 in cols:
+                    cols[dof1] = factor * cols[dof2]
+            self.coupled_dofs.append(list(cols.items()))
 
     # --- state -------------------------------------------------------------------------------
     def set_posture(self, q):
         """Places the robot at independent joint values `q` (followers from their couplings)."""
         q = np.clip(np.asarray(q, float), self.lower, self.upper)
-        for k, dr in enumerate(self.b.drives):
-            self.d.qpos[self.qadr[k]] = q[k]
-            for jid, mult in dr.followers:
-                self.d.qpos[self.m.jnt_qposadr[jid]] = mult * q[k]
-        for e in range(self.m.neq):
-            if self.m.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT:
-                j1, j2 = self.m.eq_obj1id[e], self.m.eq_obj2id[e]
-                c = self.m.eq_data[e]
-                self.d.qpos[self.m.jnt_qposadr[j1]] = c[0] + c[1] * self.d.qpos[self.m.jnt_qposadr[j2]]
+        self.couple(self.d.qpos, q)
         self.d.qvel[:] = 0
         self.set_reference(q, np.zeros(self.n))
         mujoco.mj_forward(self.m, self.d)
+
+    def couple(self, qpos, q):
+        """Writes independent joint values `q` into the MuJoCo `qpos` vector in place, with every
+        coupled joint (tendon followers, rigid equalities) where its coupling puts it."""
+        for k, dr in enumerate(self.b.drives):
+            qpos[self.qadr[k]] = q[k]
+            for jid, mult in dr.followers:
+                qpos[self.m.jnt_qposadr[jid]] = mult * q[k]
+        for qadr1, _, qadr2, _, offset, factor in self.equalities:
+            qpos[qadr1] = offset + factor * qpos[qadr2]
 
     def q(self):
         return self.d.qpos[self.qadr].copy()

@@ -43,6 +43,11 @@ def test_distance_gradients_match_finite_differences(ihy):
     rng = np.random.default_rng(5)
     base = hand_above_ball(sim)
     checked = 0
+    # the iHY's finger2 spread follows finger1's through a rigid equality, not a tendon: pairs on
+    # finger2's links must see finger1's spread move them
+    spread = next(k for k, dr in enumerate(sim.b.drives) if dr.name == "ihy_finger1_spread")
+    finger2 = {b for b in range(sim.m.nbody) if "finger2" in (mujoco.mj_id2name(sim.m, mujoco.mjtObj.mjOBJ_BODY, b) or "")}
+    through_equality = 0
     for trial in range(4):
         q = np.clip(base + rng.normal(0, 0.05, sim.n), sim.lower + 0.05, sim.upper - 0.05)
         pairs.pose_joints(q)
@@ -67,7 +72,23 @@ def test_distance_gradients_match_finite_differences(ihy):
             # curved surfaces (sphere, capsules) make the witness-point gradient exact to first order
             assert np.allclose(g, fd, atol=2e-4 + 1e-3 * np.abs(fd).max()), (pairs.pairs[i], g, fd)
             checked += 1
+            if sim.m.geom_bodyid[pairs.pairs[i][0]] in finger2 and abs(fd[spread]) > 1e-3:
+                through_equality += 1
     assert checked >= 20, checked
+    assert through_equality >= 2, through_equality
+
+
+def test_posed_couplings_satisfy_the_models_own_equality_constraints(ihy):
+    # MuJoCo's constraint residuals (efc_pos of the equality rows) are the independent reference
+    # for where `Sim.couple` puts the coupled joints
+    sim = ihy
+    rng = np.random.default_rng(11)
+    assert sim.equalities, "the iHY's spread pair is a rigid equality"
+    for _ in range(5):
+        sim.set_posture(rng.uniform(sim.lower, sim.upper))
+        rows = [r for r in range(sim.d.nefc) if sim.d.efc_type[r] == int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)]
+        assert len(rows) == len(sim.equalities)
+        assert max(abs(sim.d.efc_pos[r]) for r in rows) < 1e-12
 
 
 def test_the_projection_is_the_nearest_admissible_command():
