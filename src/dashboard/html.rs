@@ -242,6 +242,20 @@ pub fn num(v: f64, digits: usize) -> String {
     }
 }
 
+/// One JSON value as page text: numbers to 5 decimals, arrays comma-separated, booleans as
+/// yes/no, an absent value (a link label where no pair was near) as "–".
+pub fn value_text(v: &serde_json::Value) -> String {
+    use serde_json::Value;
+    match v {
+        Value::Number(n) => n.as_f64().map(|x| num(x, 5)).unwrap_or_default(),
+        Value::Array(a) => a.iter().map(value_text).collect::<Vec<_>>().join(", "),
+        Value::String(s) => esc(s),
+        Value::Bool(b) => if *b { "yes" } else { "no" }.into(),
+        Value::Null => "–".into(),
+        Value::Object(_) => esc(&v.to_string()),
+    }
+}
+
 /// `2026-12-04 06:05:20` (UTC) from an RFC 3339 timestamp: columns stay narrow.
 pub fn when(rfc3339: &str) -> String {
     let t = rfc3339.replacen('T', " ", 1);

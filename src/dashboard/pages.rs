@@ -5,7 +5,9 @@ use axum::response::Response;
 use serde::Deserialize;
 use uuid::Uuid;
 
-use super::html::{self, PageError, esc, facts, field, figure, form, link, num, progress, table};
+use super::html::{
+    self, PageError, esc, facts, field, figure, form, link, num, progress, table, value_text,
+};
 use crate::grasp::{GraspResult, ObjectSpec, ShapeSpec};
 use crate::jobs::JobRecord;
 use crate::service::Context as AppState;
@@ -699,26 +701,13 @@ pub async fn grasps(State(state): State<AppState>) -> Page {
 }
 
 fn number_facts(v: &serde_json::Value) -> Vec<(String, String)> {
-    let mut out = Vec::new();
-    if let Some(map) = v.as_object() {
-        for (k, v) in map {
-            let text = match v {
-                serde_json::Value::Number(n) => n.as_f64().map(|x| num(x, 5)).unwrap_or_default(),
-                serde_json::Value::Array(a) => a
-                    .iter()
-                    .filter_map(|x| x.as_f64())
-                    .map(|x| num(x, 4))
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                serde_json::Value::String(s) => esc(s),
-                // an absent value (a link label where no pair was near)
-                serde_json::Value::Null => "–".to_owned(),
-                other => esc(&other.to_string()),
-            };
-            out.push((k.clone(), text));
-        }
-    }
-    out
+    v.as_object()
+        .map(|map| {
+            map.iter()
+                .map(|(k, v)| (k.clone(), value_text(v)))
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Page {

@@ -10,7 +10,7 @@ use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
 use serde_json::Value;
 
-use super::html::{self, PageError, esc, facts, field, figure, form, link, num, table};
+use super::html::{self, PageError, esc, facts, field, figure, form, link, num, table, value_text};
 use super::pages::task_fields;
 use super::resources::{execution_fraction, execution_progress, report_facts, safety_fact, short};
 use crate::grasp::{GraspResult, ObjectSpec};
@@ -309,17 +309,6 @@ fn grasp_parts(g: &GraspRow) -> Result<GraspParts, PageError> {
         settings: serde_json::from_str(&g.request).map_err(PageError::internal)?,
         result: serde_json::from_str(&g.result).map_err(PageError::internal)?,
     })
-}
-
-fn value_text(v: &Value) -> String {
-    match v {
-        Value::Number(n) => n.as_f64().map(|x| num(x, 5)).unwrap_or_default(),
-        Value::Array(a) => a.iter().map(value_text).collect::<Vec<_>>().join(", "),
-        Value::String(s) => esc(s),
-        Value::Bool(b) => if *b { "yes" } else { "no" }.into(),
-        Value::Null => "–".into(),
-        Value::Object(_) => esc(&v.to_string()),
-    }
 }
 
 /// `(name, value)` pairs of a JSON object, nested objects as `outer.inner`, in document order.
