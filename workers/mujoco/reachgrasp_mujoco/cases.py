@@ -15,7 +15,6 @@ BLOCK = {"object": {"name": "block", "shape": {"type": "box", "size": [0.04, 0.0
                     "position": [0.5, 0.0, 0.025], "orientation": [1, 0, 0, 0], "mass": 0.1, "friction": 0.8},
          "support": {"normal": [0, 0, 1], "offset": 0.0}}
 HAND_P = np.array([0.5, 0.0, 0.2055])  # T42 base: fingertips 19 mm above the table
-HAND_R = np.diag([1.0, -1.0, -1.0])  # approach axis straight down
 
 
 def pinch(svc: Service, robot: str = "wam_t42", height: float = 0.15, duration: float = 3.0, n: int = 150):
@@ -24,13 +23,7 @@ def pinch(svc: Service, robot: str = "wam_t42", height: float = 0.15, duration: 
     path ends exactly at the goal)."""
     detail, urdf = svc.robot(robot)
     sim = Sim(B.build(urdf, B.SystemInfo.from_detail(detail), None))
-    q0 = np.zeros(sim.n)
-    q0[1], q0[3] = 0.8, 1.6  # elbow bent, the branch the IK starts on
-    sim.set_posture(q0)
-    goal, err = sim.hand_pose_ik(q0, HAND_P, HAND_R)
-    if err > 1e-6:
-        raise RuntimeError(f"pinch pose IK residual {err}")
-    sim.set_posture(goal)
+    goal = sim.hand_pointing_down(HAND_P)
     offs = [np.array([0, 0, height * (10 * u**3 - 15 * u**4 + 6 * u**5)]) for u in (k / n for k in range(n + 1))]
     path, err = sim.arm_ik_path(goal, offs, duration / n)
     if err > 1e-5:

@@ -241,6 +241,19 @@ class Sim:
         return Rh.T @ (po - ph), Rh.T @ Ro
 
     # --- kinematic IK for the trial's Cartesian hand motion -----------------------------------
+    def hand_pointing_down(self, position):
+        """Joint values with the hand root at `position`, its approach axis straight down (hand
+        x along world x), from the elbow-bent WAM/PA10 branch (shoulder 0.8, elbow 1.6 rad);
+        leaves the robot there. Raises if the IK does not reach the pose."""
+        q0 = np.zeros(self.n)
+        q0[1], q0[3] = 0.8, 1.6
+        self.set_posture(q0)
+        q, err = self.hand_pose_ik(q0, np.asarray(position, float), np.diag([1.0, -1.0, -1.0]))
+        if err > 1e-6:
+            raise RuntimeError(f"hand pose IK residual {err}")
+        self.set_posture(q)
+        return q
+
     def hand_pose_ik(self, q0, target_p, target_R, iters=200):
         """Arm joints (hand and the rest from `q0`) putting the hand root at `target_p`,
         `target_R` by damped least squares; returns (q, residual norm)."""

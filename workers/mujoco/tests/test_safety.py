@@ -29,12 +29,7 @@ def ihy(service):
 
 def hand_above_ball(sim):
     """The hand pointing down, its palm 17 cm above the table over the ball."""
-    q0 = np.zeros(sim.n)
-    q0[1], q0[3] = 0.8, 1.6
-    sim.set_posture(q0)
-    q, err = sim.hand_pose_ik(q0, np.array([0.5, 0.0, 0.17]), np.diag([1.0, -1.0, -1.0]))
-    assert err < 1e-6
-    return q
+    return sim.hand_pointing_down([0.5, 0.0, 0.17])
 
 
 def test_distance_gradients_match_finite_differences(ihy):

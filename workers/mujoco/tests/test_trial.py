@@ -15,19 +15,13 @@ from test_model import load
 # Hand pointing straight down above (0.5, 0), fingertips 19 mm above the table: the open T42's
 # distal phalanges straddle a block 48 mm wide (their inner faces are 50 mm apart).
 HAND_P = np.array([0.5, 0.0, 0.2055])
-HAND_R = np.diag([1.0, -1.0, -1.0])
 
 
 @pytest.fixture(scope="module")
 def t42(service):
     detail, urdf = load(service, "wam_t42")
     info = B.SystemInfo.from_detail(detail)
-    s0 = Sim(B.build(urdf, info, None))
-    q0 = np.zeros(s0.n)
-    q0[1], q0[3] = 0.8, 1.6
-    s0.set_posture(q0)
-    q, err = s0.hand_pose_ik(q0, HAND_P, HAND_R)
-    assert err < 1e-6
+    q = Sim(B.build(urdf, info, None)).hand_pointing_down(HAND_P)
     return urdf, info, q
 
 
