@@ -1767,7 +1767,13 @@ fn solver_settings() -> Settings {
         // 0.1 mm: an order of magnitude inside the feasibility tolerances above.
         constraint_tolerance: 1e-4,
         max_inner_iterations: 500,
-        max_outer_iterations: 30,
+        // 12, not the solver's default 30: on the grasp bench (six systems x 15 requests, 1,020
+        // starts) 192 starts ran all 30 outer iterations, each raising the penalty fivefold
+        // until the inner problems took their 500 iterations, for 48 % of all inner iterations;
+        // 4 of them ended exactly feasible. Stopping at 12 keeps every request's verdict (159 of
+        // 180 exactly feasible on the seeded-object survey either way) and halves the median
+        // request time (wam_ob4f 117 -> 40 ms, pa10_t42 31 -> 6 ms; 15 gives back most of it).
+        max_outer_iterations: 12,
         initial_penalty: 100.0,
         penalty_update_factor: 5.0,
         lbfgs_memory: 10,

@@ -218,14 +218,14 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         "{note}"
     );
 
-    // With the seeded pa10_ihy model, the bottle grasp of seed 0 (the default) for a velocity
-    // along x has no collision-free motion from the zero posture (measured: a finger's proximal
-    // link 3.4 mm inside the bottle), nor has seed 1's. Left to the service, the plan drops both
+    // With the seeded pa10_t42 model, the bottle grasp of seed 0 (the default) for a velocity
+    // along z has no collision-free motion from the zero posture (measured: a finger's proximal
+    // link 43 mm inside the bottle), nor has seed 1's. Left to the service, the plan drops both
     // and takes seed 2's grasp; with the seed set, the plan is that grasp's, infeasible.
     let bottle = "00000000-0000-4000-8000-000000000002";
     let bottle_plan = |seed: Option<u64>| {
         let extra = seed.map_or(serde_json::json!({}), |s| serde_json::json!({"seed": s}));
-        zero_start_plan(&app, "pa10_ihy", bottle, [1, 0, 0], "velocity", extra)
+        zero_start_plan(&app, "pa10_t42", bottle, [0, 0, 1], "velocity", extra)
     };
     let pinned = bottle_plan(Some(0)).await;
     assert_eq!(pinned["feasible"], false, "{}", pinned["reason"]);
