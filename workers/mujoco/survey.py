@@ -31,6 +31,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from reachgrasp_mujoco.offline import grasp_trial  # noqa: E402
+from reachgrasp_mujoco.sim import TrialOptions  # noqa: E402
 from reachgrasp_mujoco.service import Service, ServiceError  # noqa: E402
 
 SYSTEMS = ["wam_t42", "wam_ihy", "wam_ob4f", "pa10_t42", "pa10_ihy", "pa10_ob4f"]
@@ -75,7 +76,7 @@ def cmd_grasps(a):
                 row = {"robot": robot, "object": oname, "task": tname, "grasp": g["id"],
                        "feasible": g["result"]["feasible"]}
                 if row["feasible"]:
-                    t = grasp_trial(svc, g, True)
+                    t = grasp_trial(svc, g, True, TrialOptions(grip=a.grip, slip_reflex=a.slip_reflex))
                     row.update({k: t[k] for k in ("held", "slip_m", "object_lift_m", "initial_penetration_m",
                                                    "contacts_after_close", "contact_force_total_mean_n",
                                                    "real_time_factor")})
@@ -90,7 +91,8 @@ def cmd_grasps(a):
 def start_worker(a, robot, report_dir, extra=()):
     log = open(Path(report_dir) / f"worker-{robot}.log", "w")
     cmd = [sys.executable, "-m", "reachgrasp_mujoco", "--robot", robot, "--url", a.ws, "--token", a.token,
-           "--object-defaults", "--pace", "0", "--report-dir", report_dir, "--name", f"survey-{robot}", *extra]
+           "--object-defaults", "--pace", "0", "--report-dir", report_dir, "--name", f"survey-{robot}",
+           "--grip", str(a.grip), "--slip-reflex", str(a.slip_reflex), *extra]
     p = subprocess.Popen(cmd, cwd=HERE, stdout=log, stderr=subprocess.STDOUT)
     deadline = time.time() + 60
     svc = Service(a.http)
@@ -182,7 +184,7 @@ def cmd_fig5(a):
             g = svc.post_json("/v1/grasps", dict(base, starts=8))
             opt = None
             if g["result"]["feasible"]:
-                t = grasp_trial(svc, g, True)
+                t = grasp_trial(svc, g, True, TrialOptions(grip=a.grip, slip_reflex=a.slip_reflex))
                 opt = {"held": t["held"], "q_dc": g["result"]["terms"]["q_dc"], "slip_m": t["slip_m"]}
             rnd = []
             seed = 1
@@ -191,7 +193,7 @@ def cmd_fig5(a):
                                                      weights={"tc": 0, "gc": 0, "q": 0, "d": 0}))
                 seed += 1
                 if r["result"]["feasible"]:
-                    t = grasp_trial(svc, r, True)
+                    t = grasp_trial(svc, r, True, TrialOptions(grip=a.grip, slip_reflex=a.slip_reflex))
                     rnd.append({"held": t["held"], "q_dc": r["result"]["terms"]["q_dc"], "slip_m": t["slip_m"]})
             row = {"robot": robot, "object": oname, "optimal": opt,
                    "random_held": f"{sum(x['held'] for x in rnd)}/{len(rnd)}",
@@ -303,6 +305,10 @@ def main():
     ap.add_argument("--case", choices=["plan", "pinch"], default="pinch")
     ap.add_argument("--height", type=float, default=0.05)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--grip", type=float, default=TrialOptions.grip,
+                    help="share of the closing drives' force limit the trial grips with")
+    ap.add_argument("--slip-reflex", type=float, default=TrialOptions.slip_reflex,
+                    help="object displacement in the hand (m) that raises the grip; 0 = none")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--mode", choices=["open_loop", "closed_loop"], default=None,
                     help="plans: execution mode (default: the service's, open loop)")

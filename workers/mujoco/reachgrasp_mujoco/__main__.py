@@ -31,6 +31,10 @@ def worker_args(p: argparse.ArgumentParser):
                    help="simulated seconds per wall-clock second (1 = real time, 0 = as fast as possible)")
     p.add_argument("--feedback-hz", type=float, default=50.0)
     p.add_argument("--no-trial", action="store_true", help="run the motion only, no grasp trial")
+    p.add_argument("--grip", type=float, default=TrialOptions.grip,
+                   help="share of the closing drives' force limit (URDF effort) the trial grips with")
+    p.add_argument("--slip-reflex", type=float, default=TrialOptions.slip_reflex,
+                   help="object displacement in the hand (m) after which the grip rises to the full limit; 0 = none")
     p.add_argument("--object-defaults", action="store_true",
                    help="fill a missing mass/friction of the service's seeded objects from the worker's table")
     p.add_argument("--push", choices=["arm", "object"], help="push the arm (closed loop) or the held object")
@@ -99,7 +103,7 @@ def main(argv=None):
             return 2
     cfg = WorkerConfig(
         url=args.url, token=args.token, name=args.name or f"mujoco-{args.robot}", robot=args.robot,
-        feedback_hz=args.feedback_hz, pace=args.pace, run=RunOptions(), trial=TrialOptions(), push=push,
+        feedback_hz=args.feedback_hz, pace=args.pace, run=RunOptions(), trial=TrialOptions(grip=args.grip, slip_reflex=args.slip_reflex), push=push,
         object_defaults=args.object_defaults, trial_enabled=not args.no_trial, reset=args.reset,
         report_dir=args.report_dir, max_executions=args.max_executions, scene=scene,
     )
