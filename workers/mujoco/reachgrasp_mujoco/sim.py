@@ -584,8 +584,9 @@ class Trial:
     """Close, lift, hold, shake; `tick()` advances one control period, `result()` is the verdict.
 
     Closing: each finger's tendon (or, without a tendon, its last independent joint that is not
-    a spread joint) is commanded to the joint limit on the object's side, force limited by the
-    URDF effort; spread and opposition joints hold. Lift/shake: the hand root moves along world
+    a spread joint) is commanded to the joint limit on the object's side, force limited to
+    `grip` x the URDF effort until the object slips `slip_reflex` in the hand, then to
+    `grip_on_slip` x; spread and opposition joints hold. Lift/shake: the hand root moves along world
     offsets (orientation kept) through arm IK, tracked by the arm servos."""
 
     def __init__(self, sim: Sim, opts: TrialOptions):
