@@ -68,11 +68,18 @@ def zeros_start(svc, robot):
 def cmd_grasps(a):
     svc = Service(a.http)
     objs = objects(svc)
+    specs = {o["name"]: o["spec"] for o in svc.get_json("/v1/objects") if o.get("seeded")}
     rows = []
     for robot in SYSTEMS:
         for oname, oid in objs.items():
             for tname, task in TASKS.items():
-                g = svc.post_json("/v1/grasps", {"robot": robot, "object_id": oid, "task_directions": task})
+                body = {"robot": robot, "object_id": oid, "task_directions": task}
+                if a.placement is not None:
+                    # the seeded object elsewhere on the table (inline, same shape and height)
+                    spec = dict(specs[oname])
+                    spec["position"] = [*a.placement, spec["position"][2]]
+                    body = {"robot": robot, "object": spec, "task_directions": task}
+                g = svc.post_json("/v1/grasps", body)
                 row = {"robot": robot, "object": oname, "task": tname, "grasp": g["id"],
                        "feasible": g["result"]["feasible"]}
                 if row["feasible"]:
@@ -307,6 +314,8 @@ def main():
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--grip", type=float, default=TrialOptions.grip,
                     help="share of the closing drives' force limit the trial grips with")
+    ap.add_argument("--placement", type=lambda v: [float(x) for x in v.split(",")], default=None,
+                    help="grasps: x,y of the seeded objects on the table (default: where they are seeded)")
     ap.add_argument("--slip-reflex", type=float, default=TrialOptions.slip_reflex,
                     help="object displacement in the hand (m) that raises the grip; 0 = none")
     ap.add_argument("--repeat", type=int, default=3)
