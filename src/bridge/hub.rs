@@ -26,8 +26,8 @@ use utoipa::ToSchema;
 
 use super::protocol::{
     Capability, DEFAULT_START_TOLERANCE, ErrorCode, ErrorReply, Execute, ExecutionPayload,
-    ExecutionResult, Feedback, Hello, Mode, Outcome, PROTOCOL_VERSION, ServiceMessage, Welcome,
-    WorkerMessage, decode_worker_message,
+    ExecutionResult, Feedback, Hello, Mode, Outcome, PROTOCOL_VERSION, PhysicsSummary,
+    ServiceMessage, Welcome, WorkerMessage, decode_worker_message,
 };
 use super::{BridgeError, WorkerName};
 use crate::shutdown::Shutdown;
@@ -72,6 +72,9 @@ pub struct TrackingSummary {
     /// The worker's safety filter report (a closed-loop law with a scene).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub safety: Option<super::protocol::SafetyReport>,
+    /// What a physics worker measured (its simulator and the grasp trial).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub physics: Option<super::protocol::PhysicsSummary>,
 }
 
 impl TrackingSummary {
@@ -929,6 +932,7 @@ impl Hub {
             .and_then(|f| serde_json::to_string(f).ok());
         if let Some(l) = live.as_mut() {
             l.tracking.safety = r.safety.clone();
+            l.tracking.physics = r.physics.as_ref().and_then(PhysicsSummary::read);
         }
         let tr = live
             .as_ref()

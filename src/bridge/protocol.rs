@@ -113,6 +113,57 @@ pub struct ExecutionResult {
     /// What the safety filter did (a closed-loop law with a scene).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub safety: Option<SafetyReport>,
+    /// A physics worker's report (the simulator, the motion in physics, the grasp trial; the
+    /// MuJoCo worker's README has it in full). The service keeps what it reads of it
+    /// ([`PhysicsSummary`]); a report it cannot read is dropped and the result still counts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub physics: Option<serde_json::Value>,
+}
+
+/// What the service keeps of a physics worker's report: the simulator and the grasp trial's
+/// verdict (`GET /v1/executions/{id}` under `tracking.physics`, and the execution's page).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct PhysicsSummary {
+    /// The simulator, e.g. `mujoco`.
+    pub engine: String,
+    /// The grasp trial after the motion (absent when there was none: no object in the scene,
+    /// or the motion did not arrive).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trial: Option<TrialSummary>,
+}
+
+/// The grasp trial's verdict: close, lift, hold, two shakes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct TrialSummary {
+    /// The object is off the support, at least half the lift above where it started and
+    /// touching the hand at the end.
+    pub held: bool,
+    /// The object moved more than the worker's threshold relative to the hand.
+    pub slipped: bool,
+    /// How far the object rose, m (the lift is 0.1 m).
+    pub object_lift_m: f64,
+    /// The object's displacement relative to the hand from the end of closing to the end, m.
+    pub slip_m: f64,
+    /// Mean total normal force on the object during the hold, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_force_total_mean_n: Option<f64>,
+    /// Robot links touching the object after closing.
+    #[serde(default)]
+    pub contacts_after_close: Vec<String>,
+    /// Share of the fingers' force limit the hand gripped with.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grip: Option<f64>,
+    /// The phase in which a slip raised the grip, if one did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grip_raised_in: Option<String>,
+}
+
+impl PhysicsSummary {
+    /// What the service reads of a worker's report; None when it is not one.
+    pub fn read(report: &serde_json::Value) -> Option<Self> {
+        serde_json::from_value(report.clone()).ok()
+    }
 }
 
 /// The safety filter's account of a closed-loop execution (exact distances at the measured

@@ -406,6 +406,7 @@ where
                                 reason: Some("the worker is busy with another execution".into()),
                                 positions: robot.q.clone(),
                                 safety: None,
+                                physics: None,
                             }));
                         } else {
                             // Each execution gets its own perturbation sequence.
@@ -427,6 +428,7 @@ where
                                         reason: Some(reason),
                                         positions: robot.q.clone(),
                                         safety: None,
+                                        physics: None,
                                     }));
                                 }
                             }
@@ -442,6 +444,7 @@ where
                                 reason: Some("cancelled".into()),
                                 positions: robot.q.clone(),
                                 safety,
+                                physics: None,
                             }));
                         }
                     }
@@ -467,6 +470,7 @@ where
                                 reason: None,
                                 positions: robot.q.clone(),
                                 safety: None,
+                                physics: None,
                             }));
                         }
                     }
@@ -495,6 +499,7 @@ where
                             reason,
                             positions: robot.q.clone(),
                             safety: r.safety_report(),
+                            physics: None,
                         }));
                         run = None;
                     }

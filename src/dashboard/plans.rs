@@ -12,7 +12,9 @@ use serde_json::Value;
 
 use super::html::{self, PageError, esc, facts, field, figure, form, link, num, table, value_text};
 use super::pages::task_fields;
-use super::resources::{execution_fraction, execution_progress, report_facts, safety_fact, short};
+use super::resources::{
+    execution_fraction, execution_progress, physics_fact, report_facts, safety_fact, short,
+};
 use crate::grasp::{GraspResult, ObjectSpec};
 use crate::service::Context as AppState;
 use crate::service::grasps::GraspSettings;
@@ -656,6 +658,10 @@ async fn execution_section(
                         (
                             "safety filter",
                             safety_fact(&view).unwrap_or_else(|| "–".into())
+                        ),
+                        (
+                            "physics trial",
+                            physics_fact(&view).unwrap_or_else(|| "–".into())
                         ),
                         ("finished", esc(dto.finished_at.as_deref().unwrap_or("–"))),
                     ]),

@@ -70,6 +70,29 @@ pub(super) fn safety_fact(view: &crate::service::executions::ExecutionView) -> O
     ))
 }
 
+/// A physics worker's grasp trial, as one line: held or not, lift, slip, grip, force.
+pub(super) fn physics_fact(view: &crate::service::executions::ExecutionView) -> Option<String> {
+    let p = view.tracking.as_ref()?.physics.as_ref()?;
+    let Some(t) = &p.trial else {
+        return Some(format!("{}: no grasp trial", esc(&p.engine)));
+    };
+    let grip = match (t.grip, &t.grip_raised_in) {
+        (Some(g), Some(phase)) => format!("; grip {g:.2} of the limit, raised in {}", esc(phase)),
+        (Some(g), None) => format!("; grip {g:.2} of the limit"),
+        _ => String::new(),
+    };
+    let force = t
+        .contact_force_total_mean_n
+        .map_or_else(String::new, |f| format!("; contact force {f:.1} N"));
+    Some(format!(
+        "{}: {} (lifted {:.3} m, slip {:.1} mm{grip}{force})",
+        esc(&p.engine),
+        if t.held { "held" } else { "not held" },
+        t.object_lift_m,
+        t.slip_m * 1e3,
+    ))
+}
+
 fn train_form(robot: &str, mapping: &str) -> String {
     form(
         "train-form",
@@ -729,6 +752,10 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
             ),
             ("tracking error", tracking),
             ("safety filter", safety.unwrap_or_else(|| "–".into())),
+            (
+                "physics trial",
+                physics_fact(&view).unwrap_or_else(|| "–".into())
+            ),
             (
                 "measured history",
                 format!(

@@ -940,6 +940,78 @@ async fn hello_is_checked_joint_names_version_robot_and_name() {
     );
 }
 
+/// A physics worker's report travels with its result: the service keeps the grasp trial's
+/// verdict with the execution (`tracking.physics` and the execution's page, in the words the
+/// worker gave); a report it cannot read is dropped and the result still counts.
+#[tokio::test]
+async fn a_physics_workers_grasp_trial_is_kept_with_the_execution() {
+    let app = spawn(|_| {}).await;
+    let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
+    send(&mut ws, hello("physics", names(), PROTOCOL_VERSION)).await;
+    assert!(matches!(
+        next_msg(&mut ws).await,
+        Some(ServiceMessage::Welcome(_))
+    ));
+    let trial = json!({"held": true, "slipped": false, "object_lift_m": 0.1003, "slip_m": 0.0021,
+                       "contact_force_total_mean_n": 27.4, "contacts_after_close": ["t42_left_distal"],
+                       "grip": 0.25, "grip_raised_in": "shake1", "held_after": {"lift": true}});
+    let readable = json!({"engine": "mujoco", "motion": {"outcome": "succeeded"}, "trial": trial});
+    let unreadable = json!({"engine": "mujoco", "trial": {"held": "yes"}});
+    // (a raw worker reports no feedback: its measured state is where its last result left it)
+    let zero = vec![0.0; names().len()];
+    let mut moved = zero.clone();
+    moved[0] = 0.3;
+    for (physics, kept, from, to) in [
+        (readable, true, &zero, &moved),
+        (unreadable, false, &moved, &zero),
+    ] {
+        let id = app.execute(&inline(from, to, 1.5)).await;
+        let ex = loop {
+            match next_msg(&mut ws).await {
+                Some(ServiceMessage::Execute(e)) => break e,
+                Some(_) => continue,
+                None => panic!("the service closed the connection"),
+            }
+        };
+        assert_eq!(ex.execution_id, id);
+        send(
+            &mut ws,
+            json!({"type": "result", "execution_id": id, "outcome": "succeeded",
+                   "positions": to, "physics": physics}),
+        )
+        .await;
+        let done = app
+            .wait(&id, 10, |e| {
+                e["state"] != "queued" && e["state"] != "running"
+            })
+            .await;
+        assert_eq!(done["state"], "succeeded", "{done}");
+        let kept_trial = &done["tracking"]["physics"]["trial"];
+        let page = app
+            .raw(&format!("/ui/executions/{id}"))
+            .await
+            .text()
+            .await
+            .unwrap();
+        if kept {
+            assert_eq!(done["tracking"]["physics"]["engine"], "mujoco", "{done}");
+            assert_eq!(kept_trial["held"], true);
+            assert_eq!(kept_trial["slip_m"], 0.0021);
+            assert_eq!(kept_trial["grip_raised_in"], "shake1");
+            assert!(
+                page.contains(
+                    "mujoco: held (lifted 0.100 m, slip 2.1 mm; grip 0.25 of the limit, raised \
+                     in shake1; contact force 27.4 N)"
+                ),
+                "the execution page does not show the trial"
+            );
+        } else {
+            assert!(done["tracking"]["physics"].is_null(), "{done}");
+            assert!(!page.contains("mujoco:"));
+        }
+    }
+}
+
 #[tokio::test]
 async fn a_misbehaving_worker_gets_error_replies_and_does_not_disturb_others() {
     let app = spawn(|_| {}).await;

@@ -106,6 +106,10 @@ def test_an_execution_in_physics_ends_with_the_object_held(seeded_service, pinch
     assert t["max_penetration_m"]["hand_object"] < 0.003, t
     # the service recorded the measured motion and the trial's stream
     assert e["feedback_samples"] > 10 and e["tracking"]["samples"] > 10
+    # and kept the trial's verdict with the execution, as the worker reported it
+    kept = e["tracking"]["physics"]
+    assert kept["engine"] == "mujoco" and kept["trial"]["held"], kept
+    assert kept["trial"]["slip_m"] == t["slip_m"] and kept["trial"]["grip"] == t["grip"], (kept, t)
 
 
 def test_a_plan_gets_its_scene_from_the_service_and_a_physics_verdict(seeded_service, t42_worker):
