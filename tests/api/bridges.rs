@@ -234,6 +234,11 @@ impl BridgeApp {
             .unwrap()
     }
 
+    /// A dashboard page's HTML.
+    async fn page(&self, path: &str) -> String {
+        self.raw(path).await.text().await.unwrap()
+    }
+
     async fn svg(&self, path: &str) -> String {
         let res = self.raw(path).await;
         assert_eq!(res.status(), 200, "GET {path}");
@@ -987,12 +992,7 @@ async fn a_physics_workers_grasp_trial_is_kept_with_the_execution() {
             .await;
         assert_eq!(done["state"], "succeeded", "{done}");
         let kept_trial = &done["tracking"]["physics"]["trial"];
-        let page = app
-            .raw(&format!("/ui/executions/{id}"))
-            .await
-            .text()
-            .await
-            .unwrap();
+        let page = app.page(&format!("/ui/executions/{id}")).await;
         if kept {
             assert_eq!(done["tracking"]["physics"]["engine"], "mujoco", "{done}");
             assert_eq!(kept_trial["held"], true);
@@ -1693,12 +1693,7 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
         "{done}"
     );
     // the execution's page shows that account: the closest pair and the filtered periods
-    let page = app
-        .raw(&format!("/ui/executions/{id}"))
-        .await
-        .text()
-        .await
-        .unwrap();
+    let page = app.page(&format!("/ui/executions/{id}")).await;
     let shown = format!(
         "filtered {} of {} periods",
         report["filtered_periods"], report["periods"]
@@ -1804,7 +1799,7 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     opts.backoff_initial = Duration::from_millis(50);
     let mut w = Worker::start(opts);
     w.until(10, |e| *e == WorkerEvent::Connected).await;
-    let page = app.raw("/ui/bridges").await.text().await.unwrap();
+    let page = app.page("/ui/bridges").await;
     assert!(page.contains("teleoperation (streaming)"), "{page}");
     assert_eq!(
         refused_upgrade(&url("forward=true&worker=someone-else")).await,
