@@ -256,6 +256,14 @@ pub fn value_text(v: &serde_json::Value) -> String {
     }
 }
 
+/// Named JSON values as a facts list, each value as [`value_text`] renders it.
+pub fn value_facts<'a>(
+    items: impl IntoIterator<Item = (&'a str, &'a serde_json::Value)>,
+) -> String {
+    let rows: Vec<(&str, String)> = items.into_iter().map(|(k, v)| (k, value_text(v))).collect();
+    facts(&rows)
+}
+
 /// `2026-12-04 06:05:20` (UTC) from an RFC 3339 timestamp: columns stay narrow.
 pub fn when(rfc3339: &str) -> String {
     let t = rfc3339.replacen('T', " ", 1);

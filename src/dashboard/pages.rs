@@ -6,7 +6,7 @@ use serde::Deserialize;
 use uuid::Uuid;
 
 use super::html::{
-    self, PageError, esc, facts, field, figure, form, link, num, progress, table, value_text,
+    self, PageError, esc, facts, field, figure, form, link, num, progress, table, value_facts,
 };
 use crate::grasp::{GraspResult, ObjectSpec, ShapeSpec};
 use crate::jobs::JobRecord;
@@ -700,14 +700,15 @@ pub async fn grasps(State(state): State<AppState>) -> Page {
     Ok(html::ok("Grasps", "/ui/grasps", &body))
 }
 
-fn number_facts(v: &serde_json::Value) -> Vec<(String, String)> {
-    v.as_object()
-        .map(|map| {
-            map.iter()
-                .map(|(k, v)| (k.clone(), value_text(v)))
-                .collect()
-        })
-        .unwrap_or_default()
+/// The fields of JSON objects, in order, as one facts list.
+fn object_facts(objects: &[&serde_json::Value]) -> String {
+    value_facts(
+        objects
+            .iter()
+            .filter_map(|v| v.as_object())
+            .flatten()
+            .map(|(k, v)| (k.as_str(), v)),
+    )
 }
 
 pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Page {
@@ -719,20 +720,11 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
     let result: GraspResult = serde_json::from_str(&g.result).map_err(PageError::internal)?;
     let terms = serde_json::to_value(&result.terms).map_err(PageError::internal)?;
     let residuals = serde_json::to_value(&result.residuals).map_err(PageError::internal)?;
-    let owned: Vec<(String, String)> = number_facts(&terms)
-        .into_iter()
-        .chain(number_facts(&residuals))
-        .collect();
-    let term_facts: Vec<(&str, String)> =
-        owned.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
+    let term_facts = object_facts(&[&terms, &residuals]);
     // The exact check decides `feasible`: penetrations and separations on the URDF shapes, the
     // pads' distance and angle, the contacts' opposition.
     let exact = serde_json::to_value(&result.exact).map_err(PageError::internal)?;
-    let exact_owned = number_facts(&exact);
-    let exact_facts: Vec<(&str, String)> = exact_owned
-        .iter()
-        .map(|(k, v)| (k.as_str(), v.clone()))
-        .collect();
+    let exact_facts = object_facts(&[&exact]);
     let joints: Vec<Vec<String>> = result
         .q_arm
         .iter()
@@ -809,8 +801,8 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
             true,
             ellipsoid
         ),
-        facts(&term_facts),
-        facts(&exact_facts),
+        term_facts,
+        exact_facts,
         table(&["joint", "part", "value (rad)"], &joints),
         table(
             &[

@@ -10,7 +10,9 @@ use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
 use serde_json::Value;
 
-use super::html::{self, PageError, esc, facts, field, figure, form, link, num, table, value_text};
+use super::html::{
+    self, PageError, esc, facts, field, figure, form, link, num, table, value_facts, value_text,
+};
 use super::pages::task_fields;
 use super::resources::{
     execution_fraction, execution_progress, physics_fact, report_facts, safety_fact, short,
@@ -399,14 +401,6 @@ fn labelled(items: &[(String, Value)]) -> Vec<(String, Value)> {
         .collect()
 }
 
-fn number_facts(items: &[(String, Value)]) -> String {
-    let owned: Vec<(&str, String)> = items
-        .iter()
-        .map(|(k, v)| (k.as_str(), value_text(v)))
-        .collect();
-    facts(&owned)
-}
-
 fn grasp_figure(id: &str, caption: &str) -> String {
     figure(
         &format!("/v1/grasps/{id}/plot.svg"),
@@ -552,7 +546,11 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
     );
     grasp.push_str("<div class=\"split\"><div>");
     for (title, items) in grasp_numbers(r)? {
-        grasp.push_str(&format!("<h3>{}</h3>{}", esc(title), number_facts(&items)));
+        grasp.push_str(&format!(
+            "<h3>{}</h3>{}",
+            esc(title),
+            value_facts(items.iter().map(|(k, v)| (k.as_str(), v)))
+        ));
     }
     grasp.push_str("</div><div>");
     grasp.push_str(&grasp_figure(
