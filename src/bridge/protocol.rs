@@ -162,7 +162,7 @@ pub struct TrialSummary {
 impl PhysicsSummary {
     /// What the service reads of a worker's report; None when it is not one.
     pub fn read(report: &serde_json::Value) -> Option<Self> {
-        serde_json::from_value(report.clone()).ok()
+        Self::deserialize(report).ok()
     }
 }
 
