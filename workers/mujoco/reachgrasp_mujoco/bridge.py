@@ -283,6 +283,7 @@ class Worker:
             "positions": [float(x) for x in self.q],
             # The safety filter's account (a law with a scene), as the reference worker sends it.
             **({"safety": report["safety"]} if report.get("safety") else {}),
-            # Ignored by today's service; the trial's verdict and numbers (README: protocol).
+            # The whole report; the service keeps the trial's verdict with the execution
+            # (`tracking.physics`; README: protocol).
             "physics": report,
         })

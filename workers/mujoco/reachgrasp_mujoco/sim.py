@@ -667,9 +667,9 @@ class Trial:
             return dr.upper
 
         def dist(delta):
-            kd.qpos[sim.qadr[k]] = self.q_grasp[k] + delta
-            for jid, mult in dr.followers:
-                kd.qpos[sim.m.jnt_qposadr[jid]] = mult * (self.q_grasp[k] + delta)
+            q = self.q_grasp.copy()
+            q[k] += delta
+            sim.couple(kd.qpos, q)
             mujoco.mj_kinematics(sim.m, kd)
             return sum(float(np.linalg.norm(kd.xpos[t] - po)) for t in tipb)
 
