@@ -41,8 +41,18 @@ TASKS = {
 }
 
 
+def seeded(svc):
+    """The service's seeded objects: name -> the object (id and spec)."""
+    return {o["name"]: o for o in svc.get_json("/v1/objects") if o.get("seeded")}
+
+
 def objects(svc):
-    return {o["name"]: o["id"] for o in svc.get_json("/v1/objects") if o.get("seeded")}
+    return {name: o["id"] for name, o in seeded(svc).items()}
+
+
+def trial_options(a):
+    """The trial as the command line sets it (grip, slip reflex)."""
+    return TrialOptions(grip=a.grip, slip_reflex=a.slip_reflex)
 
 
 def table(rows, key_a, key_b, ok):
@@ -67,23 +77,22 @@ def zeros_start(svc, robot):
 
 def cmd_grasps(a):
     svc = Service(a.http)
-    objs = objects(svc)
-    specs = {o["name"]: o["spec"] for o in svc.get_json("/v1/objects") if o.get("seeded")}
+    objs = seeded(svc)
     rows = []
     for robot in SYSTEMS:
-        for oname, oid in objs.items():
+        for oname, obj in objs.items():
             for tname, task in TASKS.items():
-                body = {"robot": robot, "object_id": oid, "task_directions": task}
+                body = {"robot": robot, "object_id": obj["id"], "task_directions": task}
                 if a.placement is not None:
                     # the seeded object elsewhere on the table (inline, same shape and height)
-                    spec = dict(specs[oname])
+                    spec = dict(obj["spec"])
                     spec["position"] = [*a.placement, spec["position"][2]]
                     body = {"robot": robot, "object": spec, "task_directions": task}
                 g = svc.post_json("/v1/grasps", body)
                 row = {"robot": robot, "object": oname, "task": tname, "grasp": g["id"],
                        "feasible": g["result"]["feasible"]}
                 if row["feasible"]:
-                    t = grasp_trial(svc, g, True, TrialOptions(grip=a.grip, slip_reflex=a.slip_reflex))
+                    t = grasp_trial(svc, g, True, trial_options(a))
                     row.update({k: t[k] for k in ("held", "slip_m", "object_lift_m", "initial_penetration_m",
                                                    "contacts_after_close", "contact_force_total_mean_n",
                                                    "real_time_factor")})
@@ -191,7 +200,7 @@ def cmd_fig5(a):
             g = svc.post_json("/v1/grasps", dict(base, starts=8))
             opt = None
             if g["result"]["feasible"]:
-                t = grasp_trial(svc, g, True, TrialOptions(grip=a.grip, slip_reflex=a.slip_reflex))
+                t = grasp_trial(svc, g, True, trial_options(a))
                 opt = {"held": t["held"], "q_dc": g["result"]["terms"]["q_dc"], "slip_m": t["slip_m"]}
             rnd = []
             seed = 1
@@ -200,7 +209,7 @@ def cmd_fig5(a):
                                                      weights={"tc": 0, "gc": 0, "q": 0, "d": 0}))
                 seed += 1
                 if r["result"]["feasible"]:
-                    t = grasp_trial(svc, r, True, TrialOptions(grip=a.grip, slip_reflex=a.slip_reflex))
+                    t = grasp_trial(svc, r, True, trial_options(a))
                     rnd.append({"held": t["held"], "q_dc": r["result"]["terms"]["q_dc"], "slip_m": t["slip_m"]})
             row = {"robot": robot, "object": oname, "optimal": opt,
                    "random_held": f"{sum(x['held'] for x in rnd)}/{len(rnd)}",
