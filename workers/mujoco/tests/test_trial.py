@@ -25,7 +25,8 @@ def t42(service):
     return urdf, info, q
 
 
-def trial(t42, obj, support=True, opts=None):
+def trial(t42, obj, support=True, opts=None, each=None):
+    """The trial of the T42 pinch on `obj`; `each(sim, trial)` after every control period."""
     urdf, info, q = t42
     scene = parse_scene({"object": obj, "support": {"normal": [0, 0, 1], "offset": 0.0} if support else None})
     sim = Sim(B.build(urdf, info, scene))
@@ -34,7 +35,16 @@ def trial(t42, obj, support=True, opts=None):
     out = None
     while out is None:
         out = tr.tick()
+        if each is not None:
+            each(sim, tr)
     return out, sim
+
+
+def tendon_force(sim):
+    """The largest force of the T42's two tendon actuators now (N m)."""
+    tendons = [dr.actuator_id for dr in sim.b.drives if dr.tendon_id >= 0]
+    assert len(tendons) == 2
+    return max(abs(sim.d.actuator_force[a]) for a in tendons)
 
 
 def block(mu, mass=0.1, at=(0.5, 0.0, 0.025)):
@@ -135,45 +145,35 @@ def test_the_hand_grips_with_its_share_of_the_tendon_force_limit(t42, grip):
     """The T42's tendons (effort 1.5 N m in the bundled URDF) pull with at most `grip` x 1.5 N m
     while the trial runs and reach it on the block (the servo's reference is past the contact);
     afterwards the model's limits are the URDF's again."""
-    urdf, info, q = t42
-    scene = parse_scene({"object": block(0.8), "support": {"normal": [0, 0, 1], "offset": 0.0}})
-    sim = Sim(B.build(urdf, info, scene))
-    sim.set_posture(q)
-    tendons = [dr.actuator_id for dr in sim.b.drives if dr.tendon_id >= 0]
-    assert len(tendons) == 2
-    tr = Trial(sim, TrialOptions(grip=grip, slip_reflex=0.0))
-    peak, out = 0.0, None
-    while out is None:
-        out = tr.tick()
-        peak = max(peak, max(abs(sim.d.actuator_force[a]) for a in tendons))
+    peak = [0.0]
+
+    def record(sim, _):
+        peak[0] = max(peak[0], tendon_force(sim))
+
+    out, sim = trial(t42, block(0.8), opts=TrialOptions(grip=grip, slip_reflex=0.0), each=record)
     assert out["held"], out
-    assert 0.95 * grip * 1.5 <= peak <= grip * 1.5 + 1e-9, peak
-    for a in tendons:
-        assert list(sim.m.actuator_forcerange[a]) == [-1.5, 1.5]
+    assert 0.95 * grip * 1.5 <= peak[0] <= grip * 1.5 + 1e-9, peak[0]
+    for dr in sim.b.drives:
+        if dr.tendon_id >= 0:
+            assert list(sim.m.actuator_forcerange[dr.actuator_id]) == [-1.5, 1.5]
 
 
 def test_the_grip_rises_to_the_full_limit_only_once_the_object_slips(t42):
     """A held block (mu 0.8, 0.1 kg) is lifted and held with the tendons within a quarter of
-    their 1.5 N m limit (the shakes may move it 3 mm in the hand). A slippery one (mu 0.02, 0.2 kg: at that quarter, N <= 25 N
-    per pad by the bound above, a friction capacity of at most 1 N against a weight of 1.96 N)
-    must slip as the lift starts; from then on the tendons pull with the full 1.5 N m."""
-    urdf, info, q = t42
+    their 1.5 N m limit (the shakes may move it 3 mm in the hand). A slippery one (mu 0.02,
+    0.2 kg: at that quarter, N <= 25 N per pad by the bound above, a friction capacity of at most
+    1 N against a weight of 1.96 N) must slip as the lift starts; from then on the tendons pull
+    with the full 1.5 N m."""
 
     def run(obj):
-        scene = parse_scene({"object": obj, "support": {"normal": [0, 0, 1], "offset": 0.0}})
-        sim = Sim(B.build(urdf, info, scene))
-        sim.set_posture(q)
-        tendons = [dr.actuator_id for dr in sim.b.drives if dr.tendon_id >= 0]
-        tr = Trial(sim, TrialOptions(grip=0.25, slip_reflex=0.003))
-        before, after, out = 0.0, 0.0, None
-        while out is None:
-            out = tr.tick()
-            f = max(abs(sim.d.actuator_force[a]) for a in tendons)
-            if tr.grip_raised is None:
-                before = max(before, f)
-            else:
-                after = max(after, f)
-        return out, before, after
+        peaks = {"before": 0.0, "after": 0.0}
+
+        def record(sim, tr):
+            k = "before" if tr.grip_raised is None else "after"
+            peaks[k] = max(peaks[k], tendon_force(sim))
+
+        out, _ = trial(t42, obj, opts=TrialOptions(grip=0.25, slip_reflex=0.003), each=record)
+        return out, peaks["before"], peaks["after"]
 
     out, before, after = run(block(0.8))
     assert out["held"] and out["grip_raised_in"] in (None, "shake1", "shake2", "settle"), out
