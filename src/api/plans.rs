@@ -26,7 +26,7 @@ use super::models::{TrajectoryDto, trajectory_dto};
 use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem};
 use crate::service;
-pub use crate::service::plans::{PlanIn, PlanTimings, StartIn};
+pub use crate::service::plans::{PlanIn, PlanTimings, StartIn, Verification};
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
@@ -49,8 +49,11 @@ pub struct PlanDto {
     /// The motion to the grasp; on an infeasible plan, present only when it was generated and
     /// collides (kept for inspection, never executed).
     pub trajectory: Option<TrajectoryDto>,
-    /// The queued execution (`GET /v1/executions/{id}`), when `execute` was asked.
+    /// The queued execution (`GET /v1/executions/{id}`), when `execute` or `verify` was asked.
     pub execution_id: Option<String>,
+    /// The physics check, when `verify` was asked: its execution's state and, once the physics
+    /// worker reported, the grasp trial's verdict.
+    pub verification: Option<Verification>,
     pub timings: PlanTimings,
     pub created_at: String,
 }
@@ -104,6 +107,7 @@ pub fn plan_dto(p: service::plans::Planned) -> Result<PlanDto, ApiError> {
         grasp: grasp_dto(stored.grasp)?,
         trajectory: stored.trajectory.map(trajectory_dto).transpose()?,
         execution_id: stored.execution_id,
+        verification: stored.verification,
         timings,
         created_at: stored.plan.created_at,
     })

@@ -27,7 +27,7 @@ use utoipa::ToSchema;
 use super::protocol::{
     Capability, DEFAULT_START_TOLERANCE, ErrorCode, ErrorReply, Execute, ExecutionPayload,
     ExecutionResult, Feedback, Hello, Mode, Outcome, PROTOCOL_VERSION, PhysicsSummary,
-    ServiceMessage, Welcome, WorkerMessage, decode_worker_message,
+    PhysicsTrial, ServiceMessage, Welcome, WorkerMessage, decode_worker_message,
 };
 use super::{BridgeError, WorkerName};
 use crate::shutdown::Shutdown;
@@ -321,16 +321,18 @@ impl Hub {
     }
 
     /// Queues an execution already checked with [`Hub::check`] inside the caller's
-    /// transaction; the caller calls [`Hub::wake`] once it has committed.
+    /// transaction (with a grasp trial in physics after the motion, if `trial`); the caller
+    /// calls [`Hub::wake`] once it has committed.
     pub async fn insert_in(
         conn: &mut sqlx::SqliteConnection,
         robot: &str,
         mode: Mode,
         payload: &ExecutionPayload,
         worker: Option<&WorkerName>,
+        trial: Option<&PhysicsTrial>,
     ) -> Result<String, BridgeError> {
         let worker = worker.map(WorkerName::as_str);
-        Ok(repo::insert_in(conn, robot, mode, payload, worker)
+        Ok(repo::insert_in(conn, robot, mode, payload, worker, trial)
             .await?
             .id)
     }
@@ -385,10 +387,15 @@ impl Hub {
                 Mode::OpenLoop | Mode::Streaming => None,
             };
             let filtered = early.as_ref().is_some_and(|p| p.safety().is_some());
+            // A grasp trial needs a physics worker: a kinematic one would report the motion
+            // as done and say nothing of the grasp.
+            let physics = row.grasp_trial;
+            let has = |w: &Worker, c: Capability| w.snapshot.capabilities.contains(&c);
             let compatible = |w: &Worker| {
                 w.snapshot.robot == row.robot
-                    && w.snapshot.capabilities.contains(&cap)
-                    && (!filtered || w.snapshot.capabilities.contains(&Capability::SafetyFilter))
+                    && has(w, cap)
+                    && (!filtered || has(w, Capability::SafetyFilter))
+                    && (!physics || has(w, Capability::GraspTrial))
                     && row.worker.as_ref().is_none_or(|n| *n == w.snapshot.name)
             };
             let (pick, any) = self.claim(&row.id, compatible);
@@ -406,11 +413,20 @@ impl Hub {
                             .as_ref()
                             .map(|w| format!(" named '{w}'"))
                             .unwrap_or_default(),
-                        if filtered {
-                            " with the safety_filter capability (this closed-loop law runs in \
-                             a scene)"
-                        } else {
-                            ""
+                        match (filtered, physics) {
+                            (true, true) => {
+                                " with the safety_filter and grasp_trial capabilities (this \
+                                 closed-loop law runs in a scene, then a grasp trial in physics)"
+                            }
+                            (true, false) => {
+                                " with the safety_filter capability (this closed-loop law runs \
+                                 in a scene)"
+                            }
+                            (false, true) => {
+                                " with the grasp_trial capability (a physics worker: this \
+                                 execution ends in a grasp trial)"
+                            }
+                            (false, false) => "",
                         }
                     );
                     if repo::finish(
@@ -445,6 +461,18 @@ impl Hub {
                     }
                 },
             };
+            let trial = if physics {
+                match repo::trial(&self.0.db, &row.id).await {
+                    Ok(t) => t,
+                    Err(e) => {
+                        release(self);
+                        return Err(e);
+                    }
+                }
+            } else {
+                None
+            };
+            let (scene, trial) = trial.map(|t| (Box::new(t.scene), t.trial)).unzip();
             if !repo::mark_running(&self.0.db, &row.id, &name).await? {
                 release(self); // cancelled meanwhile
                 continue;
@@ -469,6 +497,8 @@ impl Hub {
                 execution_id: row.id.clone(),
                 mode: row.mode,
                 payload,
+                scene,
+                trial,
             });
             if tx.try_send(msg).is_err() {
                 // The connection is closing or not reading: put the execution back.
@@ -539,6 +569,8 @@ impl Hub {
             execution_id: id.clone(),
             mode: Mode::Streaming,
             payload,
+            scene: None,
+            trial: None,
         });
         if tx.try_send(msg).is_err() {
             release(self);

@@ -21,7 +21,7 @@ pub use client::{
     TrajectoryClient,
 };
 pub use hub::{Hub, HubSettings, StreamHandle, StreamSend, TrackingSummary, WorkerSnapshot};
-pub use protocol::{ExecutionPayload, Mode, RequestedMode};
+pub use protocol::{ExecutionPayload, Mode, PhysicsScene, PhysicsTrial, RequestedMode, TrialSpec};
 
 use crate::store::library::LibraryError;
 

@@ -23,7 +23,10 @@ pub const PROTOCOL_VERSION: u32 = 1;
 /// and the connection closed).
 pub const MAX_WORKER_MESSAGE_BYTES: usize = 64 * 1024;
 
-pub use crate::store::payload::{ExecutionPayload, Mode, RequestedMode, TrajectoryPointSchema};
+pub use crate::store::payload::{
+    ExecutionPayload, Mode, PhysicsScene, PhysicsTrial, RequestedMode, TrajectoryPointSchema,
+    TrialSpec,
+};
 
 /// What a worker can do (announced in `hello`); executions are only sent to a worker with the
 /// capability of their mode.
@@ -39,6 +42,10 @@ pub enum Capability {
     /// teleoperation from the retargeting WebSocket. Added to protocol version 1 without a
     /// version change: a worker that does not announce it never receives either message.
     Streaming,
+    /// Simulates the motion with contacts and then runs a grasp trial (close, lift, hold,
+    /// shake) in the `execute` message's `scene`: executions with a `trial` go only to such a
+    /// worker (a physics worker). Added to protocol version 1 like `streaming`.
+    GraspTrial,
 }
 
 /// First message of a worker.
@@ -157,6 +164,10 @@ pub struct TrialSummary {
     /// The phase in which a slip raised the grip, if one did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grip_raised_in: Option<String>,
+    /// Deepest overlap seen in the simulation, m, per pair kind (`hand_object`,
+    /// `robot_support`, `object_support`, `robot_obstacle`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_penetration_m: Option<std::collections::BTreeMap<String, f64>>,
 }
 
 impl PhysicsSummary {
@@ -216,6 +227,13 @@ pub struct Execute {
     pub execution_id: String,
     pub mode: Mode,
     pub payload: ExecutionPayload,
+    /// The scene a physics worker simulates (robot base frame; sent with `trial`, only to a
+    /// worker with the `grasp_trial` capability).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scene: Option<Box<PhysicsScene>>,
+    /// The grasp trial to run after the motion in `scene`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trial: Option<TrialSpec>,
 }
 
 /// The next joint setpoint of a streaming execution (sent as fast as the stream produces
@@ -364,6 +382,8 @@ mod tests {
         let s = ServiceMessage::Execute(Execute {
             execution_id: "e".into(),
             mode: Mode::OpenLoop,
+            scene: None,
+            trial: None,
             payload: ExecutionPayload::Trajectory {
                 trajectory_id: "inline".into(),
                 joint_names: vec!["a".into()],

@@ -965,6 +965,8 @@ mod tests {
         let exec = Execute {
             execution_id: "s".into(),
             mode: Mode::Streaming,
+            scene: None,
+            trial: None,
             payload: ExecutionPayload::Stream {
                 source: "test".into(),
                 joint_names: names.clone(),
@@ -1071,6 +1073,8 @@ mod tests {
         let exec = Execute {
             execution_id: "e".into(),
             mode: Mode::OpenLoop,
+            scene: None,
+            trial: None,
             payload: ExecutionPayload::Trajectory {
                 trajectory_id: "inline".into(),
                 joint_names: names.clone(),
@@ -1099,6 +1103,8 @@ mod tests {
         let mut exec = Execute {
             execution_id: "e".into(),
             mode: Mode::OpenLoop,
+            scene: None,
+            trial: None,
             payload: ExecutionPayload::Trajectory {
                 trajectory_id: "inline".into(),
                 joint_names: names.clone(),

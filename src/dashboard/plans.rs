@@ -151,6 +151,13 @@ async fn plan_form(state: &AppState) -> Result<String, PageError> {
             if workers.is_empty() { "false" } else { "true" },
         ),
         field(
+            "verify in physics (grasp trial)",
+            "verify",
+            "$.verify",
+            "bool",
+            "false",
+        ),
+        field(
             "worker",
             "worker",
             "$.worker",
@@ -183,8 +190,9 @@ async fn plan_form(state: &AppState) -> Result<String, PageError> {
     .replacen(
         "</h2>",
         "</h2><p class=\"hint\">A task-specific grasp of the object, a humanlike motion to it \
-         from the start, and, with execute, the motion run on a connected bridge worker. The \
-         new plan's page opens when it is stored.</p>",
+         from the start, and, with execute, the motion run on a connected bridge worker; with \
+         verify, on a physics worker (grasp_trial), which then lifts and shakes the object. \
+         The new plan's page opens when it is stored.</p>",
         1,
     )
     .replacen("<button", &format!("{connected}<button"), 1))
@@ -639,8 +647,13 @@ async fn execution_section(
                     })
                     .unwrap_or_else(|| "–".into());
                 format!(
-                    "<section class=\"part\" id=\"execution\"><h2>Execution {}</h2>\
+                    "<section class=\"part\" id=\"execution\"><h2>{} {}</h2>\
                      <div class=\"split\"><div>{}</div><div>{}</div></div></section>",
+                    if stored.verification.is_some() {
+                        "Physics verification: execution"
+                    } else {
+                        "Execution"
+                    },
                     link(&format!("/ui/executions/{e}"), short(e)),
                     facts(&[
                         ("state", execution_progress(e, dto.state, fraction)),
@@ -659,7 +672,30 @@ async fn execution_section(
                         ),
                         (
                             "physics trial",
-                            physics_fact(&view).unwrap_or_else(|| "–".into())
+                            physics_fact(&view).unwrap_or_else(|| match &stored.verification {
+                                Some(v) => format!(
+                                    "{} m lift, {} s hold, {} shakes: waiting for a physics \
+                                     worker's report",
+                                    num(v.trial.lift, 3),
+                                    num(v.trial.hold_s, 1),
+                                    v.trial.shakes
+                                ),
+                                None => "–".into(),
+                            })
+                        ),
+                        (
+                            "penetration in simulation",
+                            stored
+                                .verification
+                                .as_ref()
+                                .and_then(|v| v.max_penetration_m.as_ref())
+                                .map(|m| {
+                                    m.iter()
+                                        .map(|(k, d)| format!("{} {} mm", esc(k), num(d * 1e3, 1)))
+                                        .collect::<Vec<_>>()
+                                        .join(", ")
+                                })
+                                .unwrap_or_else(|| "–".into())
                         ),
                         ("finished", esc(dto.finished_at.as_deref().unwrap_or("–"))),
                     ]),

@@ -596,6 +596,7 @@ fn capability_words(caps: &[crate::bridge::protocol::Capability]) -> String {
             C::ClosedLoop => "closed loop",
             C::SafetyFilter => "safety filter",
             C::Streaming => "teleoperation (streaming)",
+            C::GraspTrial => "grasp trial (physics)",
         })
         .collect::<Vec<_>>()
         .join(", ")

@@ -431,7 +431,10 @@ async fn mapping_scene(
                 support: registration.support.map(|h| crate::geometry::SupportPlane {
                     normal: registration.up.into(),
                     offset: h,
+                    friction: None,
                 }),
+                mass: None,
+                friction: None,
             }
         }),
         ..Surroundings::default()

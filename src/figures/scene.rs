@@ -554,6 +554,8 @@ pub fn mapping_scene(input: &MappingInput<'_>) -> Result<Scene, FigureError> {
             position: [c.x, c.y, c.z],
             orientation: [q.w, q.i, q.j, q.k],
             support: None,
+            mass: None,
+            friction: None,
         };
         for l in object_wireframe(&spec) {
             scene.line("object", OBJECT, 1, l);

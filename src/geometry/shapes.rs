@@ -116,6 +116,11 @@ pub struct SupportPlane {
     pub normal: [f64; 3],
     /// Plane offset along the normal.
     pub offset: f64,
+    /// Coulomb friction coefficient of the surface against the object and the links (> 0; a
+    /// physics check assumes 0.5, a laminate table, when absent). The geometry ignores it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(exclusive_minimum = 0, maximum = 5)]
+    pub friction: Option<f64>,
 }
 
 impl SupportPlane {
@@ -124,6 +129,7 @@ impl SupportPlane {
         SupportPlane {
             normal: [0.0, 0.0, 1.0],
             offset: height,
+            friction: None,
         }
     }
 

@@ -564,6 +564,8 @@ mod tests {
             position: [centre.x, centre.y, centre.z],
             orientation: [1.0, 0.0, 0.0, 0.0],
             support: None,
+            mass: None,
+            friction: None,
         })
         .unwrap()
     }

@@ -358,6 +358,8 @@ mod tests {
             position: [0.5, 0.4, 0.2],
             orientation: [1.0, 0.0, 0.0, 0.0],
             support: Some(SupportPlane::horizontal(table)),
+            mass: None,
+            friction: None,
         })
         .unwrap();
         let j2 = sys.model.q_index("j2").unwrap();
@@ -477,6 +479,8 @@ mod tests {
                 position: [c.x, c.y, c.z],
                 orientation: [1.0, 0.0, 0.0, 0.0],
                 support: None,
+                mass: None,
+                friction: None,
             })
             .unwrap()
         };

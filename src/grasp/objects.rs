@@ -29,6 +29,36 @@ pub struct ObjectSpec {
     pub orientation: [f64; 4],
     /// Optional support surface; links must stay above it (eq. 29).
     pub support: Option<SupportPlane>,
+    /// Mass, kg (> 0, at most [`MAX_OBJECT_MASS`]). The geometry ignores it; a physics check of
+    /// a grasp (a plan's `verify`) needs it and refuses an object without it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(exclusive_minimum = 0, maximum = 50)]
+    pub mass: Option<f64>,
+    /// Coulomb friction coefficient of the object's surface against the hand's pads (> 0, at
+    /// most [`MAX_FRICTION`]); needed, like `mass`, for a physics check.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(exclusive_minimum = 0, maximum = 5)]
+    pub friction: Option<f64>,
+}
+
+/// Heaviest accepted object, kg: a hand-held object (the bundled hands lift well under 5 kg).
+pub const MAX_OBJECT_MASS: f64 = 50.0;
+
+/// Largest accepted Coulomb coefficient (rubber on rubber is about 1-2).
+pub const MAX_FRICTION: f64 = 5.0;
+
+/// A mass or friction coefficient that is finite, positive and at most `max`.
+pub(crate) fn physical(field: &str, v: Option<f64>, max: f64) -> Result<(), GraspError> {
+    match v {
+        Some(x) if !x.is_finite() => Err(GraspError::NonFinite {
+            field: field.into(),
+        }),
+        Some(x) if x <= 0.0 || x > max => Err(GraspError::InvalidDimension {
+            field: field.into(),
+            value: x,
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// A validated object ready for distance queries.
@@ -97,7 +127,10 @@ impl Object {
                 value: 2.0 * bounding_radius,
             });
         }
+        physical("mass", spec.mass, MAX_OBJECT_MASS)?;
+        physical("friction", spec.friction, MAX_FRICTION)?;
         if let Some(plane) = &mut spec.support {
+            physical("support.friction", plane.friction, MAX_FRICTION)?;
             let n = Vector3::from(plane.normal);
             let nn = n.norm();
             if !nn.is_finite() || !plane.offset.is_finite() {
@@ -257,6 +290,25 @@ pub fn seeded_shapes() -> Vec<(&'static str, ShapeSpec, [f64; 4])> {
     ]
 }
 
+/// Mass (kg) and friction coefficient against rubber-padded fingers of a seeded object: common
+/// items of the stated size. Ball: a tennis ball (57 g, felt, 0.8); bottle: a full 0.5 l PET
+/// bottle (0.52 kg); kitchen timer: a plastic timer (0.1 kg); pencil: a wooden pencil (6 g);
+/// folded sunglasses, plastic frame (30 g); 0.6 for smooth plastic and painted wood on rubber
+/// (handbook ranges 0.5-1.0). Migration 0013 writes the same values into the stored objects.
+pub fn seeded_properties(name: &str) -> Option<(f64, f64)> {
+    match name {
+        "ball" => Some((0.057, 0.8)),
+        "bottle" => Some((0.52, 0.6)),
+        "kitchen_timer" => Some((0.10, 0.6)),
+        "pencil" => Some((0.006, 0.6)),
+        "sunglasses" => Some((0.030, 0.6)),
+        _ => None,
+    }
+}
+
+/// Friction coefficient of the seeded objects' table (laminate) against objects and links.
+pub const TABLE_FRICTION: f64 = 0.5;
+
 /// Documented reachable placements `(x, y)` of the seeded objects on a table at `z = 0` in the
 /// robot base frame (the shipped systems stand on that plane): in front of the shoulder, 0.45 to
 /// 0.55 m out, up to 0.2 m to either side. Used by the claim tests and `benches/grasp.rs`.
@@ -280,12 +332,18 @@ pub fn seeded_object(name: &str, x: f64, y: f64, table_z: f64) -> Option<ObjectS
                     half_height(&shape)
                 }
             };
+            let (mass, friction) = seeded_properties(n).unzip();
             ObjectSpec {
                 name: n.to_string(),
                 shape,
                 position: [x, y, table_z + lowest],
                 orientation: q,
-                support: Some(SupportPlane::horizontal(table_z)),
+                support: Some(SupportPlane {
+                    friction: Some(TABLE_FRICTION),
+                    ..SupportPlane::horizontal(table_z)
+                }),
+                mass,
+                friction,
             }
         })
 }
@@ -301,6 +359,8 @@ mod tests {
             position: [0.5, 0.1, 0.2],
             orientation: [1.0, 0.0, 0.0, 0.0],
             support: None,
+            mass: None,
+            friction: None,
         }
     }
 
@@ -404,6 +464,7 @@ mod tests {
         s.support = Some(SupportPlane {
             normal: [0.0; 3],
             offset: 0.0,
+            friction: None,
         });
         assert_eq!(
             Object::new(s).unwrap_err().to_string(),

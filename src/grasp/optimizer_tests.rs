@@ -161,6 +161,8 @@ fn ball(pos: [f64; 3], radius: f64) -> Object {
         position: pos,
         orientation: [1.0, 0.0, 0.0, 0.0],
         support: Some(SupportPlane::horizontal(pos[2] - radius)),
+        mass: None,
+        friction: None,
     })
     .unwrap()
 }
@@ -933,6 +935,8 @@ fn claim_c_centroid_optimal_grasp_beats_random_feasible_grasps() {
         position: [0.5, 0.05, 0.16],
         orientation: [1.0, 0.0, 0.0, 0.0],
         support: Some(SupportPlane::horizontal(0.1)),
+        mass: None,
+        friction: None,
     })
     .unwrap();
     let mut req = GraspRequest::new(cyl, vec![], QualityMeasure::CentroidDistance);

@@ -1,6 +1,7 @@
 //! Bridge workers: the connected ones (live, from the hub) and every one seen before (stored).
 
 use super::{Context, Error};
+use crate::bridge::protocol::Capability;
 use crate::bridge::{ExecutionPayload, WorkerSnapshot};
 use crate::store::executions as repo;
 
@@ -57,12 +58,14 @@ impl ExpectedState {
     }
 }
 
-/// The connected workers of `robot` (only `worker` when named) that report their state, by
-/// name, each with where it will be when an execution queued now starts.
+/// The connected workers of `robot` (only `worker` when named) with the capabilities `needs`
+/// that report their state, by name, each with where it will be when an execution queued now
+/// starts.
 pub async fn expected_states(
     ctx: &Context,
     robot: &str,
     worker: Option<&str>,
+    needs: &[Capability],
 ) -> Result<Vec<ExpectedState>, Error> {
     let mut live: Vec<WorkerSnapshot> = ctx
         .bridges
@@ -70,6 +73,7 @@ pub async fn expected_states(
         .into_iter()
         .filter(|w| w.robot == robot && !w.positions.is_empty())
         .filter(|w| worker.is_none_or(|n| n == w.name))
+        .filter(|w| needs.iter().all(|c| w.capabilities.contains(c)))
         .collect();
     live.sort_by(|a, b| a.name.cmp(&b.name));
     let mut out = Vec::with_capacity(live.len());
@@ -97,19 +101,20 @@ pub async fn expected_states(
     Ok(out)
 }
 
-/// For an execution that starts at `q` (joint `names`): the connected worker it should run on
-/// (the named one, else the nearest), or a 422 at `path` when even that one will be farther
-/// than its start tolerance from `q`. `Ok(None)`: no worker of the robot is connected and
-/// reporting its state, so nothing can be checked now (the worker checks when it starts).
+/// For an execution that starts at `q` (joint `names`): the connected worker with the
+/// capabilities `needs` it should run on (the named one, else the nearest), or a 422 at `path`
+/// when even that one will be farther than its start tolerance from `q`. `Ok(None)`: no such
+/// worker of the robot is connected and reporting its state, so nothing can be checked now (the
+/// worker checks when it starts).
 pub async fn check_start(
     ctx: &Context,
     robot: &str,
-    worker: Option<&str>,
+    (worker, needs): (Option<&str>, &[Capability]),
     names: &[String],
     q: &[f64],
     path: &str,
 ) -> Result<Option<String>, Error> {
-    let states = expected_states(ctx, robot, worker).await?;
+    let states = expected_states(ctx, robot, worker, needs).await?;
     let nearest = states
         .iter()
         .filter_map(|s| s.deviation(names, q).map(|d| (d, s)))

@@ -104,7 +104,7 @@ pub async fn create(
         let checked = super::bridges::check_start(
             ctx,
             robot,
-            worker.as_ref().map(WorkerName::as_str),
+            (worker.as_ref().map(WorkerName::as_str), &[]),
             joint_names,
             &first.positions,
             &path,

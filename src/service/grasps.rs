@@ -63,6 +63,14 @@ pub struct ObjectIn {
     /// `z = 0`, normal `+z`) when the object is on or above it (its lowest point at most 2 mm
     /// below); none for an object reaching further below (held or mounted elsewhere).
     pub support: Option<SupportPlane>,
+    /// Mass, kg (> 0, at most 50): needed only to verify a grasp in physics (a plan's
+    /// `verify`).
+    #[schema(exclusive_minimum = 0, maximum = 50)]
+    pub mass: Option<f64>,
+    /// Coulomb friction coefficient against the hand's pads (> 0, at most 5): needed, like
+    /// `mass`, only for a physics check.
+    #[schema(exclusive_minimum = 0, maximum = 5)]
+    pub friction: Option<f64>,
 }
 
 /// A task direction (world frame; normalised by the service).
@@ -339,6 +347,8 @@ fn parse_object(prefix: &str, o: &ObjectIn) -> Result<Object, Error> {
         position: o.position,
         orientation: o.orientation.unwrap_or([1.0, 0.0, 0.0, 0.0]),
         support: o.support,
+        mass: o.mass,
+        friction: o.friction,
     };
     let object = Object::new(spec.clone()).map_err(|e| object_error(prefix, explicit_shape, e))?;
     // Without a stated support, an object standing on or above the robot's own table rests on
@@ -502,6 +512,13 @@ fn make_request(object: Object, s: &Settings) -> GraspRequest {
     req.seed = s.dto.seed;
     req.elbow_reference = s.dto.elbow_reference.map(Point3::from);
     req
+}
+
+/// The object a grasp request names (`object_id`) or gives inline, validated.
+pub async fn request_object(ctx: &Context, body: &GraspIn) -> Result<Object, Error> {
+    Ok(resolve_object(ctx, "$.", &body.object_id, &body.object)
+        .await?
+        .1)
 }
 
 async fn resolve_object(

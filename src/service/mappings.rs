@@ -744,7 +744,10 @@ fn registration_dto(t: &MappedTrajectory) -> RegistrationDto {
                 support: r.support.map(|h| crate::grasp::SupportPlane {
                     normal: [r.up.x, r.up.y, r.up.z],
                     offset: h,
+                    friction: None,
                 }),
+                mass: None,
+                friction: None,
             }
         }),
     }

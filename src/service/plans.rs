@@ -16,7 +16,10 @@ use super::grasps::GraspIn;
 use super::models::{AutoOr, JointValues};
 use super::trajectories::{CreateTrajectory, GoalIn, Rejected};
 use super::{Context, Error, Keyword};
-use crate::bridge::{ExecutionPayload, Hub, Mode, WorkerName};
+use crate::bridge::protocol::Capability;
+use crate::bridge::{
+    ExecutionPayload, Hub, Mode, PhysicsScene, PhysicsTrial, TrialSpec, WorkerName,
+};
 use crate::geometry::SceneShape;
 use crate::grasp::{HandArm, PathClearance};
 use crate::motion::ControlParams;
@@ -95,6 +98,15 @@ pub struct PlanIn {
     /// Queue the motion for execution on a bridge worker.
     #[serde(default)]
     pub execute: bool,
+    /// Verify the grasp in physics (implies `execute`): the execution goes to a worker with the
+    /// `grasp_trial` capability (a physics worker), which runs the motion with contacts in the
+    /// plan's scene (the grasp's object with its `mass` and `friction`, its support, the
+    /// obstacles) and then the grasp trial; the plan's `verification` reports the verdict. The
+    /// object must have a mass and a friction coefficient (the seeded objects have).
+    #[serde(default)]
+    pub verify: bool,
+    /// The grasp trial's lift, hold and shakes (only with `verify`; default 0.1 m, 2 s, 2).
+    pub trial: Option<crate::bridge::TrialSpec>,
     /// Execution mode (default `open_loop`: follow the trajectory; `closed_loop`: the worker
     /// runs the model's control law to the grasp configuration).
     pub mode: Option<crate::bridge::RequestedMode>,
@@ -140,6 +152,9 @@ struct PlanWire {
     rate: Option<f64>,
     #[serde(default)]
     execute: bool,
+    #[serde(default)]
+    verify: bool,
+    trial: Option<crate::bridge::TrialSpec>,
     mode: Option<crate::bridge::RequestedMode>,
     worker: Option<String>,
     #[serde(default)]
@@ -167,10 +182,28 @@ impl From<PlanWire> for PlanIn {
             duration: w.duration,
             rate: w.rate,
             execute: w.execute,
+            verify: w.verify,
+            trial: w.trial,
             mode: w.mode,
             worker: w.worker,
             obstacles: w.obstacles,
             approach_standoff: w.approach_standoff,
+        }
+    }
+}
+
+impl PlanIn {
+    /// Whether the motion is queued for execution (`execute`, or `verify`, which implies it).
+    pub fn executes(&self) -> bool {
+        self.execute || self.verify
+    }
+
+    /// The capabilities the executing worker needs beyond the mode's.
+    fn needs(&self) -> &'static [Capability] {
+        if self.verify {
+            &[Capability::GraspTrial]
+        } else {
+            &[]
         }
     }
 }
@@ -243,23 +276,30 @@ async fn resolve_start(
         }
         StartIn::Word(s) if Keyword::parse(s) == Some(Keyword::Current) => {
             let robot = &body.grasp.robot;
-            let state = super::bridges::expected_states(ctx, robot, body.worker.as_deref())
-                .await?
-                .into_iter()
-                .next()
-                .ok_or_else(|| {
-                    Error::invalid(
-                        "$.start",
-                        match &body.worker {
-                            Some(n) => format!(
-                                "\"current\" needs worker '{n}' connected for robot '{robot}' and reporting its state"
-                            ),
-                            None => format!(
-                                "\"current\" needs a worker connected for robot '{robot}' and reporting its state; give a configuration instead"
-                            ),
-                        },
-                    )
-                })?;
+            let needs = body.needs();
+            let state =
+                super::bridges::expected_states(ctx, robot, body.worker.as_deref(), needs)
+                    .await?
+                    .into_iter()
+                    .next()
+                    .ok_or_else(|| {
+                        let physics = if needs.is_empty() {
+                            ""
+                        } else {
+                            " with the grasp_trial capability (verify)"
+                        };
+                        Error::invalid(
+                            "$.start",
+                            match &body.worker {
+                                Some(n) => format!(
+                                    "\"current\" needs worker '{n}' connected for robot '{robot}'{physics} and reporting its state"
+                                ),
+                                None => format!(
+                                    "\"current\" needs a worker connected for robot '{robot}'{physics} and reporting its state; give a configuration instead"
+                                ),
+                            },
+                        )
+                    })?;
             Ok((
                 JointValues {
                     joint_names: state.joint_names,
@@ -301,6 +341,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     let obstacles = super::trajectories::scene_obstacles(&body.obstacles)?;
     super::trajectories::approach_standoff(body.approach_standoff, "$.approach_standoff")?;
     super::robots::robot_field(ctx, &robot, "$.robot").await?;
+    check_verify(ctx, body).await?;
     let model_id = resolve_model(ctx, body).await?;
     let (start, read_from) = resolve_start(ctx, body).await?;
     let (model_robot, q_start) = super::trajectories::check_start(ctx, &model_id, &start).await?;
@@ -313,13 +354,13 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     // A motion to execute must start where the robot will be: checked against the connected
     // workers now (nothing to check without one; the worker checks again when it starts), and
     // the execution goes to the worker it was checked against.
-    let worker = match (body.execute, worker, read_from) {
+    let worker = match (body.executes(), worker, read_from) {
         (true, None, Some(w)) => Some(WorkerName::parse(&w)?),
         (true, w, None) => {
             let checked = super::bridges::check_start(
                 ctx,
                 &robot,
-                w.as_ref().map(WorkerName::as_str),
+                (w.as_ref().map(WorkerName::as_str), body.needs()),
                 &start.joint_names,
                 &start.positions,
                 "$.start",
@@ -364,7 +405,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         }
     };
 
-    let mut execution = match (body.execute, &trajectory) {
+    let mut execution = match (body.executes(), &trajectory) {
         (true, Some(_)) if reason.is_none() => {
             let mode = body.mode.map_or(Mode::OpenLoop, Mode::from);
             let law = match mode {
@@ -383,6 +424,10 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
                 worker,
                 law,
                 safety,
+                trial: match body.verify {
+                    true => Some(physics_trial(body, &new_grasp)?),
+                    false => None,
+                },
             })
         }
         _ => None,
@@ -443,6 +488,69 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         stored,
         reason,
         timings,
+    })
+}
+
+/// Refuses what a physics check could not honour, before anything is computed: `trial`
+/// without `verify`, a trial out of range, an object without a mass or a friction coefficient.
+async fn check_verify(ctx: &Context, body: &PlanIn) -> Result<(), Error> {
+    if let Some(t) = &body.trial {
+        if !body.verify {
+            return Err(Error::invalid(
+                "$.trial",
+                "a grasp trial is run only with \"verify\": true",
+            ));
+        }
+        if let Some((field, why)) = t.invalid_field() {
+            return Err(Error::invalid(format!("$.trial.{field}"), why));
+        }
+    }
+    if !body.verify {
+        return Ok(());
+    }
+    let object = super::grasps::request_object(ctx, &body.grasp).await?;
+    let spec = object.spec();
+    for (field, value, meaning) in [
+        ("mass", spec.mass, "its mass in kg"),
+        (
+            "friction",
+            spec.friction,
+            "its Coulomb friction coefficient against the hand",
+        ),
+    ] {
+        if value.is_some() {
+            continue;
+        }
+        return Err(match &body.grasp.object_id {
+            Some(id) => Error::invalid(
+                "$.object_id",
+                format!(
+                    "object '{id}' has no {field}: a physics check (verify) needs {meaning}; \
+                     store the object again with \"{field}\" (POST /v1/objects) or give it \
+                     inline"
+                ),
+            ),
+            None => Error::invalid(
+                format!("$.object.{field}"),
+                format!("required with \"verify\": true ({meaning})"),
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// The grasp trial of a plan with `verify`: the grasp's own object (as the grasp was computed,
+/// with its support) and the request's obstacles.
+fn physics_trial(body: &PlanIn, grasp: &NewGrasp) -> Result<PhysicsTrial, Error> {
+    let object: crate::grasp::ObjectSpec =
+        serde_json::from_str(&grasp.object).map_err(Error::internal)?;
+    Ok(PhysicsTrial {
+        scene: PhysicsScene {
+            support: object.support,
+            object,
+            obstacles: body.obstacles.clone(),
+        },
+        trial: body.trial.unwrap_or_default(),
     })
 }
 
@@ -546,7 +654,7 @@ async fn attempt(
         // The closed-loop law is certified inside the workspace only: a start outside it is
         // entered along a straight line by the open-loop trajectory, which that law cannot run.
         let closed_loop =
-            body.execute && body.mode == Some(crate::bridge::RequestedMode::ClosedLoop);
+            body.executes() && body.mode == Some(crate::bridge::RequestedMode::ClosedLoop);
         // What the worker's safety filter keeps that law clear of (issue 18 item 3).
         safety = closed_loop.then(|| {
             SafetySpec::new(
@@ -609,6 +717,8 @@ fn request_json(body: &PlanIn) -> Result<String, Error> {
         "duration": body.duration,
         "rate": body.rate,
         "execute": body.execute,
+        "verify": body.verify,
+        "trial": body.trial,
         "mode": body.mode,
         "worker": body.worker,
         "obstacles": body.obstacles,
@@ -650,11 +760,22 @@ pub async fn get(ctx: &Context, id: &str) -> Result<StoredPlan, Error> {
         ),
         None => None,
     };
+    let verification = match &plan.execution_id {
+        Some(id) => match crate::store::executions::get(&ctx.db, id).await? {
+            Some(row) if row.grasp_trial => {
+                let trial = crate::store::executions::trial(&ctx.db, id).await?;
+                trial.map(|t| Verification::of(&row, t.trial))
+            }
+            _ => None,
+        },
+        None => None,
+    };
     Ok(StoredPlan {
         grasp,
         trajectory,
         execution_id: plan.execution_id.clone(),
         plan,
+        verification,
     })
 }
 
@@ -676,6 +797,8 @@ pub struct ExecutionRequest {
     pub law: Option<(String, ControlParams)>,
     /// The scene the worker's safety filter keeps a closed-loop law clear of.
     pub safety: Option<SafetySpec>,
+    /// A grasp trial in physics after the motion (`verify`).
+    pub trial: Option<crate::bridge::PhysicsTrial>,
 }
 
 /// Everything a plan stores, computed before anything is written.
@@ -698,6 +821,65 @@ pub struct StoredPlan {
     pub trajectory: Option<StoredTrajectory>,
     pub execution_id: Option<String>,
     pub plan: PlanRow,
+    /// The physics check of a plan with `verify`, as far as it has come.
+    pub verification: Option<Verification>,
+}
+
+/// A plan's physics check (`verify`): its execution on a physics worker, which runs the motion
+/// with contacts and then the grasp trial, and the trial's verdict once the worker reported it.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct Verification {
+    /// The execution (`GET /v1/executions/{id}`: the whole report under `tracking.physics`).
+    pub execution_id: String,
+    /// The execution's state: `queued` until a worker with the `grasp_trial` capability takes
+    /// it, `running`, then `succeeded` (the motion arrived and the object is held), `failed`
+    /// (with `reason`), `aborted`, `cancelled` or `interrupted`.
+    pub state: String,
+    /// Why the execution failed or stopped, as the worker or the service said.
+    pub reason: Option<String>,
+    /// The trial run: lift, hold, shakes.
+    pub trial: TrialSpec,
+    /// The simulator that ran it, once it reported.
+    pub engine: Option<String>,
+    /// The object is off the support, at least half the lift above where it started and
+    /// touching the hand at the end (absent until reported, or when no trial ran: the motion
+    /// did not arrive).
+    pub held: Option<bool>,
+    /// The object moved more than 1 cm relative to the hand.
+    pub slipped: Option<bool>,
+    /// The object's displacement relative to the hand from the end of closing to the end, m.
+    pub slip_m: Option<f64>,
+    /// How far the object rose, m.
+    pub object_lift_m: Option<f64>,
+    /// Mean total normal force on the object during the hold, N.
+    pub contact_force_total_mean_n: Option<f64>,
+    /// Deepest overlap seen in the simulation, m, per pair kind.
+    pub max_penetration_m: Option<std::collections::BTreeMap<String, f64>>,
+}
+
+impl Verification {
+    /// The check of execution `row` (one with a grasp trial, `trial`).
+    pub fn of(row: &crate::store::executions::ExecutionRow, trial: TrialSpec) -> Verification {
+        let physics = row
+            .tracking
+            .as_deref()
+            .and_then(|t| serde_json::from_str::<crate::bridge::TrackingSummary>(t).ok())
+            .and_then(|t| t.physics);
+        let verdict = physics.as_ref().and_then(|p| p.trial.as_ref());
+        Verification {
+            execution_id: row.id.clone(),
+            state: row.state.to_string(),
+            reason: row.reason.clone(),
+            trial,
+            engine: physics.as_ref().map(|p| p.engine.clone()),
+            held: verdict.map(|v| v.held),
+            slipped: verdict.map(|v| v.slipped),
+            slip_m: verdict.map(|v| v.slip_m),
+            object_lift_m: verdict.map(|v| v.object_lift_m),
+            contact_force_total_mean_n: verdict.and_then(|v| v.contact_force_total_mean_n),
+            max_penetration_m: verdict.and_then(|v| v.max_penetration_m.clone()),
+        }
+    }
 }
 
 /// The writes of a plan, in order (for tests that make one fail).
@@ -756,6 +938,8 @@ fn simulate_law(
         execution_id: String::new(),
         mode: Mode::ClosedLoop,
         payload,
+        scene: None,
+        trial: None,
     };
     let opts = RunOptions::default();
     let mut run = Run::new(&execute, joint_names, &robot, opts, None, Some(sys))?;
@@ -843,12 +1027,34 @@ pub(crate) async fn store_with(
     };
     after(Write::Trajectory)?;
     let mut execution_id = None;
+    let mut verification = None;
     if let (Some(e), Some(t)) = (&execution, &trajectory) {
         let p = payload(e.mode, t, e.law.as_ref(), e.safety.clone())?;
         // The library reads through another pooled connection; in WAL mode that read does not
         // wait for this transaction.
         ctx.bridges.check(&plan.robot, e.mode, &p).await?;
-        let id = Hub::insert_in(&mut tx, &plan.robot, e.mode, &p, e.worker.as_ref()).await?;
+        let id = Hub::insert_in(
+            &mut tx,
+            &plan.robot,
+            e.mode,
+            &p,
+            e.worker.as_ref(),
+            e.trial.as_ref(),
+        )
+        .await?;
+        verification = e.trial.as_ref().map(|trial| Verification {
+            execution_id: id.clone(),
+            state: crate::store::executions::ExecutionState::Queued.to_string(),
+            reason: None,
+            trial: trial.trial,
+            engine: None,
+            held: None,
+            slipped: None,
+            slip_m: None,
+            object_lift_m: None,
+            contact_force_total_mean_n: None,
+            max_penetration_m: None,
+        });
         execution_id = Some(id);
     }
     after(Write::Execution)?;
@@ -865,6 +1071,7 @@ pub(crate) async fn store_with(
         trajectory,
         execution_id,
         plan,
+        verification,
     })
 }
 
@@ -929,6 +1136,7 @@ mod tests {
                 worker: None,
                 law: None,
                 safety: None,
+                trial: None,
             }),
             plan: NewPlan {
                 robot: ROBOT.into(),

@@ -11,7 +11,7 @@ use uuid::Uuid;
 use super::feedback::{self, Chunk};
 use super::{blob, now};
 use crate::motion::TrajectoryPoint;
-use crate::store::payload::{ExecutionPayload, Mode};
+use crate::store::payload::{ExecutionPayload, Mode, PhysicsTrial};
 
 /// An execution's state: `queued` and `running` are live, the others final. Stored and sent as
 /// its snake_case name.
@@ -89,6 +89,8 @@ pub struct ExecutionRow {
     pub finished_at: Option<String>,
     /// Samples in the stored feedback history.
     pub feedback_samples: i64,
+    /// The execution ends in a grasp trial in physics (its scene and trial: [`trial`]).
+    pub grasp_trial: bool,
 }
 
 /// The columns of [`ExecutionRow`] (a macro so queries stay `&'static str` literals).
@@ -96,7 +98,7 @@ macro_rules! columns {
     () => {
         "id, robot, mode, kind, source_id, worker, state, assigned_worker, reason, \
          cancel_requested, last_feedback, tracking, created_at, dispatched_at, finished_at, \
-         (SELECT COALESCE(SUM(f.samples), 0) FROM execution_feedback f \
+         trial IS NOT NULL AS grasp_trial, (SELECT COALESCE(SUM(f.samples), 0) FROM execution_feedback f \
           WHERE f.execution_id = executions.id) AS feedback_samples"
     };
 }
@@ -182,7 +184,7 @@ pub async fn insert(
     worker: Option<&str>,
 ) -> Result<ExecutionRow, sqlx::Error> {
     let mut conn = pool.acquire().await?;
-    insert_in(&mut conn, robot, mode, payload, worker).await
+    insert_in(&mut conn, robot, mode, payload, worker, None).await
 }
 
 /// [`insert`] on a connection or inside a transaction (`&mut *tx`).
@@ -192,6 +194,7 @@ pub async fn insert_in(
     mode: Mode,
     payload: &ExecutionPayload,
     worker: Option<&str>,
+    trial: Option<&PhysicsTrial>,
 ) -> Result<ExecutionRow, sqlx::Error> {
     let row = ExecutionRow {
         id: Uuid::new_v4().to_string(),
@@ -210,8 +213,9 @@ pub async fn insert_in(
         dispatched_at: None,
         finished_at: None,
         feedback_samples: 0,
+        grasp_trial: trial.is_some(),
     };
-    write_row(conn, &row, payload).await?;
+    write_row(conn, &row, payload, trial).await?;
     Ok(row)
 }
 
@@ -242,9 +246,10 @@ pub async fn insert_running(
         dispatched_at: Some(now),
         finished_at: None,
         feedback_samples: 0,
+        grasp_trial: false,
     };
     let mut conn = pool.acquire().await?;
-    write_row(&mut conn, &row, payload).await
+    write_row(&mut conn, &row, payload, None).await
 }
 
 /// Writes a new execution row with its payload (the columns a new execution has).
@@ -252,12 +257,17 @@ async fn write_row(
     conn: &mut sqlx::SqliteConnection,
     row: &ExecutionRow,
     payload: &ExecutionPayload,
+    trial: Option<&PhysicsTrial>,
 ) -> Result<(), sqlx::Error> {
     let (json, points) = split_payload(payload)?;
+    let trial = trial
+        .map(serde_json::to_string)
+        .transpose()
+        .map_err(|e| sqlx::Error::Encode(Box::new(e)))?;
     sqlx::query(
         "INSERT INTO executions (id, robot, mode, kind, source_id, payload, points, worker, \
-         state, assigned_worker, created_at, dispatched_at) \
-         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+         state, assigned_worker, created_at, dispatched_at, trial) \
+         VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
     )
     .bind(&row.id)
     .bind(&row.robot)
@@ -271,6 +281,7 @@ async fn write_row(
     .bind(&row.assigned_worker)
     .bind(&row.created_at)
     .bind(&row.dispatched_at)
+    .bind(&trial)
     .execute(conn)
     .await
     .map(|_| ())
@@ -285,6 +296,18 @@ pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<ExecutionRow>, sq
     .bind(id)
     .fetch_optional(pool)
     .await
+}
+
+/// The grasp trial an execution ends in, with its scene (`None`: none, or no such execution).
+pub async fn trial(pool: &SqlitePool, id: &str) -> Result<Option<PhysicsTrial>, sqlx::Error> {
+    let row: Option<(Option<String>,)> =
+        sqlx::query_as("SELECT trial FROM executions WHERE id = ?")
+            .bind(id)
+            .fetch_optional(pool)
+            .await?;
+    row.and_then(|(t,)| t)
+        .map(|t| serde_json::from_str(&t).map_err(|e| sqlx::Error::Decode(Box::new(e))))
+        .transpose()
 }
 
 /// The stored payload of an execution.
@@ -559,7 +582,7 @@ mod tests {
         let row = insert(&pool, "wam_ihy", Mode::OpenLoop, &p, None)
             .await
             .unwrap();
-        assert_eq!(payload(&pool, &row.id).await.unwrap().unwrap(), p);
+        assert_eq!(payload(&pool, "old").await.unwrap().unwrap(), p);
         assert_eq!(queued(&pool).await.unwrap().len(), 1);
         assert!(mark_running(&pool, &row.id, "w").await.unwrap());
         assert!(!mark_running(&pool, &row.id, "w").await.unwrap());
@@ -619,11 +642,26 @@ mod tests {
                 accelerations: vec![0.0],
             }],
         };
-        let row = insert(&pool, "wam_ihy", Mode::OpenLoop, &p, Some("w"))
+        // (rows written as the store of that time wrote them: its columns only)
+        let old_row = |id: &str, mode: &str, kind: &str, p: &ExecutionPayload| {
+            let (json, points) = split_payload(p).unwrap();
+            sqlx::query(
+                "INSERT INTO executions (id, robot, mode, kind, source_id, payload, points, \
+                 worker, state, created_at) VALUES (?, 'wam_ihy', ?, ?, 'inline', ?, ?, 'w', \
+                 'queued', ?)",
+            )
+            .bind(id.to_owned())
+            .bind(mode.to_owned())
+            .bind(kind.to_owned())
+            .bind(json)
+            .bind(points)
+            .bind(now())
+        };
+        old_row("old", "open_loop", "trajectory", &p)
+            .execute(&pool)
             .await
             .unwrap();
-        sqlx::query("INSERT INTO execution_feedback (execution_id, chunk, samples, data) VALUES (?, 0, 3, x'00')")
-            .bind(&row.id)
+        sqlx::query("INSERT INTO execution_feedback (execution_id, chunk, samples, data) VALUES ('old', 0, 3, x'00')")
             .execute(&pool)
             .await
             .unwrap();
@@ -634,19 +672,20 @@ mod tests {
             hold_after_s: 0.2,
         };
         assert!(
-            insert_running(&pool, "s1", "wam_ihy", &stream, "w")
+            old_row("s0", "streaming", "stream", &stream)
+                .execute(&pool)
                 .await
                 .is_err()
         );
 
         super::super::MIGRATOR.run(&pool).await.unwrap();
-        let kept = get(&pool, &row.id).await.unwrap().unwrap();
+        let kept = get(&pool, "old").await.unwrap().unwrap();
         assert_eq!(kept.worker.as_deref(), Some("w"));
         assert_eq!(
             kept.feedback_samples, 3,
             "the feedback survived the rebuild"
         );
-        assert_eq!(payload(&pool, &row.id).await.unwrap().unwrap(), p);
+        assert_eq!(payload(&pool, "old").await.unwrap().unwrap(), p);
         let indexes: Vec<String> = sqlx::query_scalar(
             "SELECT name FROM sqlite_master WHERE type = 'index' AND tbl_name = 'executions' \
              AND name NOT LIKE 'sqlite_%' ORDER BY name",
@@ -674,8 +713,7 @@ mod tests {
             .await
             .unwrap();
         assert_eq!(fk, 1, "foreign keys are on again after the migration");
-        sqlx::query("DELETE FROM executions WHERE id = ?")
-            .bind(&row.id)
+        sqlx::query("DELETE FROM executions WHERE id = 'old'")
             .execute(&pool)
             .await
             .unwrap();

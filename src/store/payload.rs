@@ -164,6 +164,73 @@ impl SafetySpec {
     }
 }
 
+/// A grasp trial in physics after the motion (issue 24): the scene the worker simulates and the
+/// trial it runs there. Stored with the execution (its own copy: a later change of the object
+/// never changes it) and sent in the `execute` message; such an execution goes only to a worker
+/// with the `grasp_trial` capability.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PhysicsTrial {
+    pub scene: PhysicsScene,
+    #[serde(default)]
+    pub trial: TrialSpec,
+}
+
+/// What a physics worker builds around the robot (robot base frame): the object with its mass
+/// and friction, the support plane it rests on, and further static obstacles.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PhysicsScene {
+    /// The grasped object as the grasp was computed; `mass` and `friction` are present.
+    pub object: crate::grasp::ObjectSpec,
+    /// The plane the object rests on (its `friction` absent: 0.5).
+    pub support: Option<crate::geometry::SupportPlane>,
+    #[serde(default)]
+    pub obstacles: Vec<crate::geometry::ObstacleSpec>,
+}
+
+/// The grasp trial's moves after the hand has closed: lift the hand, hold, shake.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrialSpec {
+    /// How far the hand lifts the object, m, in (0, 0.3]; held means at least half of it.
+    #[schema(exclusive_minimum = 0, maximum = 0.3)]
+    pub lift: f64,
+    /// How long the lifted object is held still, s, in [0, 10].
+    #[schema(minimum = 0, maximum = 10)]
+    pub hold_s: f64,
+    /// Shakes after the hold (one along y, one along z, then alternating), 0 to 4.
+    #[schema(minimum = 0, maximum = 4)]
+    pub shakes: u32,
+}
+
+impl Default for TrialSpec {
+    /// The grasp-synthesis field's lift-and-shake test: 10 cm, 2 s, two shakes.
+    fn default() -> Self {
+        TrialSpec {
+            lift: 0.10,
+            hold_s: 2.0,
+            shakes: 2,
+        }
+    }
+}
+
+impl TrialSpec {
+    /// The first field out of range, with what is wrong (`None`: valid).
+    pub fn invalid_field(&self) -> Option<(&'static str, String)> {
+        if !(self.lift.is_finite() && self.lift > 0.0 && self.lift <= 0.3) {
+            return Some(("lift", format!("{} is not in (0, 0.3] m", self.lift)));
+        }
+        if !(self.hold_s.is_finite() && (0.0..=10.0).contains(&self.hold_s)) {
+            return Some(("hold_s", format!("{} is not in [0, 10] s", self.hold_s)));
+        }
+        if self.shakes > 4 {
+            return Some(("shakes", format!("{} is more than 4", self.shakes)));
+        }
+        None
+    }
+}
+
 impl ExecutionPayload {
     pub fn joint_names(&self) -> &[String] {
         match self {

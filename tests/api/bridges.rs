@@ -1484,6 +1484,8 @@ fn run_law(
     let exec = Execute {
         execution_id: "e".into(),
         mode: Mode::ClosedLoop,
+        scene: None,
+        trial: None,
         payload: payload.clone(),
     };
     let mut run = Run::new(
@@ -1927,4 +1929,216 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     assert_eq!(a["forward"]["setpoint"], "closed", "{a}");
     ws.close(None).await.unwrap();
     w.task.abort();
+}
+
+/// A problem's status and `errors[0].path` (the JSON path a 422 names).
+async fn problem_field(res: reqwest::Response) -> (u16, String) {
+    let status = res.status().as_u16();
+    let body: Value = res.json().await.unwrap();
+    (
+        status,
+        body["errors"][0]["path"].as_str().unwrap_or("").to_owned(),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_verdict() {
+    use reachgrasp::grasp::objects::{TABLE_FRICTION, seeded_properties};
+
+    let app = spawn(|c| {
+        c.no_seed = true;
+        c.job_concurrency = Some(2);
+    })
+    .await;
+    // The seeded objects carry what physics needs: migration 0013 wrote the library's values.
+    let objects = app.get("/v1/objects").await;
+    let objects = objects.as_array().expect("a list");
+    for o in objects.iter().filter(|o| o["seeded"] == true) {
+        let name = o["name"].as_str().unwrap();
+        let (mass, friction) = seeded_properties(name).expect("a seeded object");
+        assert_eq!(o["spec"]["mass"].as_f64(), Some(mass), "{o}");
+        assert_eq!(o["spec"]["friction"].as_f64(), Some(friction), "{o}");
+        assert_eq!(
+            o["spec"]["support"]["friction"].as_f64(),
+            Some(TABLE_FRICTION),
+            "{o}"
+        );
+    }
+    assert_eq!(objects.iter().filter(|o| o["seeded"] == true).count(), 5);
+
+    let api = crate::helpers::TestApp {
+        base_url: app.base.clone(),
+        client: app.client.clone(),
+        _dir: tempfile::tempdir().unwrap(),
+    };
+    let (_model, start) = crate::helpers::trained(&api, ROBOT).await;
+    let ball = json!({"robot": ROBOT, "object_id": "ball", "start": start,
+                      "task_directions": [{"direction": [0, 0, 1], "kind": "force",
+                      "goal": "maximize"}], "verify": true});
+
+    // Bad input names its field and stores nothing.
+    let plans = api.total("/v1/plans").await;
+    let objects_before = objects.len();
+    let with = |k: &str, v: Value| {
+        let mut b = ball.clone();
+        b[k] = v;
+        b
+    };
+    let mut unverified = with("trial", json!({"lift": 0.05}));
+    unverified["verify"] = json!(false);
+    let massless = {
+        let mut b = ball.clone();
+        b.as_object_mut().unwrap().remove("object_id");
+        b["object"] = json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
+                              "position": [0.5, 0.0, 0.025], "friction": 0.6});
+        b
+    };
+    for (body, field) in [
+        (unverified, "$.trial"),
+        (with("trial", json!({"lift": 0.5})), "$.trial.lift"),
+        (with("trial", json!({"shakes": 9})), "$.trial.shakes"),
+        (massless, "$.object.mass"),
+    ] {
+        let (status, at) = problem_field(app.post("/v1/plans", &body).await).await;
+        assert_eq!((status, at.as_str()), (422, field), "{body}");
+    }
+    for (spec, field) in [
+        (json!({"mass": -0.1}), "$.mass"),
+        (json!({"mass": 0.2, "friction": 0.0}), "$.friction"),
+        (
+            json!({"support": {"normal": [0, 0, 1], "offset": 0, "friction": "high"}}),
+            "$.support.friction",
+        ),
+    ] {
+        let mut body = json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
+                              "position": [0.5, 0.0, 0.025]});
+        for (k, v) in spec.as_object().unwrap() {
+            body[k] = v.clone();
+        }
+        let (status, at) = problem_field(app.post("/v1/objects", &body).await).await;
+        assert_eq!((status, at.as_str()), (422, field), "{body}");
+    }
+    // a stored object without a mass cannot be verified
+    let res = app
+        .post(
+            "/v1/objects",
+            &json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
+                    "position": [0.5, 0.0, 0.025]}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let cube: Value = res.json().await.unwrap();
+    let (status, at) = problem_field(
+        app.post("/v1/plans", &with("object_id", cube["id"].clone()))
+            .await,
+    )
+    .await;
+    assert_eq!((status, at.as_str()), (422, "$.object_id"));
+    assert_eq!(api.total("/v1/plans").await, plans);
+    assert_eq!(
+        app.get("/v1/objects").await.as_array().unwrap().len(),
+        objects_before + 1
+    );
+
+    // A kinematic worker is connected: the verified plan's execution waits for a physics one.
+    let connect = |name: &'static str, caps: Value| {
+        let ws = app.ws.clone();
+        async move {
+            let mut ws = raw_connect(&ws, Some(TOKEN)).await.unwrap();
+            let mut h = hello(name, names(), PROTOCOL_VERSION);
+            h["capabilities"] = caps;
+            send(&mut ws, h).await;
+            assert!(matches!(
+                next_msg(&mut ws).await,
+                Some(ServiceMessage::Welcome(_))
+            ));
+            ws
+        }
+    };
+    let mut kinematic = connect("kinematic", json!(["open_loop", "closed_loop"])).await;
+    let res = app.post("/v1/plans", &ball).await;
+    assert_eq!(res.status(), 201);
+    let plan: Value = res.json().await.unwrap();
+    assert_eq!(plan["feasible"], true, "{}", plan["reason"]);
+    let id = plan["execution_id"].as_str().expect("queued").to_owned();
+    let v = &plan["verification"];
+    assert_eq!(v["execution_id"], id.as_str());
+    assert_eq!(v["state"], "queued");
+    assert_eq!(v["trial"], json!({"lift": 0.1, "hold_s": 2.0, "shakes": 2}));
+    assert!(v["held"].is_null());
+    // (the dispatcher passes over the queue at least once a second)
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert_eq!(
+        app.get(&format!("/v1/executions/{id}")).await["state"],
+        "queued"
+    );
+
+    let mut physics = connect(
+        "physics",
+        json!(["open_loop", "closed_loop", "grasp_trial"]),
+    )
+    .await;
+    let ex = loop {
+        match next_msg(&mut physics).await {
+            Some(ServiceMessage::Execute(e)) => break e,
+            Some(_) => continue,
+            None => panic!("the service closed the connection"),
+        }
+    };
+    assert_eq!(ex.execution_id, id);
+    // the scene is the grasp's object with its mass and friction, on its table
+    let scene = ex.scene.expect("a scene");
+    let grasped: reachgrasp::grasp::ObjectSpec =
+        serde_json::from_value(plan["grasp"]["object"].clone()).unwrap();
+    assert_eq!(scene.object.position, grasped.position);
+    assert_eq!(scene.object.shape, grasped.shape);
+    assert_eq!(scene.object.mass, Some(0.057));
+    assert_eq!(scene.object.friction, Some(0.8));
+    let support = scene.support.expect("the table");
+    assert_eq!((support.normal, support.offset), ([0.0, 0.0, 1.0], 0.0));
+    assert_eq!(support.friction, Some(TABLE_FRICTION));
+    assert!(scene.obstacles.is_empty());
+    let trial = ex.trial.expect("a trial");
+    assert_eq!((trial.lift, trial.hold_s, trial.shakes), (0.1, 2.0, 2));
+    let to = match &ex.payload {
+        ExecutionPayload::Trajectory { points, .. } => points.last().unwrap().positions.clone(),
+        other => panic!("an open-loop plan sends its trajectory, got {other:?}"),
+    };
+    send(
+        &mut physics,
+        json!({"type": "result", "execution_id": id, "outcome": "succeeded", "positions": to,
+               "physics": {"engine": "mujoco", "trial": {
+                   "held": true, "slipped": false, "object_lift_m": 0.0998, "slip_m": 0.0031,
+                   "contact_force_total_mean_n": 12.5, "contacts_after_close": ["ihy_thumb_distal"],
+                   "max_penetration_m": {"hand_object": 0.0011, "robot_support": 0.0}}}}),
+    )
+    .await;
+    app.wait(&id, 10, |e| e["state"] == "succeeded").await;
+    let got = app
+        .get(&format!("/v1/plans/{}", plan["id"].as_str().unwrap()))
+        .await;
+    let v = &got["verification"];
+    assert_eq!(v["state"], "succeeded", "{got}");
+    assert_eq!(v["engine"], "mujoco");
+    assert_eq!(v["held"], true);
+    assert_eq!(v["slipped"], false);
+    assert_eq!(v["slip_m"], 0.0031);
+    assert_eq!(v["object_lift_m"], 0.0998);
+    assert_eq!(v["contact_force_total_mean_n"], 12.5);
+    assert_eq!(v["max_penetration_m"]["hand_object"], 0.0011);
+    let page = app
+        .page(&format!("/ui/plans/{}", plan["id"].as_str().unwrap()))
+        .await;
+    assert!(
+        page.contains("Physics verification"),
+        "no verification section"
+    );
+    assert!(page.contains("mujoco: held (lifted 0.100 m, slip 3.1 mm"));
+    assert!(page.contains("hand_object 1.1 mm"));
+    // the kinematic worker was never sent it
+    let nothing = tokio::time::timeout(Duration::from_millis(300), kinematic.next()).await;
+    assert!(
+        !matches!(&nothing, Ok(Some(Ok(Message::Text(t)))) if t.contains("\"execute\"")),
+        "{nothing:?}"
+    );
 }

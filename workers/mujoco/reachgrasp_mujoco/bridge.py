@@ -91,11 +91,14 @@ class Worker:
             "worker": self.cfg.name,
             "robot": self.cfg.robot,
             "joint_names": self.info.joint_names,
-            "capabilities": ["open_loop", "closed_loop", "safety_filter", "streaming"],
+            # `grasp_trial`: the service sends executions that end in a grasp trial (a plan's
+            # `verify`) only to a worker that announces it; `--no-trial` does not.
+            "capabilities": ["open_loop", "closed_loop", "safety_filter", "streaming"]
+            + (["grasp_trial"] if self.cfg.trial_enabled else []),
             # The service refuses a plan to execute that starts farther than this from our state.
             "start_tolerance": self.cfg.run.start_tolerance,
-            # Ignored by today's service (serde skips unknown fields); see the README.
-            "simulator": {"engine": "mujoco", "version": mujoco.__version__, "grasp_trial": self.cfg.trial_enabled},
+            # Ignored by the service (serde skips unknown fields): for logs and humans.
+            "simulator": {"engine": "mujoco", "version": mujoco.__version__},
         }
 
     async def run_forever(self, stop: asyncio.Event):

@@ -37,6 +37,31 @@ def resolve_scene(ex: dict, robot: str, service: Service | None, object_defaults
     return sc, f"plan {plan['id']}"
 
 
+def trial_moves(t) -> dict:
+    """The `execute` message's `trial` (`{lift, hold_s, shakes}`, each optional) as
+    `TrialOptions` fields; the service checked the ranges, checked again here (a worker is also
+    driven by hand)."""
+    if not isinstance(t, dict):
+        raise ExecutionError("trial must be an object {lift, hold_s, shakes}")
+    out = {}
+    if "lift" in t:
+        v = t["lift"]
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not (0 < v <= 0.3):
+            raise ExecutionError(f"trial.lift must be in (0, 0.3] m, got {v!r}")
+        out["lift"] = float(v)
+    if "hold_s" in t:
+        v = t["hold_s"]
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not (0 <= v <= 10):
+            raise ExecutionError(f"trial.hold_s must be in [0, 10] s, got {v!r}")
+        out["hold_time"] = float(v)
+    if "shakes" in t:
+        v = t["shakes"]
+        if not isinstance(v, int) or isinstance(v, bool) or not (0 <= v <= 4):
+            raise ExecutionError(f"trial.shakes must be an integer 0 to 4, got {v!r}")
+        out["shakes"] = v
+    return out
+
+
 def _finite(xs):
     return all(isinstance(x, (int, float)) and math.isfinite(x) for x in xs)
 
@@ -123,6 +148,8 @@ class Execution:
                 self.safety, stages = self._safety(spec, inside)
             self.motion = ClosedLoop(self.sim, law, self.goal, run, self.pushes if push and push.target == "arm" else None,
                                      self.safety, stages)
+        if trial is not None and ex.get("trial") is not None:
+            trial = dataclasses.replace(trial, **trial_moves(ex["trial"]))
         if trial is not None and push is not None and push.target == "object":
             trial = dataclasses.replace(trial, object_push=push.force)
         self.trial_opts = trial

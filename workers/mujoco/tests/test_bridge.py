@@ -127,7 +127,8 @@ def test_a_plan_gets_its_scene_from_the_service_and_a_physics_verdict(seeded_ser
     e = wait(svc, plan["execution_id"])
     rep = t42_worker.report(e["id"])
     assert rep["scene"]["source"] == f"plan {plan['id']}"
-    assert rep["scene"]["object"] == "ball" and rep["scene"]["properties_from"] == "object-defaults"
+    # (the seeded objects carry their mass and friction in the service: migration 0013)
+    assert rep["scene"]["object"] == "ball" and rep["scene"]["properties_from"] == "scene"
     held = bool(rep["trial"] and rep["trial"]["held"])
     assert (e["state"] == "succeeded") == held, (e["state"], e["reason"], rep["trial"])
     # the robot was put back where it started after the trial, and the result said so: the
@@ -138,6 +139,37 @@ def test_a_plan_gets_its_scene_from_the_service_and_a_physics_verdict(seeded_ser
         assert rep["trial"] is not None and "held_after" in rep["trial"]
         if not held:
             assert e["reason"].startswith("grasp trial: object not held"), e["reason"]
+
+
+def test_a_verified_plan_brings_its_scene_and_trial_and_keeps_the_verdict(seeded_service, t42_worker):
+    """`verify: true`: the service sends the plan's scene (the ball with its mass and friction,
+    the table) and the trial's moves in the `execute` message, only to a worker announcing
+    `grasp_trial`; the plan's `verification` is the worker's report."""
+    svc = seeded_service
+    b = next(b for b in svc.get("/v1/bridges")["items"] if b["name"] == t42_worker.name)
+    assert "grasp_trial" in b["connection"]["capabilities"], b
+    status, plan = svc.post("/v1/plans", {
+        "robot": "wam_t42", "object_id": BALL, "task_directions": FORCE_Z, "start": start(svc, "wam_t42"),
+        "verify": True, "trial": {"lift": 0.08, "hold_s": 1.0, "shakes": 1}, "worker": t42_worker.name})
+    assert status == 201 and plan["feasible"], plan
+    assert plan["verification"]["state"] == "queued", plan["verification"]
+    e = wait(svc, plan["execution_id"])
+    rep = t42_worker.report(e["id"])
+    assert rep["scene"]["source"] == "execute message", rep["scene"]
+    assert rep["scene"]["mass"] == 0.057 and rep["scene"]["friction"] == 0.8, rep["scene"]
+    v = svc.get(f"/v1/plans/{plan['id']}")["verification"]
+    assert v["state"] == e["state"] and v["execution_id"] == e["id"], (v, e["state"])
+    assert v["trial"] == {"lift": 0.08, "hold_s": 1.0, "shakes": 1}, v
+    t = rep["trial"]
+    assert t is not None, (e["reason"], rep["motion"])
+    # the worker ran the asked moves: one shake, the hand lifted 8 cm
+    assert "shake1" in t["held_after"] and "shake2" not in t["held_after"], t["held_after"]
+    assert v["held"] == t["held"] and v["slip_m"] == t["slip_m"], (v, t)
+    assert v["object_lift_m"] == t["object_lift_m"], (v, t)
+    assert v["max_penetration_m"] == t["max_penetration_m"], (v, t)
+    assert (v["state"] == "succeeded") == t["held"], (v, e["reason"])
+    if t["held"]:
+        assert abs(t["object_lift_m"] - 0.08) < 0.01, t
 
 
 def test_a_far_start_is_refused_and_the_worker_keeps_serving(seeded_service, t42_worker):
