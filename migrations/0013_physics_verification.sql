@@ -20,3 +20,14 @@ UPDATE objects SET spec = json_set(spec, '$.mass', 0.03, '$.friction', 0.6, '$.s
 -- NULL for every other execution. Such an execution is dispatched only to a worker with the
 -- `grasp_trial` capability.
 ALTER TABLE executions ADD COLUMN trial TEXT;
+
+-- A batch verification (POST /v1/verifications, a job): which plan answered which combination
+-- of robot, object, placement and task set (`items`, JSON in request order). The verdicts are
+-- read from the plans' executions when the verification is read, so they are never stale.
+CREATE TABLE verifications (
+    id         TEXT PRIMARY KEY NOT NULL,
+    job_id     TEXT NOT NULL REFERENCES jobs(id),
+    request    TEXT NOT NULL,
+    items      TEXT NOT NULL,
+    created_at TEXT NOT NULL
+);

@@ -80,6 +80,7 @@ pub mod plans;
 pub mod retarget;
 pub mod robots;
 pub mod testing;
+pub mod verifications;
 
 use axum::Router;
 use axum::extract::DefaultBodyLimit;
@@ -176,6 +177,7 @@ pub fn openapi_router() -> OpenApiRouter<AppState> {
         .merge(executions::router())
         .merge(bridges::router())
         .merge(plans::router())
+        .merge(verifications::router())
         .merge(figures::router())
 }
 

@@ -514,6 +514,37 @@ fn make_request(object: Object, s: &Settings) -> GraspRequest {
     req
 }
 
+/// Checks a task set as a grasp request's `task_directions`, its problems named under `path`
+/// (e.g. `$.tasks[2]`) instead.
+pub fn check_task_directions(path: &str, tasks: &[TaskDirectionIn]) -> Result<(), Error> {
+    parse_settings(tasks, None, None, (None, None), None, None)
+        .map(|_| ())
+        .map_err(|e| match e {
+            Error::Invalid(v) => Error::Invalid(
+                v.into_iter()
+                    .map(|i| Invalid {
+                        field: i.field.replacen("$.task_directions", path, 1),
+                        message: i.message,
+                    })
+                    .collect(),
+            ),
+            other => other,
+        })
+}
+
+/// A stored object by id, or a seeded one by name, validated; `None` when there is none.
+pub async fn stored_object(ctx: &Context, id: &str) -> Result<Option<(String, Object)>, Error> {
+    let row = match repo::get_object(&ctx.db, id).await? {
+        Some(row) => row,
+        None => match repo::get_seeded_object(&ctx.db, id).await? {
+            Some(row) => row,
+            None => return Ok(None),
+        },
+    };
+    let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(Error::internal)?;
+    Ok(Some((row.id, Object::new(spec).map_err(Error::internal)?)))
+}
+
 /// The object a grasp request names (`object_id`) or gives inline, validated.
 pub async fn request_object(ctx: &Context, body: &GraspIn) -> Result<Object, Error> {
     Ok(resolve_object(ctx, "$.", &body.object_id, &body.object)

@@ -33,6 +33,7 @@ pub mod seed;
 pub mod status;
 pub mod storage;
 pub mod trajectories;
+pub mod verifications;
 
 use std::fmt;
 use std::sync::Arc;

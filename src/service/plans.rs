@@ -760,22 +760,30 @@ pub async fn get(ctx: &Context, id: &str) -> Result<StoredPlan, Error> {
         ),
         None => None,
     };
-    let verification = match &plan.execution_id {
-        Some(id) => match crate::store::executions::get(&ctx.db, id).await? {
-            Some(row) if row.grasp_trial => {
-                let trial = crate::store::executions::trial(&ctx.db, id).await?;
-                trial.map(|t| Verification::of(&row, t.trial))
-            }
-            _ => None,
-        },
-        None => None,
-    };
+    let verification = verification(ctx, plan.execution_id.as_deref()).await?;
     Ok(StoredPlan {
         grasp,
         trajectory,
         execution_id: plan.execution_id.clone(),
         plan,
         verification,
+    })
+}
+
+/// The physics check of a plan whose execution is `execution` (`None`: it has none, or its
+/// execution runs no grasp trial, or was deleted).
+pub async fn verification(
+    ctx: &Context,
+    execution: Option<&str>,
+) -> Result<Option<Verification>, Error> {
+    let Some(id) = execution else {
+        return Ok(None);
+    };
+    Ok(match crate::store::executions::get(&ctx.db, id).await? {
+        Some(row) if row.grasp_trial => crate::store::executions::trial(&ctx.db, id)
+            .await?
+            .map(|t| Verification::of(&row, t.trial)),
+        _ => None,
     })
 }
 

@@ -1931,6 +1931,19 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     w.task.abort();
 }
 
+/// A raw worker of [`ROBOT`] named `name` with capabilities `caps`, welcomed.
+async fn connected(app: &BridgeApp, name: &str, caps: Value) -> Raw {
+    let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
+    let mut h = hello(name, names(), PROTOCOL_VERSION);
+    h["capabilities"] = caps;
+    send(&mut ws, h).await;
+    assert!(matches!(
+        next_msg(&mut ws).await,
+        Some(ServiceMessage::Welcome(_))
+    ));
+    ws
+}
+
 /// A problem's status and `errors[0].path` (the JSON path a 422 names).
 async fn problem_field(res: reqwest::Response) -> (u16, String) {
     let status = res.status().as_u16();
@@ -2041,21 +2054,7 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
     );
 
     // A kinematic worker is connected: the verified plan's execution waits for a physics one.
-    let connect = |name: &'static str, caps: Value| {
-        let ws = app.ws.clone();
-        async move {
-            let mut ws = raw_connect(&ws, Some(TOKEN)).await.unwrap();
-            let mut h = hello(name, names(), PROTOCOL_VERSION);
-            h["capabilities"] = caps;
-            send(&mut ws, h).await;
-            assert!(matches!(
-                next_msg(&mut ws).await,
-                Some(ServiceMessage::Welcome(_))
-            ));
-            ws
-        }
-    };
-    let mut kinematic = connect("kinematic", json!(["open_loop", "closed_loop"])).await;
+    let mut kinematic = connected(&app, "kinematic", json!(["open_loop", "closed_loop"])).await;
     let res = app.post("/v1/plans", &ball).await;
     assert_eq!(res.status(), 201);
     let plan: Value = res.json().await.unwrap();
@@ -2073,7 +2072,8 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
         "queued"
     );
 
-    let mut physics = connect(
+    let mut physics = connected(
+        &app,
         "physics",
         json!(["open_loop", "closed_loop", "grasp_trial"]),
     )
@@ -2141,4 +2141,161 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
         !matches!(&nothing, Ok(Some(Ok(Message::Text(t)))) if t.contains("\"execute\"")),
         "{nothing:?}"
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_verification_plans_every_combination_on_the_physics_worker_and_tabulates_the_trials() {
+    let app = spawn(|c| {
+        c.no_seed = true;
+        c.job_concurrency = Some(2);
+    })
+    .await;
+    let api = crate::helpers::TestApp {
+        base_url: app.base.clone(),
+        client: app.client.clone(),
+        _dir: tempfile::tempdir().unwrap(),
+    };
+    let (_model, start) = crate::helpers::trained(&api, ROBOT).await;
+    let body = json!({"robots": [ROBOT], "objects": ["ball", "kitchen_timer"],
+                      "placements": [[0.5, 0.0], [0.55, 0.15]], "start": start});
+    let jobs = || async {
+        let page = app.get("/v1/jobs?limit=500").await;
+        page["items"].as_array().map(Vec::len)
+    };
+    let jobs_before = jobs().await;
+    // no physics worker of the robot is connected
+    let (status, at) = problem_field(app.post("/v1/verifications", &body).await).await;
+    assert_eq!((status, at.as_str()), (422, "$.robots[0]"));
+
+    // A physics worker that answers each execution at once: the ball held, anything else not.
+    let mut ws = connected(&app, "physics", json!(["open_loop", "grasp_trial"])).await;
+    let (tx, mut sent) = mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        while let Some(m) = next_msg(&mut ws).await {
+            let ServiceMessage::Execute(ex) = m else {
+                continue;
+            };
+            let scene = ex.scene.expect("a scene");
+            // (back where the motion started after the trial, as the MuJoCo worker resets)
+            let to = match &ex.payload {
+                ExecutionPayload::Trajectory { points, .. } => points[0].positions.clone(),
+                other => panic!("{other:?}"),
+            };
+            let held = scene.object.name == "ball";
+            send(
+                &mut ws,
+                json!({"type": "result", "execution_id": ex.execution_id,
+                       "outcome": if held { "succeeded" } else { "failed" }, "positions": to,
+                       "physics": {"engine": "mujoco", "trial": {"held": held, "slipped": !held,
+                                   "object_lift_m": if held { 0.1 } else { 0.0 },
+                                   "slip_m": if held { 0.002 } else { 0.08 }}}}),
+            )
+            .await;
+            tx.send((
+                ex.execution_id,
+                scene.object.name.clone(),
+                scene.object.position,
+            ))
+            .unwrap();
+        }
+    });
+
+    // bad input names its field and starts nothing
+    let res = app
+        .post(
+            "/v1/objects",
+            &json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
+                    "position": [0.5, 0.0, 0.025]}),
+        )
+        .await;
+    let cube: Value = res.json().await.unwrap();
+    let with = |k: &str, v: Value| {
+        let mut b = body.clone();
+        b[k] = v;
+        b
+    };
+    for (bad, field) in [
+        (with("robots", json!([])), "$.robots"),
+        (with("robots", json!([ROBOT, ROBOT])), "$.robots[1]"),
+        (with("robots", json!(["no_such_robot"])), "$.robots[0]"),
+        (with("objects", json!(["nothing"])), "$.objects[0]"),
+        (with("objects", json!([cube["id"]])), "$.objects[0]"),
+        (with("placements", json!([[9.0, 0.0]])), "$.placements[0]"),
+        (with("tasks", json!([[]])), "$.tasks[0]"),
+        (
+            with(
+                "tasks",
+                json!([[{"direction": [0, 0, 0], "kind": "force", "goal": "maximize"}]]),
+            ),
+            "$.tasks[0][0].direction",
+        ),
+        (with("trial", json!({"lift": 0.0})), "$.trial.lift"),
+    ] {
+        let (status, at) = problem_field(app.post("/v1/verifications", &bad).await).await;
+        assert_eq!((status, at.as_str()), (422, field), "{bad}");
+    }
+    assert_eq!(jobs().await, jobs_before);
+
+    let res = app.post("/v1/verifications", &body).await;
+    assert_eq!(res.status(), 202);
+    let job: Value = res.json().await.unwrap();
+    let job = api
+        .wait_job(job["id"].as_str().unwrap(), |j| {
+            j["status"] != "queued" && j["status"] != "running"
+        })
+        .await;
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let report = app.get(job["result"]["href"].as_str().unwrap()).await;
+    let items = report["items"].as_array().unwrap();
+    assert_eq!(items.len(), 4, "{report}");
+    let mut executed = Vec::new();
+    while let Ok(e) = sent.try_recv() {
+        executed.push(e);
+    }
+    let mut feasible = [0, 0];
+    for it in items {
+        let plan = app
+            .get(&format!(
+                "/v1/plans/{}",
+                it["plan_id"]
+                    .as_str()
+                    .unwrap_or_else(|| panic!("no plan: {it}"))
+            ))
+            .await;
+        // the plan is of the combination: its object moved to the placement, height kept
+        let object = &plan["grasp"]["object"];
+        assert_eq!(object["name"], it["object"]);
+        assert_eq!(object["position"][0], it["placement"][0]);
+        assert_eq!(object["position"][1], it["placement"][1]);
+        let z = if it["object"] == "ball" { 0.033 } else { 0.025 };
+        assert_eq!(object["position"][2], z, "{object}");
+        assert_eq!(it["feasible"], plan["feasible"]);
+        if plan["feasible"] == true {
+            feasible[usize::from(it["object"] != "ball")] += 1;
+            let e = plan["execution_id"].as_str().unwrap();
+            // the worker ran it, in the plan's scene, and the verdict is the worker's
+            let (_, name, at) = executed.iter().find(|(id, ..)| id == e).expect("sent");
+            assert_eq!(json!(name), it["object"]);
+            assert_eq!(json!(at), object["position"]);
+            assert_eq!(it["verification"]["held"], it["object"] == "ball");
+            assert_eq!(it["verification"], plan["verification"]);
+        } else {
+            assert!(it["verification"].is_null(), "{it}");
+        }
+    }
+    assert_eq!(executed.len(), feasible[0] + feasible[1]);
+    assert!(feasible[0] > 0, "no feasible ball plan to verify: {report}");
+    let table = &report["table"];
+    assert_eq!(table[0]["object"], "ball");
+    assert_eq!(
+        (&table[0]["plans"], &table[0]["feasible"], &table[0]["held"]),
+        (&json!(2), &json!(feasible[0]), &json!(feasible[0]))
+    );
+    assert_eq!(table[1]["object"], "kitchen_timer");
+    assert_eq!(
+        (&table[1]["plans"], &table[1]["feasible"], &table[1]["held"]),
+        (&json!(2), &json!(feasible[1]), &json!(0))
+    );
+    assert_eq!(report["total"]["held"], feasible[0]);
+    assert_eq!(report["total"]["unverified"], 0);
 }

@@ -1,0 +1,49 @@
+//! `/v1/verifications`: physics verification of many plans at once (issue 24 §3) — robots ×
+//! objects × placements × task sets, each planned with `verify: true` and run on the robot's
+//! physics worker, as a job; the result tabulates the grasp trials per system and object.
+
+use axum::extract::State;
+use axum::response::Response;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::{ApiError, AppState, Json, Path, Problem};
+use crate::jobs::JobRecord;
+use crate::service::verifications as service;
+pub use crate::service::verifications::{VerificationIn, VerificationReport};
+
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(create_verification))
+        .routes(routes!(get_verification))
+}
+
+/// Verify many plans in physics (202, a job). Every combination of robot, object, placement
+/// and task set is planned with `verify: true`, one robot's after another's end (the robots
+/// side by side), and waits for its physics worker's trial; progress counts the finished
+/// combinations (`GET /v1/jobs/{id}/events`). Each robot needs a connected worker with the
+/// `grasp_trial` capability, each object a `mass` and a `friction`. The job holds one job slot
+/// while the workers run.
+#[utoipa::path(post, path = "/v1/verifications", tag = "plans", request_body = VerificationIn,
+    responses((status = 202, description = "Accepted: the job, to follow at its Location", body = JobRecord),
+              (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json")))]
+async fn create_verification(
+    State(state): State<AppState>,
+    Json(body): Json<VerificationIn>,
+) -> Result<Response, ApiError> {
+    let job = service::submit(&state, &body).await?;
+    Ok(super::accepted_job(job, None))
+}
+
+/// A verification: every combination with its plan and the trial's verdict as it stands, and
+/// the counts per system and object (plans, feasible, held, not verified yet).
+#[utoipa::path(get, path = "/v1/verifications/{id}", tag = "plans",
+    params(("id" = String, Path, description = "Verification id (the job's result)")),
+    responses((status = 200, description = "OK", body = VerificationReport),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
+async fn get_verification(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<VerificationReport>, ApiError> {
+    Ok(Json(service::get(&state, &id).await?))
+}
