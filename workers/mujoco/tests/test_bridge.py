@@ -172,6 +172,37 @@ def test_a_verified_plan_brings_its_scene_and_trial_and_keeps_the_verdict(seeded
         assert abs(t["object_lift_m"] - 0.08) < 0.01, t
 
 
+def test_a_batch_verification_runs_on_the_physics_worker_and_tabulates_its_verdicts(seeded_service, t42_worker):
+    """`POST /v1/verifications`: two placements of the ball on wam_t42, planned from the
+    worker's start, each verified on this worker; the table counts the worker's verdicts."""
+    svc = seeded_service
+    status, job = svc.post("/v1/verifications", {
+        "robots": ["wam_t42"], "objects": ["ball"], "placements": [[0.5, 0.0], [0.45, -0.2]],
+        "start": start(svc, "wam_t42"), "trial": {"hold_s": 0.5, "shakes": 1}})
+    assert status == 202, job
+    deadline = time.monotonic() + 300
+    while job["status"] in ("queued", "running") and time.monotonic() < deadline:
+        time.sleep(0.25)
+        job = svc.get(f"/v1/jobs/{job['id']}")
+    assert job["status"] == "succeeded", job
+    rep = svc.get(job["result"]["href"])
+    held = 0
+    for it in rep["items"]:
+        assert it["plan_id"], it
+        v = it["verification"]
+        if not it["feasible"]:
+            assert v is None, it
+            continue
+        # the verdict is this worker's report of that plan's execution
+        r = t42_worker.report(v["execution_id"])
+        assert r["scene"]["source"] == "execute message", r["scene"]
+        t = r["trial"]
+        assert (v["held"] if t is not None else None) == (t["held"] if t is not None else None), (v, t)
+        held += bool(t and t["held"])
+    assert rep["table"] == [dict(rep["total"], robot="wam_t42", object="ball")], rep
+    assert rep["total"]["plans"] == 2 and rep["total"]["held"] == held, rep["total"]
+
+
 def test_a_far_start_is_refused_and_the_worker_keeps_serving(seeded_service, t42_worker):
     svc = seeded_service
     robot = "wam_t42"
