@@ -1051,3 +1051,94 @@ fn row(name: &str, cells: impl Iterator<Item = String>) -> Vec<String> {
     r.extend(cells);
     r
 }
+
+/// A batch verification (`GET /v1/verifications/{id}`): held per system and object, then every
+/// combination with its plan and verdict.
+pub async fn verification(State(state): State<AppState>, Path(id): Path<String>) -> Page {
+    let v = match crate::service::verifications::get(&state, &id).await {
+        Ok(v) => v,
+        Err(crate::service::Error::NotFound { .. }) => {
+            return Ok(html::not_found("verification", &id, "/ui/plans", "plans"));
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let count_row = |c: &crate::service::verifications::VerificationCounts| {
+        vec![
+            esc(&c.robot),
+            esc(&c.object),
+            c.plans.to_string(),
+            c.feasible.to_string(),
+            format!("<strong>{}</strong>", c.held),
+            c.unverified.to_string(),
+        ]
+    };
+    let mut counts: Vec<Vec<String>> = v.table.iter().map(count_row).collect();
+    counts.push(count_row(&v.total));
+    let items: Vec<Vec<String>> = v
+        .items
+        .iter()
+        .map(|it| {
+            let i = &it.item;
+            let verdict = match (&it.verification, &i.error) {
+                (_, Some(e)) => format!("not planned: {}", esc(e)),
+                (Some(x), None) => match x.held {
+                    Some(h) => format!(
+                        "{} (lift {} m, slip {} mm)",
+                        if h { "held" } else { "not held" },
+                        num(x.object_lift_m.unwrap_or(0.0), 3),
+                        num(x.slip_m.unwrap_or(0.0) * 1e3, 1)
+                    ),
+                    None => format!(
+                        "<span class=\"state state-{s}\">{s}</span> {}",
+                        esc(x.reason.as_deref().unwrap_or("")),
+                        s = esc(&x.state)
+                    ),
+                },
+                (None, None) => match (it.feasible, &it.reason) {
+                    (Some(false), Some(r)) => format!("infeasible: {}", esc(r)),
+                    (None, _) => "plan deleted".into(),
+                    _ => "–".into(),
+                },
+            };
+            vec![
+                esc(&i.robot),
+                link(&format!("/ui/objects/{}", i.object_id), &i.object),
+                i.placement
+                    .map(|[x, y]| format!("({}, {})", num(x, 3), num(y, 3)))
+                    .unwrap_or_else(|| "as stored".into()),
+                v.tasks
+                    .get(i.task)
+                    .and_then(|t| serde_json::to_value(t).ok())
+                    .map(|t| esc(&directions_text(&t)))
+                    .unwrap_or_else(|| i.task.to_string()),
+                i.plan_id
+                    .as_deref()
+                    .map(|p| link(&format!("/ui/plans/{p}"), short(p)))
+                    .unwrap_or_else(|| "–".into()),
+                verdict,
+            ]
+        })
+        .collect();
+    let body = format!(
+        "<section class=\"part\"><h2>Held in physics</h2><p class=\"hint\">Every combination \
+         planned with verify and run on its robot's physics worker (job {}, {}); \
+         <em>unverified</em>: feasible plans whose execution is still waiting or ended without \
+         a trial verdict (the motion did not arrive).</p>{}</section>\
+         <section class=\"part\"><h2>Combinations</h2>{}</section>",
+        link(&format!("/ui/jobs/{}", v.job_id), short(&v.job_id)),
+        esc(&html::when(&v.created_at)),
+        table(
+            &["robot", "object", "plans", "feasible", "held", "unverified"],
+            &counts
+        ),
+        table(
+            &["robot", "object", "placement", "task", "plan", "verdict"],
+            &items
+        ),
+    );
+    Ok(html::ok(
+        &format!("Verification {}", short(&id)),
+        "/ui/plans",
+        &body,
+    ))
+}

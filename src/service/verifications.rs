@@ -111,6 +111,8 @@ pub struct VerificationReport {
     /// The job that made the plans.
     pub job_id: String,
     pub created_at: String,
+    /// The task sets the items' `task` indexes.
+    pub tasks: Vec<Vec<TaskDirectionIn>>,
     pub items: Vec<VerifiedItem>,
     /// Per system and object, in request order.
     pub table: Vec<VerificationCounts>,
@@ -402,13 +404,21 @@ async fn wait(ctx: &Context, job: &JobContext, id: &str) {
 
 /// Verification `id` with every combination's verdict as it stands.
 pub async fn get(ctx: &Context, id: &str) -> Result<VerificationReport, Error> {
-    let row = sqlx::query("SELECT job_id, items, created_at FROM verifications WHERE id = ?")
-        .bind(id)
-        .fetch_optional(&ctx.db)
-        .await?
-        .ok_or_else(|| Error::not_found("verification", id))?;
+    let row =
+        sqlx::query("SELECT job_id, request, items, created_at FROM verifications WHERE id = ?")
+            .bind(id)
+            .fetch_optional(&ctx.db)
+            .await?
+            .ok_or_else(|| Error::not_found("verification", id))?;
     let items: Vec<VerificationItem> =
         serde_json::from_str(row.get::<&str, _>("items")).map_err(Error::internal)?;
+    let request: VerificationIn =
+        serde_json::from_str(row.get::<&str, _>("request")).map_err(Error::internal)?;
+    let tasks = if request.tasks.is_empty() {
+        vec![lift_task()]
+    } else {
+        request.tasks
+    };
     let mut out = Vec::with_capacity(items.len());
     for item in items {
         let plan = match &item.plan_id {
@@ -459,6 +469,7 @@ pub async fn get(ctx: &Context, id: &str) -> Result<VerificationReport, Error> {
         id: id.to_owned(),
         job_id: row.get("job_id"),
         created_at: row.get("created_at"),
+        tasks,
         items: out,
         table,
         total,

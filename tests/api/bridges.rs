@@ -2298,4 +2298,19 @@ async fn a_verification_plans_every_combination_on_the_physics_worker_and_tabula
     );
     assert_eq!(report["total"]["held"], feasible[0]);
     assert_eq!(report["total"]["unverified"], 0);
+    // the dashboard shows it where the job's page links its result
+    let href = format!("/ui/verifications/{}", report["id"].as_str().unwrap());
+    let job_page = app
+        .page(&format!("/ui/jobs/{}", job["id"].as_str().unwrap()))
+        .await;
+    assert!(
+        job_page.contains(&href),
+        "the job's page does not link {href}"
+    );
+    let page = app.page(&href).await;
+    assert!(page.contains("Held in physics"));
+    for it in items {
+        let plan = format!("/ui/plans/{}", it["plan_id"].as_str().unwrap());
+        assert!(page.contains(&plan), "{plan} is not on the page");
+    }
 }
