@@ -1528,17 +1528,7 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     use reachgrasp::motion::ControlParams;
     use reachgrasp::store::payload::SafetySpec;
 
-    let app = spawn(|c| {
-        c.no_seed = true;
-        c.job_concurrency = Some(2);
-    })
-    .await;
-    let api = crate::helpers::TestApp {
-        base_url: app.base.clone(),
-        client: app.client.clone(),
-        _dir: tempfile::tempdir().unwrap(),
-    };
-    let (model, start) = crate::helpers::trained(&api, ROBOT).await;
+    let (app, _api, model, start) = trained_app().await;
     let ball = |start: &Value| {
         json!({"robot": ROBOT, "object_id": "00000000-0000-4000-8000-000000000001",
                "start": start, "task_directions": [{"direction": [0, 0, 1], "kind": "force",
@@ -1931,6 +1921,23 @@ async fn a_forwarded_keypoint_stream_teleoperates_a_streaming_worker() {
     w.task.abort();
 }
 
+/// A service without first-start seeding, an API client of it, and a model of [`ROBOT`] trained
+/// there with a start inside its workspace: `(app, api, model, start)`.
+async fn trained_app() -> (BridgeApp, crate::helpers::TestApp, String, Value) {
+    let app = spawn(|c| {
+        c.no_seed = true;
+        c.job_concurrency = Some(2);
+    })
+    .await;
+    let api = crate::helpers::TestApp {
+        base_url: app.base.clone(),
+        client: app.client.clone(),
+        _dir: tempfile::tempdir().unwrap(),
+    };
+    let (model, start) = crate::helpers::trained(&api, ROBOT).await;
+    (app, api, model, start)
+}
+
 /// A raw worker of [`ROBOT`] named `name` with capabilities `caps`, welcomed.
 async fn connected(app: &BridgeApp, name: &str, caps: Value) -> Raw {
     let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
@@ -2145,17 +2152,7 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_verification_plans_every_combination_on_the_physics_worker_and_tabulates_the_trials() {
-    let app = spawn(|c| {
-        c.no_seed = true;
-        c.job_concurrency = Some(2);
-    })
-    .await;
-    let api = crate::helpers::TestApp {
-        base_url: app.base.clone(),
-        client: app.client.clone(),
-        _dir: tempfile::tempdir().unwrap(),
-    };
-    let (_model, start) = crate::helpers::trained(&api, ROBOT).await;
+    let (app, api, _, start) = trained_app().await;
     let body = json!({"robots": [ROBOT], "objects": ["ball", "kitchen_timer"],
                       "placements": [[0.5, 0.0], [0.55, 0.15]], "start": start});
     let jobs = || async {
