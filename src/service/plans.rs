@@ -424,10 +424,10 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
                 worker,
                 law,
                 safety,
-                trial: match body.verify {
-                    true => Some(physics_trial(body, &new_grasp)?),
-                    false => None,
-                },
+                trial: body
+                    .verify
+                    .then(|| physics_trial(body, &new_grasp))
+                    .transpose()?,
             })
         }
         _ => None,
@@ -507,6 +507,19 @@ async fn check_verify(ctx: &Context, body: &PlanIn) -> Result<(), Error> {
     }
     if !body.verify {
         return Ok(());
+    }
+    // (a named worker that is not connected may still come: the execution waits for it)
+    if let Some(name) = &body.worker
+        && let Some(w) = ctx.bridges.workers().into_iter().find(|w| w.name == *name)
+        && !w.capabilities.contains(&Capability::GraspTrial)
+    {
+        return Err(Error::invalid(
+            "$.worker",
+            format!(
+                "worker '{name}' does not announce the grasp_trial capability: a verified plan \
+                 runs only on a physics worker"
+            ),
+        ));
     }
     let object = super::grasps::request_object(ctx, &body.grasp).await?;
     let spec = object.spec();

@@ -582,7 +582,7 @@ mod tests {
         let row = insert(&pool, "wam_ihy", Mode::OpenLoop, &p, None)
             .await
             .unwrap();
-        assert_eq!(payload(&pool, "old").await.unwrap().unwrap(), p);
+        assert_eq!(payload(&pool, &row.id).await.unwrap().unwrap(), p);
         assert_eq!(queued(&pool).await.unwrap().len(), 1);
         assert!(mark_running(&pool, &row.id, "w").await.unwrap());
         assert!(!mark_running(&pool, &row.id, "w").await.unwrap());

@@ -2062,6 +2062,13 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
 
     // A kinematic worker is connected: the verified plan's execution waits for a physics one.
     let mut kinematic = connected(&app, "kinematic", json!(["open_loop", "closed_loop"])).await;
+    let (status, at) = problem_field(
+        app.post("/v1/plans", &with("worker", json!("kinematic")))
+            .await,
+    )
+    .await;
+    assert_eq!((status, at.as_str()), (422, "$.worker"));
+    assert_eq!(api.total("/v1/plans").await, plans);
     let res = app.post("/v1/plans", &ball).await;
     assert_eq!(res.status(), 201);
     let plan: Value = res.json().await.unwrap();
