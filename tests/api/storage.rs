@@ -255,10 +255,17 @@ async fn a_full_database_is_507_loses_nothing_and_recovers_when_space_returns() 
     let first = spawn_app_with(|_| {}).await;
     let db = first._dir.path().join("db/test.db");
     let pool = reachgrasp::store::connect(&db).await.unwrap();
-    reachgrasp::store::retention::checkpoint(&pool)
+    // (its logical size: `max_page_count` caps pages, and the file alone misses whatever the
+    // WAL still holds while the first app's connections keep a checkpoint from completing)
+    let pages: i64 = sqlx::query_scalar("PRAGMA page_count")
+        .fetch_one(&pool)
         .await
         .unwrap();
-    let empty = std::fs::metadata(&db).unwrap().len();
+    let page_size: i64 = sqlx::query_scalar("PRAGMA page_size")
+        .fetch_one(&pool)
+        .await
+        .unwrap();
+    let empty = (pages * page_size) as u64;
     let cap = empty + 256 * 1024;
     let app = spawn_app_with(|c| {
         c.db = db.clone();
