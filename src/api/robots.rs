@@ -25,6 +25,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(list_robots, create_robot))
         .routes(routes!(get_robot, delete_robot))
         .routes(routes!(get_robot_urdf))
+        .routes(routes!(get_robot_mesh))
         .routes(routes!(robot_fk))
         .routes(routes!(robot_jacobian))
         .routes(routes!(robot_ik))
@@ -347,6 +348,24 @@ async fn get_robot_urdf(
 ) -> Result<Response, ApiError> {
     let text = service::urdf(&state, &id).await?;
     Ok(([(header::CONTENT_TYPE, "application/xml")], text).into_response())
+}
+
+/// A mesh uploaded with a registered system, by the filename its URDF names (percent-encode
+/// it as one path segment: `package%3A%2F%2Flab%2Fmeshes%2Flink1.stl`), as uploaded (STL or
+/// OBJ): what a physics worker needs to build the system's collision shapes.
+#[utoipa::path(get, path = "/v1/robots/{id}/meshes/{filename}", tag = "robots",
+    params(("id" = String, Path, description = "Robot id"),
+           ("filename" = String, Path, description = "The mesh's filename in the URDF, percent-encoded")),
+    responses(
+        (status = 200, description = "The mesh file", body = Vec<u8>, content_type = "application/octet-stream"),
+        (status = 404, description = "Unknown robot or mesh", body = Problem, content_type = "application/problem+json"),
+    ))]
+async fn get_robot_mesh(
+    State(state): State<AppState>,
+    Path((id, filename)): Path<(String, String)>,
+) -> Result<Response, ApiError> {
+    let data = service::mesh(&state, &id, &filename).await?;
+    Ok(([(header::CONTENT_TYPE, "application/octet-stream")], data).into_response())
 }
 
 /// Register an arm-hand system (validated; nothing is stored on error).

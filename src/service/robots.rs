@@ -54,6 +54,17 @@ pub async fn urdf(ctx: &Context, id: &str) -> Result<String, Error> {
     }
 }
 
+/// A mesh uploaded with system `id`, by the filename its URDF gives (404 for an unknown robot
+/// or file).
+pub async fn mesh(ctx: &Context, id: &str, filename: &str) -> Result<Vec<u8>, Error> {
+    repo::get(&ctx.db, id)
+        .await?
+        .ok_or_else(|| Error::not_found("robot", id))?;
+    repo::mesh(&ctx.db, id, filename)
+        .await?
+        .ok_or_else(|| Error::not_found("mesh", format!("{filename} of robot {id}")))
+}
+
 /// Forward kinematics of robot `id`: world placement of every (or the named) frame.
 pub async fn fk(ctx: &Context, id: &str, body: &FkRequest) -> Result<FkResponse, Error> {
     let s = system(ctx, id).await?;

@@ -161,6 +161,19 @@ pub async fn delete(pool: &SqlitePool, id: &str) -> Result<bool, sqlx::Error> {
     Ok(done.rows_affected() > 0)
 }
 
+/// One mesh uploaded with system `id`, by its URDF filename.
+pub async fn mesh(
+    pool: &SqlitePool,
+    id: &str,
+    filename: &str,
+) -> Result<Option<Vec<u8>>, sqlx::Error> {
+    sqlx::query_scalar("SELECT data FROM robot_meshes WHERE robot_id = ? AND filename = ?")
+        .bind(id)
+        .bind(filename)
+        .fetch_optional(pool)
+        .await
+}
+
 /// The meshes uploaded with a registered system (none for bundled ones), by URDF filename.
 pub async fn meshes(pool: &SqlitePool, id: &str) -> Result<Vec<(String, Vec<u8>)>, sqlx::Error> {
     sqlx::query_as("SELECT filename, data FROM robot_meshes WHERE robot_id = ? ORDER BY filename")

@@ -588,6 +588,24 @@ async fn meshes_uploaded_with_a_registered_system_are_stored_and_reload_after_a_
         .as_str()
         .unwrap()
         .to_owned();
+    // The file is served back as uploaded (a physics worker builds the link from it), by its
+    // percent-encoded URDF filename; an unknown file or robot is a 404.
+    let encoded: String = mesh
+        .bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' => (b as char).to_string(),
+            _ => format!("%{b:02X}"),
+        })
+        .collect();
+    let res = app.get(&format!("/v1/robots/{id}/meshes/{encoded}")).await;
+    assert_eq!(res.status(), 200);
+    assert_eq!(res.text().await.unwrap(), TETRA_OBJ);
+    for path in [
+        format!("/v1/robots/{id}/meshes/none.obj"),
+        format!("/v1/robots/no_such_robot/meshes/{encoded}"),
+    ] {
+        assert_eq!(app.get(&path).await.status(), 404, "{path}");
+    }
     // A fresh process (empty cache) rebuilds the system from the stored URDF and meshes.
     let again = spawn().await;
     let detail: Value = again

@@ -70,8 +70,10 @@ class Worker:
         self.info = B.SystemInfo.from_detail(detail)
         self.urdf = urdf_text
         self.service = service
+        # The meshes uploaded with a registered system (none for the bundled ones).
+        self.meshes = service.meshes(cfg.robot, urdf_text) if service is not None else {}
         # Build once without a scene: refuses (before any hello) a robot MuJoCo cannot build.
-        self.robot_model = B.build(urdf_text, self.info, None)
+        self.robot_model = B.build(urdf_text, self.info, None, self.meshes.get)
         self.q = np.zeros(len(self.info.joint_names))
         lo = np.array([d.lower for d in self.robot_model.drives])
         hi = np.array([d.upper for d in self.robot_model.drives])
@@ -212,7 +214,7 @@ class Worker:
                 None,
                 lambda: Execution(
                     ex, self.urdf, self.info, scene, self.q, self.cfg.run,
-                    self.cfg.trial if self.cfg.trial_enabled else None, push,
+                    self.cfg.trial if self.cfg.trial_enabled else None, push, self.meshes.get,
                 ),
             )
         except (ExecutionError, SceneError, B.BuildError, ServiceError) as e:

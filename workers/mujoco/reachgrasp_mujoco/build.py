@@ -28,6 +28,7 @@ friction (geom priority), elliptic cones, torsional friction (`condim 4`, soft-f
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass, field
 
 import mujoco
@@ -181,6 +182,26 @@ def _add_shape(spec, parent, shape: dict, name: str, pos, quat):
     return g
 
 
+def binary_stl(data: bytes, link: str, filename: str) -> bytes:
+    """`data` as a binary STL: MuJoCo reads only binary STL, while URDF meshes (and the
+    service's uploads) are often ASCII; an ASCII file is rewritten facet by facet."""
+    head = data[:512].lstrip().lower()
+    if not head.startswith(b"solid") or b"facet" not in head:
+        return data  # binary (its 80-byte header may itself begin with "solid" but has no facets)
+    try:
+        text = data.decode("ascii")
+    except UnicodeDecodeError:
+        return data
+    vs = [tuple(float(x) for x in ln.split()[1:4]) for ln in text.splitlines() if ln.strip().startswith("vertex")]
+    if not vs or len(vs) % 3:
+        raise BuildError(f"link `{link}`: collision mesh `{filename}` is an ASCII STL whose vertices are not whole facets")
+    out = bytearray(b"reachgrasp: from an ASCII STL".ljust(80, b" "))
+    out += struct.pack("<I", len(vs) // 3)
+    for k in range(0, len(vs), 3):
+        out += struct.pack("<12fH", 0.0, 0.0, 0.0, *vs[k], *vs[k + 1], *vs[k + 2], 0)
+    return bytes(out)
+
+
 def build(
     urdf_text: str,
     info: SystemInfo,
@@ -266,7 +287,7 @@ def build(
                     )
                 mname = f"m{len(mesh_files)}"
                 ext = ".obj" if g.filename.lower().endswith(".obj") else ".stl"
-                mesh_files[mname + ext] = data
+                mesh_files[mname + ext] = binary_stl(data, link_name, g.filename) if ext == ".stl" else data
                 m = spec.add_mesh(name=mname, file=mname + ext)
                 m.scale = list(g.scale)
                 geom = b.add_geom(name=gname, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mname)

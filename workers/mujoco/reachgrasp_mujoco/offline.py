@@ -40,7 +40,7 @@ def initial_penetration(sim: Sim):
 def grasp_trial(svc, grasp: dict, object_defaults: bool, opts: TrialOptions | None = None):
     info, urdf_text = robot(svc, grasp["robot"])
     scene = scene_from_object_spec(grasp["object"], object_defaults)
-    built = B.build(urdf_text, info, scene)
+    built = B.build(urdf_text, info, scene, svc.meshes(grasp["robot"], urdf_text).get)
     sim = Sim(built)
     q = grasp_posture(info, grasp["result"])
     sim.set_posture(q)

@@ -68,7 +68,7 @@ def _finite(xs):
 
 class Execution:
     def __init__(self, ex: dict, urdf_text: str, info: B.SystemInfo, scene_and_note, q_start,
-                 run: RunOptions, trial: TrialOptions | None, push: PushOptions | None):
+                 run: RunOptions, trial: TrialOptions | None, push: PushOptions | None, mesh_source=None):
         scene, note = scene_and_note if isinstance(scene_and_note, tuple) else (scene_and_note, "given")
         self.id = ex.get("execution_id")
         self.scene: Scene | None = scene
@@ -84,7 +84,7 @@ class Execution:
         pnames = payload.get("params", {}).get("joint_names") if kind == "model" else payload.get("joint_names")
         if pnames != names:
             raise ExecutionError(f"joint names {pnames} do not match this robot's {names}")
-        self.built = B.build(urdf_text, info, scene)
+        self.built = B.build(urdf_text, info, scene, mesh_source)
         self.sim = Sim(self.built)
         self.q_start = np.asarray(q_start, float).copy()
         self.sim.set_posture(self.q_start)

@@ -5,6 +5,7 @@ does not carry the scene, the plan an execution came from (`GET /v1/plans`)."""
 from __future__ import annotations
 
 import json
+import re
 import urllib.error
 import urllib.parse
 import urllib.request
@@ -56,6 +57,20 @@ class Service:
     def robot(self, robot_id):
         q = urllib.parse.quote(robot_id, safe="")
         return self.get_json(f"/v1/robots/{q}"), self.get(f"/v1/robots/{q}/urdf").decode()
+
+    def meshes(self, robot_id, urdf_text: str) -> dict:
+        """The mesh files the robot's URDF names, as uploaded with the system
+        (`GET /v1/robots/{id}/meshes/{filename}`), by filename; a file the service does not
+        have is left out (the build then refuses the link that needs it, naming the file)."""
+        q = urllib.parse.quote(robot_id, safe="")
+        out = {}
+        for name in sorted(set(re.findall(r'<mesh\b[^>]*\bfilename="([^"]+)"', urdf_text))):
+            status, body = self._req("GET", f"/v1/robots/{q}/meshes/{urllib.parse.quote(name, safe='')}")
+            if status == 200:
+                out[name] = body
+            elif status != 404:
+                raise ServiceError(f"GET the mesh {name} of {robot_id}: HTTP {status}")
+        return out
 
     def plan_for_execution(self, robot, execute: dict, newest: int = 200):
         """The stored plan whose trajectory (open loop) or grasp configuration (closed loop) this

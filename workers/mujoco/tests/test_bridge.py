@@ -10,10 +10,12 @@ import tempfile
 import time
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
 from conftest import TOKEN, WORKER
+from reachgrasp_mujoco import build as B
 from reachgrasp_mujoco.cases import BLOCK
 from reachgrasp_mujoco.cases import pinch as pinch_case
 from reachgrasp_mujoco.law import Law
@@ -267,29 +269,46 @@ def test_the_closed_loop_law_matches_the_service(seeded_service):
     assert worst < 1e-9 * max(1.0, scale), worst
 
 
-def test_a_registered_robot_with_a_mesh_the_worker_cannot_get_is_refused_before_hello(service):
-    """The service stores uploaded meshes but serves none: the worker names the link and the
-    file and exits (code 3) without connecting; the service and other workers are unaffected."""
+def test_a_registered_robot_is_built_with_its_uploaded_meshes(service):
+    """A system registered with a collision mesh: the worker fetches the file the service
+    stored (`GET /v1/robots/{id}/meshes/{filename}`), builds the link from it and connects."""
     reg = json.loads((WORKER.parent.parent / "examples/register-robot.json").read_text())
     stl = "solid c\n" + "".join(
         f"facet normal 0 0 0\nouter loop\nvertex {a}\nvertex {b}\nvertex {c}\nendloop\nendfacet\n"
         for a, b, c in [("0 0 0", "0.01 0 0", "0 0.01 0"), ("0 0 0", "0 0 0.01", "0.01 0 0"),
                         ("0 0 0", "0 0.01 0", "0 0 0.01"), ("0.01 0 0", "0 0 0.01", "0 0.01 0")]
     ) + "endsolid c\n"
+    mesh = "package://lab/meshes/proximal.stl"
     reg["hand_urdf"] = reg["hand_urdf"].replace(
-        '<box size="0.0625 0.02 0.018"/>', '<mesh filename="package://lab/meshes/proximal.stl"/>', 1)
-    reg["meshes"] = {"package://lab/meshes/proximal.stl": {"data": stl}}
+        '<box size="0.0625 0.02 0.018"/>', f'<mesh filename="{mesh}"/>', 1)
+    reg["meshes"] = {mesh: {"data": stl}}
     reg["descriptor"]["name"] = "mesh lab system"
     status, robot = service.post("/v1/robots", reg)
     assert status == 201, robot
-    before = service.get("/v1/bridges")["items"]
-    p = subprocess.run(
-        [sys.executable, "-m", "reachgrasp_mujoco", "--robot", robot["id"], "--url", service.ws, "--token", TOKEN],
-        cwd=WORKER, capture_output=True, text=True, timeout=120)
-    assert p.returncode == 3, (p.returncode, p.stderr)
-    assert "collision mesh `package://lab/meshes/proximal.stl` is not available" in p.stderr, p.stderr
-    assert "t42_left_proximal" in p.stderr or "t42_right_proximal" in p.stderr, p.stderr
-    assert service.get("/v1/bridges")["items"] == before
+    svc = Service(service.http)
+    detail, urdf = svc.robot(robot["id"])
+    # the service serves the file as uploaded, and 404 for one it does not have
+    assert svc.meshes(robot["id"], urdf) == {mesh: stl.encode()}
+    assert svc.meshes(robot["id"], urdf.replace(mesh, "package://lab/meshes/none.stl")) == {}
+    built = B.build(urdf, B.SystemInfo.from_detail(detail), None, svc.meshes(robot["id"], urdf).get)
+    assert any(built.model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH for g in range(built.model.ngeom))
+    # (MuJoCo reads binary STL only; the uploaded ASCII tetrahedron arrives whole: 4 vertices)
+    assert built.model.nmesh == 1 and built.model.mesh_vertnum[0] == 4
+    name = f"pytest-mesh-{os.getpid()}"
+    p = subprocess.Popen(
+        [sys.executable, "-m", "reachgrasp_mujoco", "--robot", robot["id"], "--url", service.ws, "--token", TOKEN,
+         "--name", name], cwd=WORKER, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and p.poll() is None:
+            if any(b["name"] == name and b["connected"] for b in service.get("/v1/bridges")["items"]):
+                break
+            time.sleep(0.2)
+        else:
+            raise AssertionError(f"the worker did not connect: {p.poll()} {p.stdout.read() if p.poll() is not None else ''}")
+    finally:
+        p.terminate()
+        p.wait(10)
 
 
 def test_a_cancelled_execution_is_aborted_on_the_worker(seeded_service):
