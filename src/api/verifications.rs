@@ -22,10 +22,11 @@ pub fn router() -> OpenApiRouter<AppState> {
 /// and task set is planned with `verify: true`, one robot's after another's end (the robots
 /// side by side), and waits for its physics worker's trial; progress counts the finished
 /// combinations (`GET /v1/jobs/{id}/events`). Each robot needs a connected worker with the
-/// `grasp_trial` capability, each object a `mass` and a `friction`. The job holds one job slot
+/// `grasp_trial` capability (409 otherwise), each object a `mass` and a `friction`. The job holds one job slot
 /// while the workers run.
 #[utoipa::path(post, path = "/v1/verifications", tag = "plans", request_body = VerificationIn,
     responses((status = 202, description = "Accepted: the job, to follow at its Location", body = JobRecord),
+              (status = 409, description = "A robot has no connected worker with the grasp_trial capability", body = Problem, content_type = "application/problem+json"),
               (status = 422, description = "Invalid request (problem+json naming the field)", body = Problem, content_type = "application/problem+json")))]
 async fn create_verification(
     State(state): State<AppState>,

@@ -1104,7 +1104,7 @@ pub async fn verification(State(state): State<AppState>, Path(id): Path<String>)
                 esc(&i.robot),
                 link(&format!("/ui/objects/{}", i.object_id), &i.object),
                 i.placement
-                    .map(|[x, y]| format!("({}, {})", num(x, 3), num(y, 3)))
+                    .map(|p| format!("({}, {})", num(p.x, 3), num(p.y, 3)))
                     .unwrap_or_else(|| "as stored".into()),
                 v.tasks
                     .get(i.task)

@@ -33,21 +33,27 @@ pub const MAX_PLANS: usize = 200;
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 #[schema(example = json!({"robots": ["wam_t42", "pa10_t42"], "objects": ["ball", "bottle"],
-                          "placements": [[0.5, 0.0], [0.55, 0.15]]}))]
+                          "placements": [{"x": 0.5, "y": 0.0}, {"x": 0.55, "y": 0.15}]}))]
 pub struct VerificationIn {
-    /// Robot systems, 1 to 8 distinct ids; each needs a connected worker with the
-    /// `grasp_trial` capability when the request is made.
+    /// Robot systems, 1 to 8 ids (one listed twice counts once); each needs a connected worker
+    /// with the `grasp_trial` capability when the request is made (409 otherwise).
+    #[schema(min_items = 1, max_items = 8)]
     pub robots: Vec<String>,
-    /// Objects, 1 to 16 distinct: stored ids or seeded names, each with a `mass` and a
-    /// `friction`.
+    /// Objects, 1 to 16 (one listed twice counts once): stored ids or seeded names, each with
+    /// a `mass` and a `friction`.
+    #[schema(min_items = 1, max_items = 16)]
     pub objects: Vec<String>,
-    /// Where to put each object: `[x, y]` of its centroid in the robot base frame, m (its
+    /// Where to put each object: its centroid's `x`, `y` in the robot base frame, m (its
     /// height, orientation and support kept), at most 8. Default: where each object is stored.
+    /// A placement out of reach makes infeasible plans, not a refused request.
     #[serde(default)]
-    pub placements: Vec<[f64; 2]>,
-    /// Task sets, at most 8, each the `task_directions` of a plan. Default: one set, the force
-    /// along +z maximised (lift the object).
+    #[schema(max_items = 8)]
+    pub placements: Vec<Placement>,
+    /// Task sets, at most 8, each the `task_directions` of a plan (an empty set: a grasp with
+    /// no task, as a plan without `task_directions`). Default: one set, the force along +z
+    /// maximised (lift the object).
     #[serde(default)]
+    #[schema(max_items = 8)]
     pub tasks: Vec<Vec<TaskDirectionIn>>,
     /// Start of every motion, as a plan's `start` (default `"zero"`).
     pub start: Option<StartIn>,
@@ -55,6 +61,14 @@ pub struct VerificationIn {
     pub mode: Option<RequestedMode>,
     /// The grasp trial (default 0.1 m lift, 2 s hold, 2 shakes).
     pub trial: Option<TrialSpec>,
+}
+
+/// Where an object's centroid goes on its support (robot base frame, m).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Placement {
+    pub x: f64,
+    pub y: f64,
 }
 
 /// One combination and the plan that answered it.
@@ -65,7 +79,7 @@ pub struct VerificationItem {
     pub object: String,
     pub object_id: String,
     /// The placement used (absent: the object where it is stored).
-    pub placement: Option<[f64; 2]>,
+    pub placement: Option<Placement>,
     /// Index into the request's task sets.
     pub task: usize,
     /// The plan (absent when the plan request itself was refused: `error`).
@@ -130,9 +144,9 @@ fn lift_task() -> Vec<TaskDirectionIn> {
 }
 
 /// A plan's object: the stored one, moved to `placement`.
-fn placed(spec: &ObjectSpec, placement: Option<[f64; 2]>) -> ObjectIn {
+fn placed(spec: &ObjectSpec, placement: Option<Placement>) -> ObjectIn {
     let mut position = spec.position;
-    if let Some([x, y]) = placement {
+    if let Some(Placement { x, y }) = placement {
         position[0] = x;
         position[1] = y;
     }
@@ -166,36 +180,12 @@ pub async fn submit(ctx: &Context, body: &VerificationIn) -> Result<JobRecord, E
     if !errors.is_empty() {
         return Err(Error::Invalid(errors));
     }
-    for (list, path) in [(&body.robots, "$.robots"), (&body.objects, "$.objects")] {
-        for (i, a) in list.iter().enumerate() {
-            if list[..i].contains(a) {
-                return Err(Error::invalid(
-                    format!("{path}[{i}]"),
-                    format!("'{a}' is listed twice"),
-                ));
-            }
-        }
-    }
-    for (i, p) in body.placements.iter().enumerate() {
-        if p.iter().any(|v| !v.is_finite() || v.abs() > 5.0) {
-            return Err(Error::invalid(
-                format!("$.placements[{i}]"),
-                "must be finite and within ±5 m of the robot base",
-            ));
-        }
-    }
     let tasks = if body.tasks.is_empty() {
         vec![lift_task()]
     } else {
         body.tasks.clone()
     };
     for (i, t) in tasks.iter().enumerate() {
-        if t.is_empty() {
-            return Err(Error::invalid(
-                format!("$.tasks[{i}]"),
-                "a task set needs at least one direction",
-            ));
-        }
         super::grasps::check_task_directions(&format!("$.tasks[{i}]"), t)?;
     }
     if let Some(t) = &body.trial
@@ -203,26 +193,35 @@ pub async fn submit(ctx: &Context, body: &VerificationIn) -> Result<JobRecord, E
     {
         return Err(Error::invalid(format!("$.trial.{field}"), why));
     }
+    // (the paths name the request's own positions; a repeat is skipped)
+    let once = |list: &[String]| -> Vec<(usize, String)> {
+        let mut seen = Vec::new();
+        for (i, a) in list.iter().enumerate() {
+            if !seen.iter().any(|(_, b)| b == a) {
+                seen.push((i, a.clone()));
+            }
+        }
+        seen
+    };
+    let robots = once(&body.robots);
     let workers = ctx.bridges.workers();
-    for (i, robot) in body.robots.iter().enumerate() {
+    for (i, robot) in &robots {
         let path = format!("$.robots[{i}]");
         super::robots::robot_field(ctx, robot, &path).await?;
         if !workers
             .iter()
             .any(|w| w.robot == *robot && w.capabilities.contains(&Capability::GraspTrial))
         {
-            return Err(Error::invalid(
-                path,
-                format!(
-                    "no worker with the grasp_trial capability is connected for robot \
-                     '{robot}': start a physics worker (workers/mujoco/run-worker --robot \
-                     {robot} --url … --token …) and ask again"
-                ),
-            ));
+            // (the request is sound; the service's state is not ready for it)
+            return Err(Error::Conflict(format!(
+                "{path}: no worker with the grasp_trial capability is connected for robot \
+                 '{robot}': start a physics worker (workers/mujoco/run-worker --robot {robot} \
+                 --url … --token …) and ask again"
+            )));
         }
     }
     let mut objects = Vec::with_capacity(body.objects.len());
-    for (i, id) in body.objects.iter().enumerate() {
+    for (i, id) in &once(&body.objects) {
         let path = format!("$.objects[{i}]");
         let Some((oid, object)) = super::grasps::stored_object(ctx, id).await? else {
             return Err(Error::invalid(
@@ -247,12 +246,12 @@ pub async fn submit(ctx: &Context, body: &VerificationIn) -> Result<JobRecord, E
         }
         objects.push((oid, spec));
     }
-    let placements: Vec<Option<[f64; 2]>> = if body.placements.is_empty() {
+    let placements: Vec<Option<Placement>> = if body.placements.is_empty() {
         vec![None]
     } else {
         body.placements.iter().copied().map(Some).collect()
     };
-    let total = body.robots.len() * objects.len() * placements.len() * tasks.len();
+    let total = robots.len() * objects.len() * placements.len() * tasks.len();
     if total > MAX_PLANS {
         return Err(Error::invalid(
             "$",
@@ -264,7 +263,7 @@ pub async fn submit(ctx: &Context, body: &VerificationIn) -> Result<JobRecord, E
     }
     // Every combination, grouped by robot (each robot's run one after another).
     let mut plans: Vec<Vec<(VerificationItem, PlanIn)>> = Vec::new();
-    for robot in &body.robots {
+    for (_, robot) in &robots {
         let mut mine = Vec::new();
         for (oid, spec) in &objects {
             for &placement in &placements {

@@ -179,7 +179,7 @@ def test_a_batch_verification_runs_on_the_physics_worker_and_tabulates_its_verdi
     worker's start, each verified on this worker; the table counts the worker's verdicts."""
     svc = seeded_service
     status, job = svc.post("/v1/verifications", {
-        "robots": ["wam_t42"], "objects": ["ball"], "placements": [[0.5, 0.0], [0.45, -0.2]],
+        "robots": ["wam_t42"], "objects": ["ball"], "placements": [{"x": 0.5, "y": 0.0}, {"x": 0.45, "y": -0.2}],
         "start": start(svc, "wam_t42"), "trial": {"hold_s": 0.5, "shakes": 1}})
     assert status == 202, job
     deadline = time.monotonic() + 300
