@@ -7,14 +7,48 @@ use axum::response::Response;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use serde::Deserialize;
+use utoipa::IntoParams;
+
+use super::page::{Listed, Listing, Page};
 use super::{ApiError, AppState, Json, Path, Problem};
 use crate::jobs::JobRecord;
 use crate::service::verifications as service;
-pub use crate::service::verifications::{VerificationIn, VerificationReport};
+pub use crate::service::verifications::{VerificationIn, VerificationReport, VerificationSummary};
+
+impl Listed for VerificationSummary {
+    const PAGE: &'static str = "VerificationList";
+}
+
+pub type VerificationList = Page<VerificationSummary>;
+
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct VerificationQuery {
+    /// Page size, 1 to 500 (default 50).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
+    pub limit: Option<u32>,
+    /// Verifications to skip (default 0).
+    #[allow(dead_code)] // documents the parameter; `page::Listing` reads it
+    pub offset: Option<u32>,
+}
+
+/// List verifications, newest first (what each asked; `GET /v1/verifications/{id}` has the
+/// verdicts).
+#[utoipa::path(get, path = "/v1/verifications", tag = "plans", params(VerificationQuery),
+    responses((status = 200, description = "OK", body = VerificationList),
+              (status = 400, description = "Bad query parameters (problem+json naming the parameter)", body = Problem, content_type = "application/problem+json")))]
+async fn list_verifications(
+    State(state): State<AppState>,
+    Listing(_query, page): Listing<VerificationQuery>,
+) -> Result<Json<VerificationList>, ApiError> {
+    let (items, total) = service::list(&state, page.limit, page.offset).await?;
+    Ok(Json(page.of(items, Some(total))))
+}
 
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
-        .routes(routes!(create_verification))
+        .routes(routes!(create_verification, list_verifications))
         .routes(routes!(get_verification))
 }
 

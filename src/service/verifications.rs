@@ -401,6 +401,53 @@ async fn wait(ctx: &Context, job: &JobContext, id: &str) {
     }
 }
 
+/// A verification in a listing: what was asked, without the verdicts.
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct VerificationSummary {
+    pub id: String,
+    pub job_id: String,
+    pub robots: Vec<String>,
+    pub objects: Vec<String>,
+    /// Combinations planned.
+    pub plans: usize,
+    pub created_at: String,
+}
+
+/// Verifications, newest first, with how many there are.
+pub async fn list(
+    ctx: &Context,
+    limit: u32,
+    offset: u32,
+) -> Result<(Vec<VerificationSummary>, i64), Error> {
+    let rows = sqlx::query(
+        "SELECT id, job_id, request, items, created_at FROM verifications \
+         ORDER BY created_at DESC, id LIMIT ? OFFSET ?",
+    )
+    .bind(i64::from(limit))
+    .bind(i64::from(offset))
+    .fetch_all(&ctx.db)
+    .await?;
+    let total: i64 = sqlx::query_scalar("SELECT COUNT(*) FROM verifications")
+        .fetch_one(&ctx.db)
+        .await?;
+    let mut out = Vec::with_capacity(rows.len());
+    for row in rows {
+        let request: VerificationIn =
+            serde_json::from_str(row.get::<&str, _>("request")).map_err(Error::internal)?;
+        let items: Vec<VerificationItem> =
+            serde_json::from_str(row.get::<&str, _>("items")).map_err(Error::internal)?;
+        out.push(VerificationSummary {
+            id: row.get("id"),
+            job_id: row.get("job_id"),
+            robots: request.robots,
+            objects: request.objects,
+            plans: items.len(),
+            created_at: row.get("created_at"),
+        });
+    }
+    Ok((out, total))
+}
+
 /// Verification `id` with every combination's verdict as it stands.
 pub async fn get(ctx: &Context, id: &str) -> Result<VerificationReport, Error> {
     let row =

@@ -2312,6 +2312,11 @@ async fn a_verification_plans_every_combination_on_the_physics_worker_and_tabula
     );
     assert_eq!(report["total"]["held"], feasible[0]);
     assert_eq!(report["total"]["unverified"], 0);
+    // listed, newest first, with what was asked
+    let list = app.get("/v1/verifications").await;
+    assert_eq!(list["total"], 1, "{list}");
+    assert_eq!(list["items"][0]["id"], report["id"]);
+    assert_eq!(list["items"][0]["plans"], 4);
     // the dashboard shows it where the job's page links its result
     let href = format!("/ui/verifications/{}", report["id"].as_str().unwrap());
     let job_page = app
