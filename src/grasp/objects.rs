@@ -61,6 +61,23 @@ pub(crate) fn physical(field: &str, v: Option<f64>, max: f64) -> Result<(), Gras
     }
 }
 
+impl ObjectSpec {
+    /// The first property a physics check needs that this object lacks, with what it is:
+    /// `("mass", …)` or `("friction", …)`; `None` when it has both.
+    pub fn missing_physics(&self) -> Option<(&'static str, &'static str)> {
+        if self.mass.is_none() {
+            Some(("mass", "its mass in kg"))
+        } else if self.friction.is_none() {
+            Some((
+                "friction",
+                "its Coulomb friction coefficient against the hand",
+            ))
+        } else {
+            None
+        }
+    }
+}
+
 /// A validated object ready for distance queries.
 #[derive(Clone)]
 pub struct Object {

@@ -532,17 +532,28 @@ pub fn check_task_directions(path: &str, tasks: &[TaskDirectionIn]) -> Result<()
         })
 }
 
-/// A stored object by id, or a seeded one by name, validated; `None` when there is none.
-pub async fn stored_object(ctx: &Context, id: &str) -> Result<Option<(String, Object)>, Error> {
+/// A stored object by id, or a seeded one by name, validated, with its id; a 422 at `path`
+/// (listing the seeded names) when there is none.
+pub async fn stored_object(ctx: &Context, path: &str, id: &str) -> Result<(String, Object), Error> {
     let row = match repo::get_object(&ctx.db, id).await? {
         Some(row) => row,
         None => match repo::get_seeded_object(&ctx.db, id).await? {
             Some(row) => row,
-            None => return Ok(None),
+            None => {
+                let names = repo::seeded_object_names(&ctx.db).await?;
+                return Err(Error::invalid(
+                    path,
+                    format!(
+                        "unknown object '{id}': give an id from GET /v1/objects or a seeded \
+                         object's name ({})",
+                        names.join(", ")
+                    ),
+                ));
+            }
         },
     };
     let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(Error::internal)?;
-    Ok(Some((row.id, Object::new(spec).map_err(Error::internal)?)))
+    Ok((row.id, Object::new(spec).map_err(Error::internal)?))
 }
 
 /// The object a grasp request names (`object_id`) or gives inline, validated.
@@ -560,27 +571,8 @@ async fn resolve_object(
 ) -> Result<(Option<String>, Object), Error> {
     match (id, inline) {
         (Some(id), None) => {
-            // an id, or a seeded object's name
-            let row = match repo::get_object(&ctx.db, id).await? {
-                Some(row) => row,
-                None => match repo::get_seeded_object(&ctx.db, id).await? {
-                    Some(row) => row,
-                    None => {
-                        let names = repo::seeded_object_names(&ctx.db).await?;
-                        return Err(Error::invalid(
-                            format!("{prefix}object_id"),
-                            format!(
-                                "unknown object '{id}': give an id from GET /v1/objects or a \
-                                 seeded object's name ({})",
-                                names.join(", ")
-                            ),
-                        ));
-                    }
-                },
-            };
-            let spec: ObjectSpec = serde_json::from_str(&row.spec).map_err(Error::internal)?;
-            let obj = Object::new(spec).map_err(Error::internal)?;
-            Ok((Some(row.id), obj))
+            let (id, obj) = stored_object(ctx, &format!("{prefix}object_id"), id).await?;
+            Ok((Some(id), obj))
         }
         (None, Some(o)) => Ok((None, parse_object(&format!("{prefix}object"), o)?)),
         _ => Err(Error::invalid(

@@ -522,18 +522,7 @@ async fn check_verify(ctx: &Context, body: &PlanIn) -> Result<(), Error> {
         ));
     }
     let object = super::grasps::request_object(ctx, &body.grasp).await?;
-    let spec = object.spec();
-    for (field, value, meaning) in [
-        ("mass", spec.mass, "its mass in kg"),
-        (
-            "friction",
-            spec.friction,
-            "its Coulomb friction coefficient against the hand",
-        ),
-    ] {
-        if value.is_some() {
-            continue;
-        }
+    if let Some((field, meaning)) = object.spec().missing_physics() {
         return Err(match &body.grasp.object_id {
             Some(id) => Error::invalid(
                 "$.object_id",

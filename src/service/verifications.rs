@@ -223,28 +223,17 @@ pub async fn submit(ctx: &Context, body: &VerificationIn) -> Result<JobRecord, E
     let mut objects = Vec::with_capacity(body.objects.len());
     for (i, id) in &once(&body.objects) {
         let path = format!("$.objects[{i}]");
-        let Some((oid, object)) = super::grasps::stored_object(ctx, id).await? else {
-            return Err(Error::invalid(
-                path,
-                format!("unknown object '{id}': give an id from GET /v1/objects or a seeded name"),
-            ));
-        };
-        let spec = object.spec().clone();
-        if spec.mass.is_none() || spec.friction.is_none() {
+        let (oid, object) = super::grasps::stored_object(ctx, &path, id).await?;
+        if let Some((field, meaning)) = object.spec().missing_physics() {
             return Err(Error::invalid(
                 path,
                 format!(
-                    "object '{id}' has no {}: a physics check needs its mass and its friction \
-                     coefficient; store it again with them",
-                    if spec.mass.is_none() {
-                        "mass"
-                    } else {
-                        "friction"
-                    }
+                    "object '{id}' has no {field}: a physics check needs {meaning}; store it \
+                     again with \"{field}\" (POST /v1/objects)"
                 ),
             ));
         }
-        objects.push((oid, spec));
+        objects.push((oid, object.spec().clone()));
     }
     let placements: Vec<Option<Placement>> = if body.placements.is_empty() {
         vec![None]

@@ -951,12 +951,7 @@ async fn hello_is_checked_joint_names_version_robot_and_name() {
 #[tokio::test]
 async fn a_physics_workers_grasp_trial_is_kept_with_the_execution() {
     let app = spawn(|_| {}).await;
-    let mut ws = raw_connect(&app.ws, Some(TOKEN)).await.unwrap();
-    send(&mut ws, hello("physics", names(), PROTOCOL_VERSION)).await;
-    assert!(matches!(
-        next_msg(&mut ws).await,
-        Some(ServiceMessage::Welcome(_))
-    ));
+    let mut ws = connected(&app, "physics", json!(["open_loop", "closed_loop"])).await;
     let trial = json!({"held": true, "slipped": false, "object_lift_m": 0.1003, "slip_m": 0.0021,
                        "contact_force_total_mean_n": 27.4, "contacts_after_close": ["t42_left_distal"],
                        "grip": 0.25, "grip_raised_in": "shake1", "held_after": {"lift": true}});
@@ -971,13 +966,7 @@ async fn a_physics_workers_grasp_trial_is_kept_with_the_execution() {
         (unreadable, false, &moved, &zero),
     ] {
         let id = app.execute(&inline(from, to, 1.5)).await;
-        let ex = loop {
-            match next_msg(&mut ws).await {
-                Some(ServiceMessage::Execute(e)) => break e,
-                Some(_) => continue,
-                None => panic!("the service closed the connection"),
-            }
-        };
+        let ex = next_execute(&mut ws).await;
         assert_eq!(ex.execution_id, id);
         send(
             &mut ws,
@@ -1951,6 +1940,17 @@ async fn connected(app: &BridgeApp, name: &str, caps: Value) -> Raw {
     ws
 }
 
+/// The next `execute` the service sends a raw worker (other messages skipped).
+async fn next_execute(ws: &mut Raw) -> reachgrasp::bridge::protocol::Execute {
+    loop {
+        match next_msg(ws).await {
+            Some(ServiceMessage::Execute(e)) => return e,
+            Some(_) => continue,
+            None => panic!("the service closed the connection"),
+        }
+    }
+}
+
 /// A problem's status and `errors[0].path` (the JSON path a 422 names).
 async fn problem_field(res: reqwest::Response) -> (u16, String) {
     let status = res.status().as_u16();
@@ -2092,13 +2092,7 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
         json!(["open_loop", "closed_loop", "grasp_trial"]),
     )
     .await;
-    let ex = loop {
-        match next_msg(&mut physics).await {
-            Some(ServiceMessage::Execute(e)) => break e,
-            Some(_) => continue,
-            None => panic!("the service closed the connection"),
-        }
-    };
+    let ex = next_execute(&mut physics).await;
     assert_eq!(ex.execution_id, id);
     // the scene is the grasp's object with its mass and friction, on its table
     let scene = ex.scene.expect("a scene");

@@ -294,21 +294,8 @@ def test_a_registered_robot_is_built_with_its_uploaded_meshes(service):
     assert any(built.model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH for g in range(built.model.ngeom))
     # (MuJoCo reads binary STL only; the uploaded ASCII tetrahedron arrives whole: 4 vertices)
     assert built.model.nmesh == 1 and built.model.mesh_vertnum[0] == 4
-    name = f"pytest-mesh-{os.getpid()}"
-    p = subprocess.Popen(
-        [sys.executable, "-m", "reachgrasp_mujoco", "--robot", robot["id"], "--url", service.ws, "--token", TOKEN,
-         "--name", name], cwd=WORKER, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and p.poll() is None:
-            if any(b["name"] == name and b["connected"] for b in service.get("/v1/bridges")["items"]):
-                break
-            time.sleep(0.2)
-        else:
-            raise AssertionError(f"the worker did not connect: {p.poll()} {p.stdout.read() if p.poll() is not None else ''}")
-    finally:
-        p.terminate()
-        p.wait(10)
+    # (WorkerProc waits until the service lists it connected, or raises with the worker's log)
+    WorkerProc(service, robot["id"], tag="-mesh").close()
 
 
 def test_a_cancelled_execution_is_aborted_on_the_worker(seeded_service):
