@@ -18,7 +18,7 @@
 //! not within their iteration budget (an exact scaling: all derivatives scale as powers of it).
 //!
 //! When the limits refuse the humanlike clock at the wanted duration, its shape is lost anyway;
-//! [`fit_clock_balanced`] then lets the dilation also fall below 1 where the limits are slack,
+//! [`LimitGrid::fit_balanced`] then lets the dilation also fall below 1 where the limits are slack,
 //! so that they bind nearly all along the path, and the trajectory takes the shorter of the two
 //! (never shorter than requested). On a straight path this comes within 15 % of the jerk-bounded
 //! optimum; over the plan survey it shortened durations by 5 % (median duration over the
@@ -352,6 +352,78 @@ impl Clock {
     }
 }
 
+/// The dilation's basis functions, as the channels of splines with identity control values: at
+/// any `τ` the dilation is a weighted sum of at most four control values, with weights that do
+/// not depend on them.
+struct WarpBasis {
+    value: BSpline,
+    d1: BSpline,
+    d2: BSpline,
+}
+
+impl WarpBasis {
+    fn new() -> Self {
+        let count = WARP_CONTROL_POINTS;
+        let mut eye = vec![0.0; count * count];
+        for i in 0..count {
+            eye[i * count + i] = 1.0;
+        }
+        let value = BSpline::clamped_uniform(3, eye, count);
+        let d1 = value.derivative();
+        let d2 = d1.derivative();
+        WarpBasis { value, d1, d2 }
+    }
+}
+
+/// What [`Clock::progress`] needs at one `τ` that no control value changes: the four control
+/// values acting there, the basis functions' values and first two derivatives that weight them,
+/// and the minimum-jerk progress's derivatives.
+struct ClockPoint {
+    first: usize,
+    weights: [[f64; 4]; 3],
+    m: [f64; 3],
+}
+
+impl ClockPoint {
+    fn new(basis: &WarpBasis, tau: f64) -> Self {
+        let count = WARP_CONTROL_POINTS;
+        let mut row = vec![0.0; count];
+        basis.value.eval(tau, &mut row);
+        // (the derivatives' non-zero weights lie among the same four functions)
+        let first = row
+            .iter()
+            .position(|&w| w != 0.0)
+            .unwrap_or(0)
+            .min(count - 4);
+        let mut weights = [[0.0; 4]; 3];
+        for (w, spline) in weights.iter_mut().zip([&basis.value, &basis.d1, &basis.d2]) {
+            spline.eval(tau, &mut row);
+            w.copy_from_slice(&row[first..first + 4]);
+        }
+        let (_, m1, m2) = MinimumJerk::eval(tau);
+        let m3 = 60.0 * (1.0 - 6.0 * tau + 6.0 * tau * tau);
+        ClockPoint {
+            first,
+            weights,
+            m: [m1, m2, m3],
+        }
+    }
+
+    /// `(ẋ, ẍ, x⃛)` under `clock` (as [`Clock::progress`]).
+    fn rates(&self, clock: &Clock) -> (f64, f64, f64) {
+        let c = &clock.w.ctrl[self.first..self.first + 4];
+        let dot = |w: &[f64; 4]| w[0] * c[0] + w[1] * c[1] + w[2] * c[2] + w[3] * c[3];
+        let [w, dw, ddw] = self.weights.each_ref().map(dot);
+        let (t1, t2, t3) = tau_derivatives(clock.base, w, dw, ddw);
+        let [m1, m2, m3] = self.m;
+        (
+            m1 * t1,
+            m2 * t1 * t1 + m1 * t2,
+            m3 * t1 * t1 * t1 + 3.0 * m2 * t1 * t2 + m1 * t3,
+        )
+    }
+}
+
 /// Joint values and time derivatives at one instant; the largest limit uses.
 pub struct Sample<'a> {
     pub p: &'a mut [f64],
@@ -378,94 +450,131 @@ pub fn sample(path: &Path, clock: &Clock, tau: f64, s: Sample<'_>, scratch: &mut
     }
 }
 
-/// Fit the dilation so that the timed path keeps every limit use at or below [`TARGET_USE`] on a
-/// fine grid. Deterministic: a fixed grid and a fixed number of rounds.
-pub fn fit_clock(path: &Path, limits: &RateLimits<'_>, base: f64) -> Clock {
-    fit(path, limits, base, false)
+/// A path's limit use on the fitting grid, prepared once for every clock fitted to it: at each
+/// grid point the clock-independent parts (the path's derivatives at `x = m(τ)` divided by the
+/// limits, the dilation's blending weights, the minimum-jerk progress).
+///
+/// (Fitting evaluates 1,201 points in each of up to 40 rounds, up to three times a plan; three
+/// divisions per joint and point there took a sixth of a plan's CPU time.)
+pub struct LimitGrid {
+    n: usize,
+    points: Vec<ClockPoint>,
+    /// Per grid point: the largest `|q'_i| / v̄_i`, then per joint `q'/ā`, `q''/ā`, `q'/j̄`,
+    /// `3q''/j̄`, `q'''/j̄` (`1 + 5n` values).
+    scaled: Vec<f64>,
 }
 
-/// As [`fit_clock`], but the dilation also falls below 1 where the limits are slack: every
-/// control value moves towards the use that brings its stretch of the path to the target, so
-/// the limits bind nearly everywhere, as in a time-optimal profile, while the clock stays a
-/// smooth (C², jerk-bounded) warp of the minimum-jerk law. For when the limits refuse the
-/// humanlike clock at the wanted duration: then no clock keeps its shape anyway, and slowing
-/// only where they bind leaves time unused where they do not.
-pub fn fit_clock_balanced(path: &Path, limits: &RateLimits<'_>, base: f64) -> Clock {
-    fit(path, limits, base, true)
-}
-
-fn fit(path: &Path, limits: &RateLimits<'_>, base: f64, balanced: bool) -> Clock {
-    let n = path.n;
-    // The path derivatives at the grid's x = m(τ) do not change with the dilation: once.
-    let taus: Vec<f64> = (0..=GRID).map(|g| g as f64 / GRID as f64).collect();
-    let mut derivs = vec![0.0; (GRID + 1) * 3 * n];
-    for (g, &tau) in taus.iter().enumerate() {
-        let x = MinimumJerk::eval(tau).0;
-        let row = &mut derivs[g * 3 * n..(g + 1) * 3 * n];
-        let (d1, rest) = row.split_at_mut(n);
-        let (d2, d3) = rest.split_at_mut(n);
-        path.d1.eval(x, d1);
-        path.d2.eval(x, d2);
-        path.d3.eval(x, d3);
-    }
-    let mut use_at = vec![0.0; GRID + 1];
-    let mut ctrl = vec![1.0; WARP_CONTROL_POINTS];
-    let spans = WARP_CONTROL_POINTS - 3;
-    let mut clock = Clock::build(base, ctrl.clone());
-    let measure = |clock: &Clock, use_at: &mut [f64]| -> f64 {
-        let mut worst: f64 = 0.0;
-        for (g, &tau) in taus.iter().enumerate() {
-            let (_, xd, xdd, xddd) = clock.progress(tau);
-            let row = &derivs[g * 3 * n..(g + 1) * 3 * n];
-            // (the roots are monotone: one square and one cube root of the largest ratios per
-            // grid point, not one per joint, which took 8 % of a plan's time)
-            let (mut v_max, mut a_max, mut j_max): (f64, f64, f64) = (0.0, 0.0, 0.0);
+impl LimitGrid {
+    pub fn new(path: &Path, limits: &RateLimits<'_>) -> Self {
+        let n = path.n;
+        let basis = WarpBasis::new();
+        let width = 1 + 5 * n;
+        let mut points = Vec::with_capacity(GRID + 1);
+        let mut scaled = vec![0.0; (GRID + 1) * width];
+        let (mut d1, mut d2, mut d3) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        for g in 0..=GRID {
+            let tau = g as f64 / GRID as f64;
+            points.push(ClockPoint::new(&basis, tau));
+            let x = MinimumJerk::eval(tau).0;
+            path.d1.eval(x, &mut d1);
+            path.d2.eval(x, &mut d2);
+            path.d3.eval(x, &mut d3);
+            let row = &mut scaled[g * width..(g + 1) * width];
+            row[0] = (0..n).fold(0.0f64, |m, i| m.max(d1[i].abs() / limits.velocity[i]));
             for i in 0..n {
-                let (d1, d2, d3) = (row[i], row[n + i], row[2 * n + i]);
-                let v = (d1 * xd).abs() / limits.velocity[i];
-                let a = (d2 * xd * xd + d1 * xdd).abs() / limits.acceleration[i];
-                let j =
-                    (d3 * xd * xd * xd + 3.0 * d2 * xd * xdd + d1 * xddd).abs() / limits.jerk[i];
-                v_max = v_max.max(v);
-                a_max = a_max.max(a);
-                j_max = j_max.max(j);
+                let (a, j) = (limits.acceleration[i], limits.jerk[i]);
+                row[1 + 5 * i..1 + 5 * (i + 1)].copy_from_slice(&[
+                    d1[i] / a,
+                    d2[i] / a,
+                    d1[i] / j,
+                    3.0 * d2[i] / j,
+                    d3[i] / j,
+                ]);
             }
-            let u = v_max.max(a_max.sqrt()).max(j_max.cbrt());
-            use_at[g] = u / TARGET_USE;
-            worst = worst.max(use_at[g]);
+        }
+        LimitGrid { n, points, scaled }
+    }
+
+    /// Fits the dilation so that the timed path keeps every limit use at or below
+    /// [`TARGET_USE`] on a fine grid. Deterministic: a fixed grid and a fixed number of rounds.
+    pub fn fit(&self, base: f64) -> Clock {
+        self.fit_with(base, false)
+    }
+
+    /// As [`Self::fit`], but the dilation also falls below 1 where the limits are slack: every
+    /// control value moves towards the use that brings its stretch of the path to the target,
+    /// so the limits bind nearly everywhere, as in a time-optimal profile, while the clock stays
+    /// a smooth (C², jerk-bounded) warp of the minimum-jerk law. For when the limits refuse the
+    /// humanlike clock at the wanted duration: then no clock keeps its shape anyway, and slowing
+    /// only where they bind leaves time unused where they do not.
+    pub fn fit_balanced(&self, base: f64) -> Clock {
+        self.fit_with(base, true)
+    }
+
+    /// The largest use over the grid under `clock`; each point's use over [`TARGET_USE`] into
+    /// `use_at`.
+    fn measure(&self, clock: &Clock, use_at: &mut [f64]) -> f64 {
+        let width = 1 + 5 * self.n;
+        let mut worst: f64 = 0.0;
+        for ((at, row), out) in self
+            .points
+            .iter()
+            .zip(self.scaled.chunks_exact(width))
+            .zip(use_at.iter_mut())
+        {
+            let (xd, xdd, xddd) = at.rates(clock);
+            let (xd2, xd3, xdxdd) = (xd * xd, xd * xd * xd, xd * xdd);
+            // (the roots are monotone: one square and one cube root of the largest ratios per
+            // grid point, not one per joint)
+            let (mut a_max, mut j_max): (f64, f64) = (0.0, 0.0);
+            for c in row[1..].chunks_exact(5) {
+                a_max = a_max.max((c[1] * xd2 + c[0] * xdd).abs());
+                j_max = j_max.max((c[4] * xd3 + c[3] * xdxdd + c[2] * xddd).abs());
+            }
+            let u = (row[0] * xd.abs()).max(a_max.sqrt()).max(j_max.cbrt());
+            *out = u / TARGET_USE;
+            worst = worst.max(*out);
         }
         worst
-    };
-    let mut worst = measure(&clock, &mut use_at);
-    let mut rounds = 0;
-    while (worst > 1.0 || balanced) && rounds < WARP_ROUNDS {
-        rounds += 1;
-        for (i, c) in ctrl.iter_mut().enumerate() {
-            // control value i acts on τ ∈ [knot_i, knot_{i+4}] of the clamped uniform knots
-            let a = (i.saturating_sub(3)) as f64 / spans as f64;
-            let b = ((i + 1).min(spans)) as f64 / spans as f64;
-            let (ga, gb) = (
-                (a * GRID as f64).floor() as usize,
-                ((b * GRID as f64).ceil() as usize).min(GRID),
-            );
-            // (the most used grid point of the stretch decides: a stretch is hurried only as
-            // much as its busiest point allows, and by at most half per round)
-            let floor: f64 = if balanced { 0.5 } else { 1.0 };
-            let f = use_at[ga..=gb].iter().fold(floor, |m, &u| m.max(u));
-            *c *= f;
+    }
+
+    fn fit_with(&self, base: f64, balanced: bool) -> Clock {
+        let mut use_at = vec![0.0; GRID + 1];
+        let mut ctrl = vec![1.0; WARP_CONTROL_POINTS];
+        let spans = WARP_CONTROL_POINTS - 3;
+        let mut clock = Clock::build(base, ctrl.clone());
+        let measure = |clock: &Clock, use_at: &mut [f64]| self.measure(clock, use_at);
+        let mut worst = measure(&clock, &mut use_at);
+        let mut rounds = 0;
+        while (worst > 1.0 || balanced) && rounds < WARP_ROUNDS {
+            rounds += 1;
+            for (i, c) in ctrl.iter_mut().enumerate() {
+                // control value i acts on τ ∈ [knot_i, knot_{i+4}] of the clamped uniform knots
+                let a = (i.saturating_sub(3)) as f64 / spans as f64;
+                let b = ((i + 1).min(spans)) as f64 / spans as f64;
+                let (ga, gb) = (
+                    (a * GRID as f64).floor() as usize,
+                    ((b * GRID as f64).ceil() as usize).min(GRID),
+                );
+                // (the most used grid point of the stretch decides: a stretch is hurried only as
+                // much as its busiest point allows, and by at most half per round)
+                let floor: f64 = if balanced { 0.5 } else { 1.0 };
+                let f = use_at[ga..=gb].iter().fold(floor, |m, &u| m.max(u));
+                *c *= f;
+            }
+            clock = Clock::build(base, ctrl.clone());
+            worst = measure(&clock, &mut use_at);
         }
-        clock = Clock::build(base, ctrl.clone());
-        worst = measure(&clock, &mut use_at);
+        let uniform = worst.max(1.0);
+        if uniform > 1.0 {
+            // slowing every instant by `uniform` divides velocity, acceleration and jerk by
+            // `uniform`, its square and cube: the grid's use falls to at most 1
+            clock = Clock::build(base * uniform, ctrl);
+        }
+        clock.rounds = rounds;
+        clock.uniform = uniform;
+        clock
     }
-    let uniform = worst.max(1.0);
-    if uniform > 1.0 {
-        // slowing every instant by `uniform` divides velocity, acceleration and jerk by
-        // `uniform`, its square and cube: the grid's use falls to at most 1
-        clock = Clock::build(base * uniform, ctrl);
-    }
-    clock.rounds = rounds;
-    clock.uniform = uniform;
-    clock
 }
 
 /// Time-optimal duration along `path` under velocity and acceleration limits only (the bound a
@@ -563,6 +672,29 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_grids_prepared_basis_gives_the_clocks_de_boor_rates() {
+        // a dilation far from uniform, and points on knots, between them and at both ends
+        let ctrl: Vec<f64> = (0..WARP_CONTROL_POINTS)
+            .map(|i| 1.0 + 0.8 * (i as f64 * 0.7).sin().abs() + 0.1 * i as f64)
+            .collect();
+        let clock = Clock::build(1.7, ctrl);
+        let basis = WarpBasis::new();
+        let spans = (WARP_CONTROL_POINTS - 3) as f64;
+        let mut taus: Vec<f64> = (0..=37).map(|k| k as f64 / spans).collect();
+        taus.extend([1e-9, 0.0123, 0.333, 0.5, 0.61803, 0.999, 1.0 - 1e-12]);
+        for tau in taus {
+            let (_, xd, xdd, xddd) = clock.progress(tau);
+            let (pd, pdd, pddd) = ClockPoint::new(&basis, tau).rates(&clock);
+            for (a, b) in [(xd, pd), (xdd, pdd), (xddd, pddd)] {
+                assert!(
+                    (a - b).abs() <= 1e-12 * (1.0 + a.abs()),
+                    "tau {tau}: {a} vs {b}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn spline_derivatives_and_integral_match_finite_differences() {
         let ctrl: Vec<f64> = (0..9)
             .flat_map(|i| [(i as f64 * 0.7).sin(), (i * i) as f64 * 0.05])
@@ -631,7 +763,7 @@ mod tests {
             jerk: &j,
         };
         // at T = 2 s: peak v 1.125, a 1.732, j 9: all limits hold, the clock stays humanlike
-        let clock = fit_clock(&path, &limits, 2.0);
+        let clock = LimitGrid::new(&path, &limits).fit(2.0);
         assert_eq!(clock.rounds, 0);
         assert!((clock.duration() - 2.0).abs() < 1e-12);
         // velocity, acceleration and jerk of the one joint at clock parameter τ
@@ -670,8 +802,8 @@ mod tests {
         // at T = 0.3 s every limit is exceeded: the clock slows until each use is below 1; the
         // balanced clock also hurries where they are slack, and comes nearer the bang-bang
         // optimum (which no jerk-bounded clock reaches)
-        let clock = fit_clock(&path, &limits, 0.3);
-        let balanced = fit_clock_balanced(&path, &limits, 0.3);
+        let grid = LimitGrid::new(&path, &limits);
+        let (clock, balanced) = (grid.fit(0.3), grid.fit_balanced(0.3));
         assert!(clock.duration() > exact);
         assert!(balanced.duration() > exact && balanced.duration() < clock.duration());
         // the jerk-bounded optimum (an S-curve reaching v̄ and ā) takes d/v̄ + v̄/ā + ā/j̄; the
