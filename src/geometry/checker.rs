@@ -425,6 +425,32 @@ impl CollisionChecker {
         }
     }
 
+    /// The gap of a pair's bounding capsules at the shape poses in `data` (the pair's must be
+    /// current): a second lower bound on its signed distance, tighter than the spheres' for
+    /// long links. (In the avoidance rounds of a plan, 25,000 self-collision pairs a plan passed
+    /// the sphere test and none was within the cutoff.)
+    fn capsule_bound(&self, data: &CheckData, pair: usize) -> f64 {
+        let p = &self.pairs[pair];
+        let shapes = self.robot.shapes();
+        let (cap, pose) = (&shapes[p.shape].solid.capsule, &data.poses[p.shape]);
+        match p.other {
+            Target::Object => {
+                let o = self
+                    .scene
+                    .object
+                    .as_ref()
+                    .expect("object pair without object");
+                cap.gap(pose, &o.solid.capsule, &o.pose)
+            }
+            Target::Support => cap.height(pose, &self.scene.support.expect("support pair").0),
+            Target::Obstacle(k) => {
+                let o = &self.scene.obstacles[k];
+                cap.gap(pose, &o.solid.capsule, &o.pose)
+            }
+            Target::Shape(j) => cap.gap(pose, &shapes[j].solid.capsule, &data.poses[j]),
+        }
+    }
+
     /// Exact signed distance of a pair at the last [`Self::update`] (the robot shape first).
     pub fn pair_distance(&self, data: &mut CheckData, pair: usize) -> SignedDistance {
         data.exact_queries += 1;
@@ -528,7 +554,7 @@ impl CollisionChecker {
     }
 
     /// Calls `f(pair, distance)` for every non-allowed pair closer than `cutoff` at `q` (exact
-    /// distances; pairs whose bounding spheres are `cutoff` or more apart are skipped).
+    /// distances; pairs whose bounding spheres or capsules are `cutoff` or more apart are skipped).
     pub fn for_each_within(
         &self,
         data: &mut CheckData,
@@ -566,6 +592,7 @@ impl CollisionChecker {
             if self.allowed[i]
                 || !categories.contains(&self.pairs[i].category)
                 || self.sphere_bound(data, i) >= cutoff
+                || self.capsule_bound(data, i) >= cutoff
             {
                 continue;
             }
@@ -579,7 +606,7 @@ impl CollisionChecker {
     /// [`Self::for_each_within`] over the listed pairs (from [`Self::pairs_in`]) at the FK
     /// placements already in `data` ([`CheckData::swap_kinematics`]: a caller that has just run
     /// forward kinematics at `q` lends them instead of running it again). The same exact
-    /// distances, the same pairs: a pair is skipped only when its bounding spheres are `cutoff`
+    /// distances, the same pairs: a pair is skipped only when its bounding spheres or capsules are `cutoff`
     /// or more apart (a lower bound on its signed distance), and only the shapes of the pairs
     /// that pass are posed. Afterwards `data`'s shape poses are current for those shapes only.
     pub fn for_each_within_posed(
@@ -602,6 +629,9 @@ impl CollisionChecker {
             data.poses[p.shape] = data.kin.frame(s.frame) * s.origin;
             if let Target::Shape(j) = p.other {
                 data.poses[j] = data.kin.frame(shapes[j].frame) * shapes[j].origin;
+            }
+            if self.capsule_bound(data, i) >= cutoff {
+                continue;
             }
             let d = self.pair_distance(data, i);
             if d.distance < cutoff {

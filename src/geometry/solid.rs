@@ -47,6 +47,8 @@ pub struct Solid {
     /// Bounding sphere in the shape frame.
     pub(crate) center: Point3<f64>,
     pub(crate) bound: f64,
+    /// A bounding capsule in the shape frame (the broad phase's second test).
+    pub(crate) capsule: BoundingCapsule,
 }
 
 impl std::fmt::Debug for Solid {
@@ -112,6 +114,7 @@ impl Solid {
             radius,
             center: *bs.center(),
             bound: bs.radius(),
+            capsule: BoundingCapsule::of(&shape),
             shape,
         }
     }
@@ -231,6 +234,118 @@ fn closest_segment_segment(
         }
     }
     (p1 + d1 * s, p2 + d2 * t)
+}
+
+/// A capsule containing a shape, in the shape's frame: a segment and a radius. The broad
+/// phase's second test after the bounding sphere: for a long link the sphere reaches half its
+/// length sideways, the capsule only its thickness.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct BoundingCapsule {
+    pub a: Point3<f64>,
+    pub b: Point3<f64>,
+    pub radius: f64,
+}
+
+impl BoundingCapsule {
+    /// The shape's own for balls, capsules and cylinders; otherwise around the shape's points (a
+    /// convex polyhedron's or a mesh's vertices, else the corners of its local AABB, which
+    /// contains it): the segment along the longest side of their box, the radius their largest
+    /// distance from its line. Every radius a nanometre larger: a bound whatever the rounding.
+    fn of(shape: &SharedShape) -> Self {
+        let mut c = Self::fitted(shape);
+        c.radius += 1e-9;
+        c
+    }
+
+    fn fitted(shape: &SharedShape) -> Self {
+        if let Some(b) = shape.as_ball() {
+            let o = Point3::origin();
+            return BoundingCapsule {
+                a: o,
+                b: o,
+                radius: b.radius,
+            };
+        }
+        if let Some(c) = shape.as_capsule() {
+            return BoundingCapsule {
+                a: c.segment.a,
+                b: c.segment.b,
+                radius: c.radius,
+            };
+        }
+        if let Some(c) = shape.as_cylinder() {
+            // parry's cylinders stand on their local y axis
+            let h = Vector3::y() * c.half_height;
+            return BoundingCapsule {
+                a: Point3::from(-h),
+                b: Point3::from(h),
+                radius: c.radius,
+            };
+        }
+        let points: Vec<Point3<f64>> = if let Some(p) = shape.as_convex_polyhedron() {
+            p.points().to_vec()
+        } else if let Some(m) = shape.as_trimesh() {
+            m.vertices().to_vec()
+        } else {
+            let aabb = shape.compute_local_aabb();
+            let (lo, hi) = (aabb.mins, aabb.maxs);
+            (0..8)
+                .map(|k| {
+                    Point3::new(
+                        if k & 1 == 0 { lo.x } else { hi.x },
+                        if k & 2 == 0 { lo.y } else { hi.y },
+                        if k & 4 == 0 { lo.z } else { hi.z },
+                    )
+                })
+                .collect()
+        };
+        Self::around(&points)
+    }
+
+    fn around(points: &[Point3<f64>]) -> Self {
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
+        for p in points {
+            lo = lo.inf(&p.coords);
+            hi = hi.sup(&p.coords);
+        }
+        let axis = (hi - lo).imax();
+        let center = Point3::from((lo + hi) / 2.0);
+        let (mut t_lo, mut t_hi, mut r2) = (0.0f64, 0.0f64, 0.0f64);
+        for p in points {
+            let v = p - center;
+            let t = v[axis];
+            t_lo = t_lo.min(t);
+            t_hi = t_hi.max(t);
+            r2 = r2.max(v.norm_squared() - t * t);
+        }
+        let mut e = Vector3::zeros();
+        e[axis] = 1.0;
+        BoundingCapsule {
+            a: center + e * t_lo,
+            b: center + e * t_hi,
+            radius: r2.max(0.0).sqrt(),
+        }
+    }
+
+    /// A lower bound on the signed distance between the shapes the two capsules contain, posed
+    /// at `pa` and `pb`.
+    pub fn gap(&self, pa: &Isometry3<f64>, other: &BoundingCapsule, pb: &Isometry3<f64>) -> f64 {
+        let (a0, a1) = (pa * self.a, pa * self.b);
+        let (b0, b1) = (pb * other.a, pb * other.b);
+        let (x, y) = closest_segment_segment(&a0, &a1, &b0, &b1);
+        (y - x).norm() - self.radius - other.radius
+    }
+
+    /// A lower bound on the height of the shape posed at `pose` above `plane`.
+    pub fn height(&self, pose: &Isometry3<f64>, plane: &HalfSpace) -> f64 {
+        plane
+            .height(&(pose * self.a))
+            .min(plane.height(&(pose * self.b)))
+            - self.radius
+    }
 }
 
 /// A core-to-core result before the sweep radii are applied.

@@ -789,3 +789,99 @@ fn a_path_through_a_box_is_moved_around_it_as_the_continuous_check_confirms() {
     assert_eq!((rep.rounds, rep.below_target), (0, 0), "{rep:?}");
     assert_eq!(ctrl, given);
 }
+
+/// The broad phase's bounding capsules: every support point of the shape lies inside its
+/// capsule, and their gap never exceeds the signed distance parry computes (its own distance
+/// and contact queries, not ours) over random poses, separated and interpenetrating; beside
+/// the middle of a long link the capsules see the gap the spheres cannot.
+#[test]
+fn bounding_capsules_contain_their_shapes_and_bound_parry_distances() {
+    use parry3d_f64::shape::{Cone, ConvexPolyhedron};
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+    let mut cloud: Vec<nalgebra::Point3<f64>> = Vec::new();
+    for _ in 0..40 {
+        cloud.push(nalgebra::Point3::new(
+            rng.random_range(-0.02..0.03),
+            rng.random_range(-0.01..0.012),
+            rng.random_range(-0.09..0.07),
+        ));
+    }
+    let shapes = [
+        SharedShape::new(Cylinder::new(0.15, 0.02)),
+        cuboid(0.01, 0.08, 0.02),
+        SharedShape::new(ConvexPolyhedron::from_convex_hull(&cloud).expect("a hull")),
+        SharedShape::new(Cone::new(0.05, 0.03)),
+        ball(0.04),
+        SharedShape::new(Capsule::new_z(0.06, 0.015)),
+    ];
+    let solids: Vec<Solid> = shapes.iter().map(|s| Solid::new(s.clone())).collect();
+    for (shape, solid) in shapes.iter().zip(&solids) {
+        let c = solid.capsule;
+        let sm = shape.as_support_map().expect("support-mapped");
+        for _ in 0..500 {
+            let d = Vector3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            let p = sm.local_support_point(&d);
+            let (a, b) = (c.a.coords, c.b.coords);
+            let far = if (b - a).norm() > 0.0 {
+                point_segment(p.coords, a, b)
+            } else {
+                (p.coords - a).norm()
+            };
+            assert!(
+                far <= c.radius,
+                "{:?}: support point {far} from the axis",
+                shape.shape_type()
+            );
+        }
+    }
+    let pose = |rng: &mut rand_chacha::ChaCha8Rng| {
+        let t = Translation3::new(
+            rng.random_range(-0.1..0.1),
+            rng.random_range(-0.1..0.1),
+            rng.random_range(-0.1..0.1),
+        );
+        let axis = Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(0.1..1.0),
+        );
+        Isometry3::from_parts(t, rot(axis, rng.random_range(-3.0..3.0)))
+    };
+    let (mut separated, mut touching) = (0, 0);
+    for _ in 0..3000 {
+        let (i, j) = (rng.random_range(0..6), rng.random_range(0..6));
+        let (pa, pb) = (pose(&mut rng), pose(&mut rng));
+        let (a, b) = (&shapes[i], &shapes[j]);
+        let dist = parry3d_f64::query::distance(&pa, a.as_ref(), &pb, b.as_ref()).unwrap();
+        let signed = if dist > 0.0 {
+            separated += 1;
+            dist
+        } else {
+            touching += 1;
+            parry3d_f64::query::contact(&pa, a.as_ref(), &pb, b.as_ref(), 0.0)
+                .unwrap()
+                .map_or(0.0, |c| c.dist)
+        };
+        let bound = solids[i].capsule.gap(&pa, &solids[j].capsule, &pb);
+        assert!(
+            bound <= signed + 1e-9,
+            "{i} vs {j}: bound {bound} above {signed}"
+        );
+    }
+    assert!(
+        separated > 500 && touching > 200,
+        "{separated} / {touching}"
+    );
+    // beside the middle of the long cylinder, 5 cm off its side: the spheres overlap
+    let (long, cube) = (&solids[0], Solid::new(cuboid(0.01, 0.01, 0.01)));
+    let (pa, pb) = (Isometry3::identity(), iso(0.02 + 0.05 + 0.01, 0.0, 0.0));
+    let spheres = (pb.translation.vector - pa.translation.vector).norm() - long.bound - cube.bound;
+    let capsules = long.capsule.gap(&pa, &cube.capsule, &pb);
+    assert!(spheres < 0.0, "{spheres}");
+    assert!(capsules > 0.03 && capsules <= 0.05, "{capsules}");
+}
