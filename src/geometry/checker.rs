@@ -188,6 +188,8 @@ pub struct CheckData {
     /// Per pair: broad-phase lower bound (posture queries) or carried lower bound (paths).
     pub(crate) bound: Vec<f64>,
     pub(crate) exact: Vec<bool>,
+    /// Path checks: per pair, its bounding capsules were measured at the current sample.
+    pub(crate) capsuled: Vec<bool>,
     /// Path checks: per shape the suffix sums of chain gains times joint rates.
     pub(crate) suffix: Vec<f64>,
     pub(crate) rates: Vec<f64>,
@@ -352,6 +354,7 @@ impl CollisionChecker {
             scratch: QueryScratch::default(),
             bound: vec![0.0; self.pairs.len()],
             exact: vec![false; self.pairs.len()],
+            capsuled: vec![false; self.pairs.len()],
             suffix: vec![0.0; *self.suffix_offset.last().unwrap_or(&0)],
             rates: vec![0.0; model.nq()],
             pair_rates: vec![0.0; self.pairs.len()],
@@ -429,7 +432,7 @@ impl CollisionChecker {
     /// current): a second lower bound on its signed distance, tighter than the spheres' for
     /// long links. (In the avoidance rounds of a plan, 25,000 self-collision pairs a plan passed
     /// the sphere test and none was within the cutoff.)
-    fn capsule_bound(&self, data: &CheckData, pair: usize) -> f64 {
+    pub(crate) fn capsule_bound(&self, data: &CheckData, pair: usize) -> f64 {
         let p = &self.pairs[pair];
         let shapes = self.robot.shapes();
         let (cap, pose) = (&shapes[p.shape].solid.capsule, &data.poses[p.shape]);

@@ -7,7 +7,7 @@
 //! below their common ancestor count), so the pair's signed distance falls by at most `L·Δ`.
 //! Each step is the largest `Δ` with `L_p·Δ ≤ d_p − m_c + tol` for every pair `p`, where `d_p`
 //! is a lower bound of the pair's distance at `s` (exact, or an earlier exact value minus the
-//! motion since, or the bounding-sphere gap), `m_c` the smallest exact distance found so far in
+//! motion since, or the bounding spheres' or capsules' gap), `m_c` the smallest exact distance found so far in
 //! the pair's category and `tol` the tolerance. Pairs whose bound limits the step are evaluated
 //! exactly until the limiting pair is exact, so steps are at least `tol / L`.
 //!
@@ -270,6 +270,7 @@ impl CollisionChecker {
         path.eval(s, &mut q);
         self.update(data, &q);
         data.exact.fill(false);
+        data.capsuled.fill(false);
         self.resolve_sample(data, s, &mut t);
         let mut step = end;
         let mut complete = end <= 0.0;
@@ -301,6 +302,16 @@ impl CollisionChecker {
                 if arg == usize::MAX || data.exact[arg] {
                     break;
                 }
+                // The bounding capsules first: for a long link they often lift the bound above
+                // the step's need, and cost a segment distance instead of a GJK run.
+                if !data.capsuled[arg] {
+                    data.capsuled[arg] = true;
+                    let b = self.capsule_bound(data, arg);
+                    if b > data.bound[arg] {
+                        data.bound[arg] = b;
+                        continue;
+                    }
+                }
                 let d = self.pair_distance(data, arg);
                 data.bound[arg] = d.distance;
                 data.exact[arg] = true;
@@ -328,6 +339,7 @@ impl CollisionChecker {
             path.eval(s, &mut q);
             self.update(data, &q);
             data.exact.fill(false);
+            data.capsuled.fill(false);
             if s >= end {
                 self.resolve_sample(data, s, &mut t);
                 complete = true;
