@@ -82,6 +82,7 @@ impl App {
             crate::bridge::Hub::new(db.clone(), robots.clone(), config.bridge_settings(token));
         bridges.spawn_dispatcher(shutdown.clone());
         let state = service::Context {
+            compute: service::ComputeGate::new(config.request_concurrency()),
             bridges,
             db,
             config: Arc::new(config),

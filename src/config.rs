@@ -135,6 +135,12 @@ pub struct Config {
           value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub job_concurrency: Option<u64>,
 
+    /// Plans, grasps and trajectories that requests compute at once; further ones wait in
+    /// arrival order. Default: the number of CPUs.
+    #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_REQUEST_CONCURRENCY",
+          value_parser = clap::value_parser!(u64).range(1..=1024))]
+    pub request_concurrency: Option<u64>,
+
     /// Seconds to wait at shutdown for in-flight requests and jobs before exiting.
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_SHUTDOWN_GRACE", default_value_t = DEFAULT_SHUTDOWN_GRACE_SECS,
           )]
@@ -190,6 +196,7 @@ impl Default for Config {
             maintenance_interval_secs: DEFAULT_MAINTENANCE_INTERVAL_SECS,
             db_max_bytes: None,
             job_concurrency: None,
+            request_concurrency: None,
             shutdown_grace_secs: DEFAULT_SHUTDOWN_GRACE_SECS,
             bridge_token: None,
             bridge_queue_timeout_secs: DEFAULT_BRIDGE_QUEUE_TIMEOUT_SECS,
@@ -241,11 +248,17 @@ impl Config {
 
     /// The effective job concurrency (configured, else the number of CPUs).
     pub fn job_concurrency(&self) -> usize {
-        match self.job_concurrency {
-            Some(n) => n as usize,
-            None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-        }
+        self.job_concurrency.map_or_else(cpus, |n| n as usize)
     }
+
+    /// The effective request concurrency (configured, else the number of CPUs).
+    pub fn request_concurrency(&self) -> usize {
+        self.request_concurrency.map_or_else(cpus, |n| n as usize)
+    }
+}
+
+fn cpus() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 #[cfg(test)]
@@ -273,6 +286,8 @@ mod tests {
             "/tmp/x.db",
             "--job-concurrency",
             "3",
+            "--request-concurrency",
+            "5",
             "--body-limit",
             "1024",
             "--body-idle-timeout-ms",
@@ -282,11 +297,13 @@ mod tests {
         assert_eq!(c.bind.port(), 9000);
         assert_eq!(c.db, PathBuf::from("/tmp/x.db"));
         assert_eq!(c.job_concurrency(), 3);
+        assert_eq!(c.request_concurrency(), 5);
         assert_eq!(c.body_limit, 1024);
         assert_eq!(c.body_idle_timeout(), Duration::from_millis(250));
         assert!(parse(&["--body-idle-timeout-ms", "0"]).is_err());
         assert!(parse(&["--bind", "not-an-address"]).is_err());
         assert!(parse(&["--job-concurrency", "0"]).is_err());
+        assert!(parse(&["--request-concurrency", "0"]).is_err());
         assert!(parse(&["--request-timeout-secs", "0"]).is_err());
     }
 

@@ -735,7 +735,9 @@ pub async fn batch(ctx: &Context, id: &str) -> Result<(repo::BatchRow, Vec<Strin
 /// Computes and stores one grasp. An infeasible request (object out of reach, too large) is a
 /// stored result with `feasible: false` and a reason.
 pub async fn create(ctx: &Context, body: &GraspIn) -> Result<repo::GraspRow, Error> {
+    let turn = ctx.compute.enter().await;
     let (new, _, _) = compute(ctx, body, &[]).await?;
+    drop(turn);
     Ok(repo::insert_grasp(&ctx.db, &new).await?)
 }
 

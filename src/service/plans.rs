@@ -377,6 +377,8 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     // A plan's grasp must land in the model's certified goal regions: the search starts at
     // their centre (the arm branch and hand posture the demonstrations end on) and keeps inside.
     let regions = super::models::goal_regions(ctx, &model_id).await?;
+    // (checked and resolved above without waiting: a bad request is answered at once)
+    let turn = ctx.compute.enter().await;
     // A grasp that no collision-free motion reaches is followed by the same search with the next
     // seed, while the request left the seed to us: other starts end on other grasps, and one of
     // them is often reachable (the pa10_ihy ball from zero: the thumb pressed 5.0 mm into the
@@ -404,6 +406,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             reason => break (a.grasp, a.trajectory, a.safety, a.law_system, reason),
         }
     };
+    drop(turn);
 
     let mut execution = match (body.executes(), &trajectory) {
         (true, Some(_)) if reason.is_none() => {

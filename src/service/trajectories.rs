@@ -732,7 +732,9 @@ pub async fn create(
     ctx: &Context,
     body: &CreateTrajectory,
 ) -> Result<trajectories::StoredTrajectory, Error> {
+    let turn = ctx.compute.enter().await;
     let (draft, _) = compute(ctx, body, None, true).await?;
+    drop(turn);
     Ok(trajectories::insert_trajectory(&ctx.db, &draft.as_new()).await?)
 }
 
