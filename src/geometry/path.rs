@@ -8,7 +8,8 @@
 //! Each step is the largest `Δ` with `L_p·Δ ≤ d_p − m_c + tol` for every pair `p`, where `d_p`
 //! is a lower bound of the pair's distance at `s` (exact, or an earlier exact value minus the
 //! motion since, or the bounding spheres' or capsules' gap), `m_c` the smallest exact distance found so far in
-//! the pair's category and `tol` the tolerance. Pairs whose bound limits the step are evaluated
+//! the pair's category, or its exact minimum at the end of the path when that is lower and not
+//! negative (the end is evaluated first), and `tol` the tolerance. Pairs whose bound limits the step are evaluated
 //! exactly until the limiting pair is exact, so steps are at least `tol / L`.
 //!
 //! Guarantee (when the report is `complete`): for every non-allowed pair and every `s`, the
@@ -266,6 +267,23 @@ impl CollisionChecker {
         };
         let end = path.end();
         let mut q = std::mem::take(&mut data.q);
+        // The exact category minima at the end, not below 0, as a floor for the steps: a
+        // distance that falls towards the end (a hand approaching what it grasps) then no longer
+        // limits every step to the tolerance over the running minimum (16 steps a segment on a
+        // plan's approach). Steps still keep every pair above the minimum the report ends with
+        // (the end is sampled too), less the tolerance; never below 0, so a collision deeper
+        // than the tolerance is still found first where it begins.
+        let mut floor = [f64::INFINITY; 4];
+        if end > 0.0 {
+            path.eval(end, &mut q);
+            self.update(data, &q);
+            let cl = self.clearance_at_update(data);
+            for c in Category::ALL {
+                if let Some(h) = cl.by_category[c as usize] {
+                    floor[c as usize] = h.distance.distance.max(0.0);
+                }
+            }
+        }
         let mut s = 0.0;
         path.eval(s, &mut q);
         self.update(data, &q);
@@ -293,7 +311,7 @@ impl CollisionChecker {
                         continue;
                     }
                     let c = self.pairs()[i].category as usize;
-                    let key = (data.bound[i] - t.m[c] + tol) / l;
+                    let key = (data.bound[i] - t.m[c].min(floor[c]) + tol) / l;
                     if key < limit {
                         limit = key;
                         arg = i;

@@ -412,6 +412,30 @@ fn a_link_rotating_into_the_table_is_caught_at_the_closed_form_contact_angle() {
 }
 
 #[test]
+fn an_approach_that_ends_near_the_table_is_certified_in_few_steps() {
+    // The link swings down towards the table and stops 5 mm above it: its distance falls all
+    // the way. Held to the tolerance over the running minimum, every step would certify 0.5 mm
+    // of the 275 mm it falls (at least 550 steps); with the end's exact minimum as the floor
+    // the steps shrink only near it.
+    let (h, len, r) = (0.3, 0.5, 0.02);
+    let robot = one_link_arm(Vector3::y(), [0.0, 0.0, h], len, r);
+    let checker = CollisionChecker::new(robot, Scene::new().with_support(Plane::horizontal(0.0)));
+    let mut data = checker.data();
+    let theta1 = ((h - r - 0.005) / len).asin();
+    let points = [0.0, theta1];
+    let opts = PathOptions::default();
+    let rep = checker.check_path(&mut data, &Polyline::new(&points, 1), &opts);
+    assert!(rep.complete && rep.first_collision.is_none());
+    assert!((rep.distance() - 0.005).abs() < 1e-12, "{rep:?}");
+    assert!(rep.steps < 60, "{} steps", rep.steps);
+    // a second method: the closed form along a dense sweep never goes below the bound
+    for k in 0..=1000 {
+        let theta = theta1 * k as f64 / 1000.0;
+        assert!(h - len * theta.sin() - r >= rep.lower_bound());
+    }
+}
+
+#[test]
 fn a_collision_between_two_clear_samples_is_found_and_agrees_with_dense_sampling() {
     // A horizontal link sweeping 90 degrees about z from +x to +y; a box sits at 45 degrees. Both
     // ends are clear, the middle is not.

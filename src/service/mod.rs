@@ -336,7 +336,10 @@ mod tests {
             }));
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
-        assert!(order.lock().unwrap().is_empty(), "entered past a held permit");
+        assert!(
+            order.lock().unwrap().is_empty(),
+            "entered past a held permit"
+        );
         drop(held);
         for w in waiting {
             w.await.unwrap();
