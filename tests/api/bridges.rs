@@ -1952,6 +1952,21 @@ async fn next_execute(ws: &mut Raw) -> reachgrasp::bridge::protocol::Execute {
 }
 
 /// A problem's status and `errors[0].path` (the JSON path a 422 names).
+/// A 5 cm cube on the table without a mass or friction (what a verified plan must refuse).
+fn cube_without_physics() -> Value {
+    json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
+           "position": [0.5, 0.0, 0.025]})
+}
+
+impl BridgeApp {
+    /// Stores [`cube_without_physics`] and returns the stored object (asserting 201).
+    async fn store_cube_without_physics(&self) -> Value {
+        let res = self.post("/v1/objects", &cube_without_physics()).await;
+        assert_eq!(res.status(), 201);
+        res.json().await.unwrap()
+    }
+}
+
 async fn problem_field(res: reqwest::Response) -> (u16, String) {
     let status = res.status().as_u16();
     let body: Value = res.json().await.unwrap();
@@ -2009,8 +2024,8 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
     let massless = {
         let mut b = ball.clone();
         b.as_object_mut().unwrap().remove("object_id");
-        b["object"] = json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
-                              "position": [0.5, 0.0, 0.025], "friction": 0.6});
+        b["object"] = cube_without_physics();
+        b["object"]["friction"] = json!(0.6);
         b
     };
     for (body, field) in [
@@ -2030,8 +2045,7 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
             "$.support.friction",
         ),
     ] {
-        let mut body = json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
-                              "position": [0.5, 0.0, 0.025]});
+        let mut body = cube_without_physics();
         for (k, v) in spec.as_object().unwrap() {
             body[k] = v.clone();
         }
@@ -2039,15 +2053,7 @@ async fn a_verified_plan_runs_on_a_physics_worker_in_its_scene_and_keeps_the_ver
         assert_eq!((status, at.as_str()), (422, field), "{body}");
     }
     // a stored object without a mass cannot be verified
-    let res = app
-        .post(
-            "/v1/objects",
-            &json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
-                    "position": [0.5, 0.0, 0.025]}),
-        )
-        .await;
-    assert_eq!(res.status(), 201);
-    let cube: Value = res.json().await.unwrap();
+    let cube = app.store_cube_without_physics().await;
     let (status, at) = problem_field(
         app.post("/v1/plans", &with("object_id", cube["id"].clone()))
             .await,
@@ -2208,14 +2214,7 @@ async fn a_verification_plans_every_combination_on_the_physics_worker_and_tabula
     });
 
     // bad input names its field and starts nothing
-    let res = app
-        .post(
-            "/v1/objects",
-            &json!({"name": "cube", "shape": {"type": "box", "size": [0.05, 0.05, 0.05]},
-                    "position": [0.5, 0.0, 0.025]}),
-        )
-        .await;
-    let cube: Value = res.json().await.unwrap();
+    let cube = app.store_cube_without_physics().await;
     let with = |k: &str, v: Value| {
         let mut b = body.clone();
         b[k] = v;
