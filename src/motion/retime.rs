@@ -162,26 +162,53 @@ impl BSpline {
 /// `Σ_r w[r] · ctrl[first + r]` (at most four control points act at any `x`).
 pub fn cubic_basis(count: usize, xs: &[f64]) -> Vec<(f64, usize, [f64; 4])> {
     assert!(count >= 4);
-    // The identity as control points: the channels of the curve are the basis functions.
-    let mut eye = vec![0.0; count * count];
-    for i in 0..count {
-        eye[i * count + i] = 1.0;
-    }
-    let spline = BSpline::clamped_uniform(3, eye, count);
+    let spline = BSpline::cubic_identity(count);
     let mut row = vec![0.0; count];
     xs.iter()
         .map(|&x| {
             spline.eval(x, &mut row);
-            let first = row
-                .iter()
-                .position(|&w| w != 0.0)
-                .unwrap_or(0)
-                .min(count - 4);
+            let first = first_active(&row);
             let mut w = [0.0; 4];
             w.copy_from_slice(&row[first..first + 4]);
             (x, first, w)
         })
         .collect()
+}
+
+impl BSpline {
+    /// The clamped uniform cubic basis of `count` functions as one spline: the identity as
+    /// control points, so that channel `i` of the curve is basis function `i`.
+    fn cubic_identity(count: usize) -> Self {
+        let mut eye = vec![0.0; count * count];
+        for i in 0..count {
+            eye[i * count + i] = 1.0;
+        }
+        BSpline::clamped_uniform(3, eye, count)
+    }
+}
+
+/// The first of the four consecutive cubic basis functions that act where `row` (all the
+/// basis functions' values at one point) was evaluated.
+fn first_active(row: &[f64]) -> usize {
+    row.iter()
+        .position(|&w| w != 0.0)
+        .unwrap_or(0)
+        .min(row.len() - 4)
+}
+
+/// The minimum-jerk progress's first three derivatives at `τ`.
+fn progress_rates(tau: f64) -> [f64; 3] {
+    let (_, m1, m2) = MinimumJerk::eval(tau);
+    [m1, m2, 60.0 * (1.0 - 6.0 * tau + 6.0 * tau * tau)]
+}
+
+/// `(ẋ, ẍ, x⃛)` from the progress's derivatives in `τ` and `τ`'s in time (the chain rule).
+fn chain([m1, m2, m3]: [f64; 3], (t1, t2, t3): (f64, f64, f64)) -> (f64, f64, f64) {
+    (
+        m1 * t1,
+        m2 * t1 * t1 + m1 * t2,
+        m3 * t1 * t1 * t1 + 3.0 * m2 * t1 * t2 + m1 * t3,
+    )
 }
 
 /// Points of a path spline held to clearance targets: three per control configuration, evenly
@@ -306,15 +333,9 @@ impl Clock {
         self.w.eval(tau, &mut w);
         self.dw.eval(tau, &mut dw);
         self.ddw.eval(tau, &mut ddw);
-        let (t1, t2, t3) = tau_derivatives(self.base, w[0], dw[0], ddw[0]);
-        let (m, m1, m2) = MinimumJerk::eval(tau);
-        let m3 = 60.0 * (1.0 - 6.0 * tau + 6.0 * tau * tau);
-        (
-            m,
-            m1 * t1,
-            m2 * t1 * t1 + m1 * t2,
-            m3 * t1 * t1 * t1 + 3.0 * m2 * t1 * t2 + m1 * t3,
-        )
+        let t = tau_derivatives(self.base, w[0], dw[0], ddw[0]);
+        let (xd, xdd, xddd) = chain(progress_rates(tau), t);
+        (MinimumJerk::eval(tau).0, xd, xdd, xddd)
     }
 
     /// The clock parameter at real time `t` (Newton on the monotone `t(τ)`, bracketed).
@@ -363,12 +384,7 @@ struct WarpBasis {
 
 impl WarpBasis {
     fn new() -> Self {
-        let count = WARP_CONTROL_POINTS;
-        let mut eye = vec![0.0; count * count];
-        for i in 0..count {
-            eye[i * count + i] = 1.0;
-        }
-        let value = BSpline::clamped_uniform(3, eye, count);
+        let value = BSpline::cubic_identity(WARP_CONTROL_POINTS);
         let d1 = value.derivative();
         let d2 = d1.derivative();
         WarpBasis { value, d1, d2 }
@@ -386,26 +402,19 @@ struct ClockPoint {
 
 impl ClockPoint {
     fn new(basis: &WarpBasis, tau: f64) -> Self {
-        let count = WARP_CONTROL_POINTS;
-        let mut row = vec![0.0; count];
+        let mut row = vec![0.0; WARP_CONTROL_POINTS];
         basis.value.eval(tau, &mut row);
         // (the derivatives' non-zero weights lie among the same four functions)
-        let first = row
-            .iter()
-            .position(|&w| w != 0.0)
-            .unwrap_or(0)
-            .min(count - 4);
+        let first = first_active(&row);
         let mut weights = [[0.0; 4]; 3];
         for (w, spline) in weights.iter_mut().zip([&basis.value, &basis.d1, &basis.d2]) {
             spline.eval(tau, &mut row);
             w.copy_from_slice(&row[first..first + 4]);
         }
-        let (_, m1, m2) = MinimumJerk::eval(tau);
-        let m3 = 60.0 * (1.0 - 6.0 * tau + 6.0 * tau * tau);
         ClockPoint {
             first,
             weights,
-            m: [m1, m2, m3],
+            m: progress_rates(tau),
         }
     }
 
@@ -414,13 +423,7 @@ impl ClockPoint {
         let c = &clock.w.ctrl[self.first..self.first + 4];
         let dot = |w: &[f64; 4]| w[0] * c[0] + w[1] * c[1] + w[2] * c[2] + w[3] * c[3];
         let [w, dw, ddw] = self.weights.each_ref().map(dot);
-        let (t1, t2, t3) = tau_derivatives(clock.base, w, dw, ddw);
-        let [m1, m2, m3] = self.m;
-        (
-            m1 * t1,
-            m2 * t1 * t1 + m1 * t2,
-            m3 * t1 * t1 * t1 + 3.0 * m2 * t1 * t2 + m1 * t3,
-        )
+        chain(self.m, tau_derivatives(clock.base, w, dw, ddw))
     }
 }
 
