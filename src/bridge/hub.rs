@@ -112,6 +112,11 @@ pub struct WorkerSnapshot {
 }
 
 impl WorkerSnapshot {
+    /// Whether the worker announced capability `c`.
+    pub fn can(&self, c: Capability) -> bool {
+        self.capabilities.contains(&c)
+    }
+
     /// The start tolerance that applies to this worker (rad).
     pub fn tolerance(&self) -> f64 {
         self.start_tolerance.unwrap_or(DEFAULT_START_TOLERANCE)
@@ -390,12 +395,12 @@ impl Hub {
             // A grasp trial needs a physics worker: a kinematic one would report the motion
             // as done and say nothing of the grasp.
             let physics = row.grasp_trial;
-            let has = |w: &Worker, c: Capability| w.snapshot.capabilities.contains(&c);
             let compatible = |w: &Worker| {
+                let can = |c| w.snapshot.can(c);
                 w.snapshot.robot == row.robot
-                    && has(w, cap)
-                    && (!filtered || has(w, Capability::SafetyFilter))
-                    && (!physics || has(w, Capability::GraspTrial))
+                    && can(cap)
+                    && (!filtered || can(Capability::SafetyFilter))
+                    && (!physics || can(Capability::GraspTrial))
                     && row.worker.as_ref().is_none_or(|n| *n == w.snapshot.name)
             };
             let (pick, any) = self.claim(&row.id, compatible);
@@ -526,7 +531,7 @@ impl Hub {
         let id = uuid::Uuid::new_v4().to_string();
         let (pick, any) = self.claim(&id, |w: &Worker| {
             w.snapshot.robot == robot
-                && w.snapshot.capabilities.contains(&Capability::Streaming)
+                && w.snapshot.can(Capability::Streaming)
                 && worker.is_none_or(|n| n.as_str() == w.snapshot.name)
         });
         let (conn, name, tx) = pick.ok_or(any).map_err(|any| {

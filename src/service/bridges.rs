@@ -73,7 +73,7 @@ pub async fn expected_states(
         .into_iter()
         .filter(|w| w.robot == robot && !w.positions.is_empty())
         .filter(|w| worker.is_none_or(|n| n == w.name))
-        .filter(|w| needs.iter().all(|c| w.capabilities.contains(c)))
+        .filter(|w| needs.iter().all(|&c| w.can(c)))
         .collect();
     live.sort_by(|a, b| a.name.cmp(&b.name));
     let mut out = Vec::with_capacity(live.len());

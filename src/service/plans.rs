@@ -514,7 +514,7 @@ async fn check_verify(ctx: &Context, body: &PlanIn) -> Result<(), Error> {
     // (a named worker that is not connected may still come: the execution waits for it)
     if let Some(name) = &body.worker
         && let Some(w) = ctx.bridges.workers().into_iter().find(|w| w.name == *name)
-        && !w.capabilities.contains(&Capability::GraspTrial)
+        && !w.can(Capability::GraspTrial)
     {
         return Err(Error::invalid(
             "$.worker",

@@ -210,7 +210,7 @@ pub async fn submit(ctx: &Context, body: &VerificationIn) -> Result<JobRecord, E
         super::robots::robot_field(ctx, robot, &path).await?;
         if !workers
             .iter()
-            .any(|w| w.robot == *robot && w.capabilities.contains(&Capability::GraspTrial))
+            .any(|w| w.robot == *robot && w.can(Capability::GraspTrial))
         {
             // (the request is sound; the service's state is not ready for it)
             return Err(Error::Conflict(format!(
