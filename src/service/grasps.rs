@@ -422,6 +422,7 @@ pub fn load_system(robots: &std::path::Path, name: &str) -> Result<Arc<HandArm>,
     ))
 }
 
+#[derive(Clone)]
 struct Settings {
     task: Vec<TaskDirection>,
     dto: GraspSettings,
@@ -556,13 +557,6 @@ pub async fn stored_object(ctx: &Context, path: &str, id: &str) -> Result<(Strin
     Ok((row.id, Object::new(spec).map_err(Error::internal)?))
 }
 
-/// The object a grasp request names (`object_id`) or gives inline, validated.
-pub async fn request_object(ctx: &Context, body: &GraspIn) -> Result<Object, Error> {
-    Ok(resolve_object(ctx, "$.", &body.object_id, &body.object)
-        .await?
-        .1)
-}
-
 async fn resolve_object(
     ctx: &Context,
     prefix: &str,
@@ -633,6 +627,21 @@ pub async fn compute(
     body: &GraspIn,
     regions: &[super::models::NamedGoalRegion],
 ) -> Result<(repo::NewGrasp, GraspResult, GraspScene), Error> {
+    prepare(ctx, body).await?.compute(regions).await
+}
+
+/// A grasp request checked and resolved once: its settings, its object (with the stored id)
+/// and the system. A plan searches with several seeds on one.
+pub struct Prepared {
+    robot: String,
+    settings: Settings,
+    object_id: Option<String>,
+    object: Object,
+    sys: Arc<HandArm>,
+}
+
+/// Checks `body` (settings, then object, then robot) and resolves its object and system.
+pub async fn prepare(ctx: &Context, body: &GraspIn) -> Result<Prepared, Error> {
     let settings = parse_settings(
         &body.task_directions,
         body.quality,
@@ -643,6 +652,49 @@ pub async fn compute(
     )?;
     let (object_id, object) = resolve_object(ctx, "$.", &body.object_id, &body.object).await?;
     let sys = robot_view(ctx, &body.robot).await?;
+    Ok(Prepared {
+        robot: body.robot.clone(),
+        settings,
+        object_id,
+        object,
+        sys,
+    })
+}
+
+impl Prepared {
+    /// The object the grasp is for.
+    pub fn object(&self) -> &Object {
+        &self.object
+    }
+
+    /// The same request with start seed `seed`.
+    pub fn with_seed(&mut self, seed: u64) {
+        self.settings.dto.seed = seed;
+    }
+
+    /// Computes the grasp inside the model's goal `regions` (none: anywhere).
+    pub async fn compute(
+        &self,
+        regions: &[super::models::NamedGoalRegion],
+    ) -> Result<(repo::NewGrasp, GraspResult, GraspScene), Error> {
+        let (settings, object_id, object, sys) = (
+            self.settings.clone(),
+            self.object_id.clone(),
+            self.object.clone(),
+            self.sys.clone(),
+        );
+        compute_resolved(&self.robot, settings, object_id, object, sys, regions).await
+    }
+}
+
+async fn compute_resolved(
+    robot: &str,
+    settings: Settings,
+    object_id: Option<String>,
+    object: Object,
+    sys: Arc<HandArm>,
+    regions: &[super::models::NamedGoalRegion],
+) -> Result<(repo::NewGrasp, GraspResult, GraspScene), Error> {
     let names = sys.model.joint_names();
     let index = |n: &String| names.iter().position(|m| m == n);
     let goal_regions: Vec<GoalRegion> = regions
@@ -661,7 +713,7 @@ pub async fn compute(
                 .ok_or_else(|| {
                     Error::invalid(
                         "$.model",
-                        format!("the model's joints are not all joints of '{}'", body.robot),
+                        format!("the model's joints are not all joints of '{robot}'"),
                     )
                 })
         })
@@ -688,7 +740,7 @@ pub async fn compute(
     .map_err(Error::internal)??;
     let (result, dto) = result;
     Ok((
-        new_grasp(&body.robot, object_id, &object, &dto, &result),
+        new_grasp(robot, object_id, &object, &dto, &result),
         result,
         GraspScene {
             sys: view,
@@ -735,9 +787,11 @@ pub async fn batch(ctx: &Context, id: &str) -> Result<(repo::BatchRow, Vec<Strin
 /// Computes and stores one grasp. An infeasible request (object out of reach, too large) is a
 /// stored result with `feasible: false` and a reason.
 pub async fn create(ctx: &Context, body: &GraspIn) -> Result<repo::GraspRow, Error> {
-    let turn = ctx.compute.enter().await;
-    let (new, _, _) = compute(ctx, body, &[]).await?;
-    drop(turn);
+    let (c, b) = (ctx.clone(), body.clone());
+    let (new, _, _) = ctx
+        .compute
+        .run(async move { compute(&c, &b, &[]).await })
+        .await??;
     Ok(repo::insert_grasp(&ctx.db, &new).await?)
 }
 

@@ -90,6 +90,30 @@ impl ComputeGate {
             .await
             .expect("the gate's semaphore is never closed")
     }
+
+    /// Waits for a turn, then runs `work` to its end on its own task, which holds the permit.
+    /// A request dropped meanwhile (its client gone, its timeout reached) stops waiting for the
+    /// answer, not the computation: the blocking steps `work` awaits run on regardless, so a
+    /// permit released with the request let one computation more than the permits run.
+    pub async fn run<F>(&self, work: F) -> Result<F::Output, Error>
+    where
+        F: std::future::Future + Send + 'static,
+        F::Output: Send + 'static,
+    {
+        let turn = self.enter().await;
+        tokio::spawn(async move {
+            let out = work.await;
+            drop(turn);
+            out
+        })
+        .await
+        .map_err(Error::internal)
+    }
+
+    /// Permits free now.
+    pub fn available(&self) -> usize {
+        self.0.available_permits()
+    }
 }
 
 impl AsRef<Hub> for Context {
@@ -364,6 +388,36 @@ mod tests {
             t.await.unwrap();
         }
         assert_eq!(most.load(Ordering::SeqCst), 2);
+    }
+
+    #[tokio::test]
+    async fn a_computation_keeps_its_permit_when_its_request_is_dropped() {
+        // one permit; a computation that runs until released, its caller dropped once inside
+        let gate = ComputeGate::new(1);
+        let (inside_tx, inside_rx) = tokio::sync::oneshot::channel::<()>();
+        let (release_tx, release_rx) = tokio::sync::oneshot::channel::<()>();
+        let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
+        let caller = {
+            let gate = gate.clone();
+            tokio::spawn(async move {
+                gate.run(async move {
+                    inside_tx.send(()).unwrap();
+                    release_rx.await.unwrap();
+                    done_tx.send(()).unwrap();
+                })
+                .await
+            })
+        };
+        inside_rx.await.unwrap();
+        caller.abort();
+        assert!(caller.await.unwrap_err().is_cancelled());
+        // the request is gone, the computation is not: its permit stays taken
+        assert_eq!(gate.available(), 0);
+        release_tx.send(()).unwrap();
+        done_rx.await.unwrap();
+        // and is free once the computation ends
+        let _next = gate.enter().await;
+        assert_eq!(gate.available(), 0);
     }
 
     #[test]

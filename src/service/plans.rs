@@ -341,7 +341,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     let obstacles = super::trajectories::scene_obstacles(&body.obstacles)?;
     super::trajectories::approach_standoff(body.approach_standoff, "$.approach_standoff")?;
     super::robots::robot_field(ctx, &robot, "$.robot").await?;
-    check_verify(ctx, body).await?;
+    let verified = check_verify(ctx, body).await?;
     let model_id = resolve_model(ctx, body).await?;
     let (start, read_from) = resolve_start(ctx, body).await?;
     let (model_robot, q_start) = super::trajectories::check_start(ctx, &model_id, &start).await?;
@@ -377,36 +377,32 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     // A plan's grasp must land in the model's certified goal regions: the search starts at
     // their centre (the arm branch and hand posture the demonstrations end on) and keeps inside.
     let regions = super::models::goal_regions(ctx, &model_id).await?;
-    // (checked and resolved above without waiting: a bad request is answered at once)
-    let turn = ctx.compute.enter().await;
-    // A grasp that no collision-free motion reaches is followed by the same search with the next
-    // seed, while the request left the seed to us: other starts end on other grasps, and one of
-    // them is often reachable (the pa10_ihy ball from zero: the thumb pressed 5.0 mm into the
-    // ball with seed 0, seeds 1-3 clear).
-    let mut grasp_in = body.grasp.clone();
-    let mut rejected = Vec::new();
-    let (mut grasp_s, mut trajectory_s) = (0.0, 0.0);
-    let (new_grasp, trajectory, safety, law_system, mut reason) = loop {
-        let a = attempt(
-            ctx, body, &grasp_in, &regions, &model_id, &start, &q_start, &obstacles,
-        )
-        .await?;
-        grasp_s += a.grasp_s;
-        trajectory_s += a.trajectory_s;
-        let seed = grasp_in.seed.unwrap_or(0);
-        match a.reason {
-            Some(why)
-                if a.collided
-                    && body.grasp.seed.is_none()
-                    && rejected.len() + 1 < GRASP_ATTEMPTS =>
-            {
-                rejected.push(RejectedGrasp { seed, reason: why });
-                grasp_in.seed = Some(seed + 1);
-            }
-            reason => break (a.grasp, a.trajectory, a.safety, a.law_system, reason),
-        }
+    let prepared = match verified {
+        Some(p) => p,
+        None => super::grasps::prepare(ctx, &body.grasp).await?,
     };
-    drop(turn);
+    let trial_object = body.verify.then(|| prepared.object().spec().clone());
+    // (checked and resolved above without waiting: a bad request is answered at once)
+    let search = grasp_search(
+        ctx.clone(),
+        body.clone(),
+        prepared,
+        regions,
+        model_id.clone(),
+        start,
+        q_start,
+        obstacles,
+    );
+    let (found, rejected) = ctx.compute.run(search).await??;
+    let (grasp_s, trajectory_s) = (found.grasp_s, found.trajectory_s);
+    let Attempt {
+        grasp: new_grasp,
+        trajectory,
+        safety,
+        law_system,
+        mut reason,
+        ..
+    } = found;
 
     let mut execution = match (body.executes(), &trajectory) {
         (true, Some(_)) if reason.is_none() => {
@@ -429,8 +425,8 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
                 safety,
                 trial: body
                     .verify
-                    .then(|| physics_trial(body, &new_grasp))
-                    .transpose()?,
+                    .then(|| physics_trial(body, trial_object.clone()))
+                    .flatten(),
             })
         }
         _ => None,
@@ -496,7 +492,10 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
 
 /// Refuses what a physics check could not honour, before anything is computed: `trial`
 /// without `verify`, a trial out of range, an object without a mass or a friction coefficient.
-async fn check_verify(ctx: &Context, body: &PlanIn) -> Result<(), Error> {
+async fn check_verify(
+    ctx: &Context,
+    body: &PlanIn,
+) -> Result<Option<super::grasps::Prepared>, Error> {
     if let Some(t) = &body.trial {
         if !body.verify {
             return Err(Error::invalid(
@@ -509,7 +508,7 @@ async fn check_verify(ctx: &Context, body: &PlanIn) -> Result<(), Error> {
         }
     }
     if !body.verify {
-        return Ok(());
+        return Ok(None);
     }
     // (a named worker that is not connected may still come: the execution waits for it)
     if let Some(name) = &body.worker
@@ -524,8 +523,8 @@ async fn check_verify(ctx: &Context, body: &PlanIn) -> Result<(), Error> {
             ),
         ));
     }
-    let object = super::grasps::request_object(ctx, &body.grasp).await?;
-    if let Some((field, meaning)) = object.spec().missing_physics() {
+    let prepared = super::grasps::prepare(ctx, &body.grasp).await?;
+    if let Some((field, meaning)) = prepared.object().spec().missing_physics() {
         return Err(match &body.grasp.object_id {
             Some(id) => Error::invalid(
                 "$.object_id",
@@ -541,15 +540,14 @@ async fn check_verify(ctx: &Context, body: &PlanIn) -> Result<(), Error> {
             ),
         });
     }
-    Ok(())
+    Ok(Some(prepared))
 }
 
 /// The grasp trial of a plan with `verify`: the grasp's own object (as the grasp was computed,
 /// with its support) and the request's obstacles.
-fn physics_trial(body: &PlanIn, grasp: &NewGrasp) -> Result<PhysicsTrial, Error> {
-    let object: crate::grasp::ObjectSpec =
-        serde_json::from_str(&grasp.object).map_err(Error::internal)?;
-    Ok(PhysicsTrial {
+fn physics_trial(body: &PlanIn, object: Option<crate::grasp::ObjectSpec>) -> Option<PhysicsTrial> {
+    let object = object?;
+    Some(PhysicsTrial {
         scene: PhysicsScene {
             support: object.support,
             object,
@@ -606,13 +604,58 @@ struct Attempt {
     trajectory_s: f64,
 }
 
-/// The grasp `grasp_in` asks for (in the model's goal regions) and the motion to it from
+/// The attempts of one plan (owned: it runs on the compute gate's task): a grasp that no
+/// collision-free motion reaches is followed by the same search with the next seed, while the
+/// request left the seed to us. Other starts end on other grasps, and one of them is often
+/// reachable (the pa10_ihy ball from zero: the thumb pressed 5.0 mm into the ball with seed 0,
+/// seeds 1-3 clear). The last attempt, its times the sums over all, and the grasps rejected.
+#[allow(clippy::too_many_arguments)]
+async fn grasp_search(
+    ctx: Context,
+    body: PlanIn,
+    mut prepared: super::grasps::Prepared,
+    regions: Vec<super::models::NamedGoalRegion>,
+    model_id: String,
+    start: JointValues,
+    q_start: Vec<f64>,
+    obstacles: Vec<SceneShape>,
+) -> Result<(Attempt, Vec<RejectedGrasp>), Error> {
+    let mut seed = body.grasp.seed.unwrap_or(0);
+    let mut rejected = Vec::new();
+    let (mut grasp_s, mut trajectory_s) = (0.0, 0.0);
+    loop {
+        let mut a = attempt(
+            &ctx, &body, &prepared, &regions, &model_id, &start, &q_start, &obstacles,
+        )
+        .await?;
+        grasp_s += a.grasp_s;
+        trajectory_s += a.trajectory_s;
+        match a.reason.take() {
+            Some(why)
+                if a.collided
+                    && body.grasp.seed.is_none()
+                    && rejected.len() + 1 < GRASP_ATTEMPTS =>
+            {
+                rejected.push(RejectedGrasp { seed, reason: why });
+                seed += 1;
+                prepared.with_seed(seed);
+            }
+            reason => {
+                a.reason = reason;
+                (a.grasp_s, a.trajectory_s) = (grasp_s, trajectory_s);
+                return Ok((a, rejected));
+            }
+        }
+    }
+}
+
+/// The grasp `prepared` asks for (in the model's goal regions) and the motion to it from
 /// `start` (`q_start`, checked clear of the scene here).
 #[allow(clippy::too_many_arguments)]
 async fn attempt(
     ctx: &Context,
     body: &PlanIn,
-    grasp_in: &GraspIn,
+    prepared: &super::grasps::Prepared,
     regions: &[super::models::NamedGoalRegion],
     model_id: &str,
     start: &JointValues,
@@ -620,7 +663,7 @@ async fn attempt(
     obstacles: &[SceneShape],
 ) -> Result<Attempt, Error> {
     let t_attempt = Instant::now();
-    let (new_grasp, result, scene) = super::grasps::compute(ctx, grasp_in, regions).await?;
+    let (new_grasp, result, scene) = prepared.compute(regions).await?;
     // (the scene is known once the grasp's object is: a plan from a colliding start is refused
     // whether or not a grasp is found)
     super::trajectories::start_clear(&scene.sys, scene.object.as_ref(), obstacles, q_start)?;

@@ -732,9 +732,11 @@ pub async fn create(
     ctx: &Context,
     body: &CreateTrajectory,
 ) -> Result<trajectories::StoredTrajectory, Error> {
-    let turn = ctx.compute.enter().await;
-    let (draft, _) = compute(ctx, body, None, true).await?;
-    drop(turn);
+    let (c, b) = (ctx.clone(), body.clone());
+    let (draft, _) = ctx
+        .compute
+        .run(async move { compute(&c, &b, None, true).await })
+        .await??;
     Ok(trajectories::insert_trajectory(&ctx.db, &draft.as_new()).await?)
 }
 
