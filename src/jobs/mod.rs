@@ -40,6 +40,11 @@
 //!   shown only as "internal error". A panic is caught and recorded as `failed` / `internal`.
 //! * The persist step ([`PersistResult`]) gets the job id and a transaction; if it fails, the
 //!   transaction rolls back (no partial result rows) and the job is `failed` / `internal`.
+//! * A job that mostly waits (a verification waits for physics workers) is submitted with
+//!   [`JobRunner::submit_waiting`]: its future runs on the runtime, at once and outside the
+//!   `job_concurrency` slots and their threads, which are for computation (the plans it makes
+//!   pass the service's compute gate like any request's). Progress, cancellation, the persist
+//!   step and the records are the same.
 //! * At start ([`JobRunner::start`]) any job left `queued` or `running` by a previous process is
 //!   marked `failed` with reason `interrupted`. On graceful shutdown, running jobs are asked to
 //!   stop and recorded the same way.
@@ -328,16 +333,36 @@ impl JobRunner {
     where
         F: FnOnce(JobContext) -> Result<JobOutput, JobError> + Send + 'static,
     {
+        self.enqueue(kind, Work::Blocking(Box::new(work))).await
+    }
+
+    /// Persists a new job of `kind` whose work waits more than it computes (see the module
+    /// docs): `work`'s future starts at once on the runtime and takes no job slot.
+    pub async fn submit_waiting<F>(&self, kind: &str, work: F) -> Result<JobRecord, RunnerError>
+    where
+        F: FnOnce(JobContext) -> BoxFuture<'static, Result<JobOutput, JobError>> + Send + 'static,
+    {
+        self.enqueue(kind, Work::Waiting(Box::new(work))).await
+    }
+
+    async fn enqueue(&self, kind: &str, work: Work) -> Result<JobRecord, RunnerError> {
         if self.inner.shutting_down.load(Ordering::Acquire) {
             return Err(RunnerError::ShuttingDown);
         }
-        // Take a place in the semaphore's FIFO queue now (the first poll registers the waiter),
-        // so jobs start in submission order whatever order their tasks are scheduled in.
-        let mut permit: PermitFuture = Box::pin(self.inner.permits.clone().acquire_owned());
-        let ready = futures::poll!(permit.as_mut());
-        let permit = match ready {
-            std::task::Poll::Ready(p) => Box::pin(std::future::ready(p)) as PermitFuture,
-            std::task::Poll::Pending => permit,
+        let permit: PermitFuture = match &work {
+            Work::Blocking(_) => {
+                // Take a place in the semaphore's FIFO queue now (the first poll registers the
+                // waiter), so jobs start in submission order whatever order their tasks are
+                // scheduled in.
+                let slots = self.inner.permits.clone();
+                let mut permit: PermitFuture =
+                    Box::pin(async move { slots.acquire_owned().await.map(Some) });
+                match futures::poll!(permit.as_mut()) {
+                    std::task::Poll::Ready(p) => Box::pin(std::future::ready(p)),
+                    std::task::Poll::Pending => permit,
+                }
+            }
+            Work::Waiting(_) => Box::pin(std::future::ready(Ok(None))),
         };
         let record = JobRecord {
             id: Uuid::new_v4(),
@@ -470,24 +495,33 @@ impl JobRunner {
 
 const INTERNAL_MESSAGE: &str = "internal error; see the server logs";
 
+/// A job slot once granted (`None`: a waiting job, which takes none).
 type PermitFuture = std::pin::Pin<
     Box<
         dyn std::future::Future<
-                Output = Result<tokio::sync::OwnedSemaphorePermit, tokio::sync::AcquireError>,
+                Output = Result<
+                    Option<tokio::sync::OwnedSemaphorePermit>,
+                    tokio::sync::AcquireError,
+                >,
             > + Send,
     >,
 >;
 
-async fn drive<F>(
+/// What a job runs: a closure on the blocking pool, in a job slot, or a future that mostly
+/// waits, on the runtime.
+enum Work {
+    Blocking(Box<dyn FnOnce(JobContext) -> Result<JobOutput, JobError> + Send>),
+    Waiting(Box<dyn FnOnce(JobContext) -> BoxFuture<'static, Result<JobOutput, JobError>> + Send>),
+}
+
+async fn drive(
     inner: Arc<Inner>,
     id: Uuid,
     permit: PermitFuture,
-    work: F,
+    work: Work,
     cancel: Arc<CancelState>,
     events: watch::Sender<JobRecord>,
-) where
-    F: FnOnce(JobContext) -> Result<JobOutput, JobError> + Send + 'static,
-{
+) {
     let pool = inner.pool.clone();
     let workers = inner.workers.clone();
     let permit = tokio::select! {
@@ -524,17 +558,14 @@ async fn settle(inner: &Inner, id: Uuid, events: &watch::Sender<JobRecord>) {
     inner.drained.notify_waiters();
 }
 
-async fn run<F>(
+async fn run(
     pool: &SqlitePool,
     workers: &crate::parallel::Pool,
     id: Uuid,
-    work: F,
+    work: Work,
     cancel: &Arc<CancelState>,
     events: &watch::Sender<JobRecord>,
-) -> Finish
-where
-    F: FnOnce(JobContext) -> Result<JobOutput, JobError> + Send + 'static,
-{
+) -> Finish {
     if cancel.get() != NOT_CANCELLED {
         return if cancel.get() == CANCEL_BY_SHUTDOWN {
             Finish::interrupted()
@@ -559,8 +590,12 @@ where
     };
     let span = tracing::Span::current();
     let workers = workers.clone();
-    let mut handle =
-        tokio::task::spawn_blocking(move || workers.install(|| span.in_scope(|| work(ctx))));
+    let mut handle = match work {
+        Work::Blocking(work) => {
+            tokio::task::spawn_blocking(move || workers.install(|| span.in_scope(|| work(ctx))))
+        }
+        Work::Waiting(work) => tokio::spawn(work(ctx).instrument(span)),
+    };
     let mut persisted = events.borrow().progress.clone();
     let mut tick = tokio::time::interval(PROGRESS_PERSIST_INTERVAL);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);

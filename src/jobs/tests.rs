@@ -395,3 +395,64 @@ async fn shutdown_interrupts_running_jobs_and_refuses_new_ones() {
         Err(RunnerError::ShuttingDown)
     ));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_waiting_job_takes_no_job_slot_and_is_recorded_like_any_job() {
+    // one slot; a waiting job holds on until released, and a computing job runs meanwhile
+    let (runner, _pool, _dir) = setup(1).await;
+    let (release, released) = tokio::sync::oneshot::channel::<()>();
+    let waiting = runner
+        .submit_waiting("unit.wait", move |ctx| {
+            Box::pin(async move {
+                ctx.progress(0.5, "waiting for a worker");
+                released
+                    .await
+                    .map_err(|_| JobError::Failed("never released".into()))?;
+                Ok(JobOutput::empty().with_message("released"))
+            })
+        })
+        .await
+        .unwrap();
+    let live = wait_for(&runner, waiting.id, |r| r.progress.fraction == 0.5).await;
+    assert_eq!(live.status, JobStatus::Running);
+    let computing = runner
+        .submit("unit", |_ctx| {
+            Ok(JobOutput::empty().with_message("computed"))
+        })
+        .await
+        .unwrap();
+    let done = wait_final(&runner, computing.id).await;
+    assert_eq!(done.status, JobStatus::Succeeded, "{done:?}");
+    assert_eq!(
+        runner.get(waiting.id).await.unwrap().status,
+        JobStatus::Running,
+        "the computing job ran beside the waiting one"
+    );
+    release.send(()).unwrap();
+    let finished = wait_final(&runner, waiting.id).await;
+    assert_eq!(finished.status, JobStatus::Succeeded, "{finished:?}");
+    assert_eq!(finished.progress.message.as_deref(), Some("released"));
+    // and it is cancelled like any job
+    let (_keep, never) = tokio::sync::oneshot::channel::<()>();
+    let stuck = runner
+        .submit_waiting("unit.wait", move |ctx| {
+            Box::pin(async move {
+                tokio::select! {
+                    _ = never => Ok(JobOutput::empty()),
+                    () = async {
+                        while !ctx.is_cancelled() {
+                            tokio::time::sleep(Duration::from_millis(5)).await;
+                        }
+                    } => Err(JobError::Cancelled),
+                }
+            })
+        })
+        .await
+        .unwrap();
+    wait_for(&runner, stuck.id, |r| r.status == JobStatus::Running).await;
+    runner.cancel(stuck.id).await.unwrap();
+    assert_eq!(
+        wait_final(&runner, stuck.id).await.status,
+        JobStatus::Cancelled
+    );
+}

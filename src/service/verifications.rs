@@ -9,7 +9,7 @@
 //! where the worker is, and the start check of the next plan sees that state rather than the
 //! end of a queued grasp.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
@@ -298,33 +298,34 @@ pub async fn submit(ctx: &Context, body: &VerificationIn) -> Result<JobRecord, E
         plans.push(mine);
     }
     let request = serde_json::to_string(body).map_err(Error::internal)?;
-    // The job's closure runs on a job thread outside the runtime; it drives the plans (async,
-    // mostly waiting for workers) on the service's runtime and holds its job slot meanwhile.
-    let handle = tokio::runtime::Handle::current();
+    // A verification mostly waits for physics workers: it runs on the runtime and takes no job
+    // slot (its plans pass the compute gate as any request's do).
     let jobs = ctx.jobs.clone();
     let ctx = ctx.clone();
     Ok(jobs
-        .submit("verification", move |job| {
-            let items = handle.block_on(run(&ctx, &job, plans, total))?;
-            let made = items.iter().filter(|i| i.plan_id.is_some()).count();
-            Ok(JobOutput::persist_with(move |job_id, tx| {
-                Box::pin(async move {
-                    let id = uuid::Uuid::new_v4().to_string();
-                    sqlx::query(
-                        "INSERT INTO verifications (id, job_id, request, items, created_at) \
+        .submit_waiting("verification", move |job| {
+            Box::pin(async move {
+                let items = run(&ctx, &job, plans, total).await?;
+                let made = items.iter().filter(|i| i.plan_id.is_some()).count();
+                Ok(JobOutput::persist_with(move |job_id, tx| {
+                    Box::pin(async move {
+                        let id = uuid::Uuid::new_v4().to_string();
+                        sqlx::query(
+                            "INSERT INTO verifications (id, job_id, request, items, created_at) \
                          VALUES (?, ?, ?, ?, ?)",
-                    )
-                    .bind(&id)
-                    .bind(job_id.to_string())
-                    .bind(&request)
-                    .bind(serde_json::to_string(&items)?)
-                    .bind(crate::store::now())
-                    .execute(&mut **tx)
-                    .await?;
-                    Ok(ResultRef::new("verifications", id))
+                        )
+                        .bind(&id)
+                        .bind(job_id.to_string())
+                        .bind(&request)
+                        .bind(serde_json::to_string(&items)?)
+                        .bind(crate::store::now())
+                        .execute(&mut **tx)
+                        .await?;
+                        Ok(ResultRef::new("verifications", id))
+                    })
                 })
+                .with_message(format!("{made} of {total} plans made and run")))
             })
-            .with_message(format!("{made} of {total} plans made and run")))
         })
         .await?)
 }
@@ -454,16 +455,34 @@ pub async fn get(ctx: &Context, id: &str) -> Result<VerificationReport, Error> {
     } else {
         request.tasks
     };
+    // (two queries for all items: their plans, then those plans' executions)
+    let plan_ids: Vec<&str> = items.iter().filter_map(|i| i.plan_id.as_deref()).collect();
+    let mut plans: HashMap<String, crate::store::plans::PlanRow> =
+        crate::store::plans::get_many(&ctx.db, &plan_ids)
+            .await?
+            .into_iter()
+            .map(|p| (p.id.clone(), p))
+            .collect();
+    let execution_ids: Vec<&str> = plans
+        .values()
+        .filter_map(|p| p.execution_id.as_deref())
+        .collect();
+    let mut checks: HashMap<String, Verification> =
+        crate::store::executions::get_many_with_trial(&ctx.db, &execution_ids)
+            .await?
+            .into_iter()
+            .filter_map(|(row, trial)| {
+                let check = Verification::of(&row, trial?.trial);
+                Some((row.id, check))
+            })
+            .collect();
     let mut out = Vec::with_capacity(items.len());
     for item in items {
-        let plan = match &item.plan_id {
-            Some(p) => crate::store::plans::get(&ctx.db, p).await?,
-            None => None,
-        };
-        let verification = match &plan {
-            Some(p) => super::plans::verification(ctx, p.execution_id.as_deref()).await?,
-            None => None,
-        };
+        let plan = item.plan_id.as_deref().and_then(|p| plans.remove(p));
+        let verification = plan
+            .as_ref()
+            .and_then(|p| p.execution_id.as_deref())
+            .and_then(|e| checks.remove(e));
         out.push(VerifiedItem {
             feasible: plan.as_ref().map(|p| p.feasible),
             reason: plan.and_then(|p| p.reason),

@@ -310,6 +310,33 @@ pub async fn trial(pool: &SqlitePool, id: &str) -> Result<Option<PhysicsTrial>, 
         .transpose()
 }
 
+/// The executions of `ids` that exist, each with its grasp trial (if it ends in one), in no
+/// particular order (one query however many).
+pub async fn get_many_with_trial(
+    pool: &SqlitePool,
+    ids: &[&str],
+) -> Result<Vec<(ExecutionRow, Option<PhysicsTrial>)>, sqlx::Error> {
+    use sqlx::{FromRow, Row};
+    let ids = serde_json::to_string(ids).map_err(|e| sqlx::Error::Encode(Box::new(e)))?;
+    let rows = sqlx::query(concat!(
+        "SELECT ",
+        columns!(),
+        ", trial FROM executions WHERE id IN (SELECT value FROM json_each(?))"
+    ))
+    .bind(ids)
+    .fetch_all(pool)
+    .await?;
+    rows.iter()
+        .map(|row| {
+            let trial = row
+                .try_get::<Option<String>, _>("trial")?
+                .map(|t| serde_json::from_str(&t).map_err(|e| sqlx::Error::Decode(Box::new(e))))
+                .transpose()?;
+            Ok((ExecutionRow::from_row(row)?, trial))
+        })
+        .collect()
+}
+
 /// The stored payload of an execution.
 pub async fn payload(pool: &SqlitePool, id: &str) -> Result<Option<ExecutionPayload>, sqlx::Error> {
     let row: Option<(String, Option<Vec<u8>>)> =

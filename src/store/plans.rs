@@ -88,6 +88,18 @@ pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<PlanRow>, sqlx::E
     .await
 }
 
+/// The plans of `ids` that exist, in no particular order (one query however many).
+pub async fn get_many(pool: &SqlitePool, ids: &[&str]) -> Result<Vec<PlanRow>, sqlx::Error> {
+    let ids = serde_json::to_string(ids).map_err(|e| sqlx::Error::Encode(Box::new(e)))?;
+    sqlx::query_as(
+        "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
+         request, timings, created_at FROM plans WHERE id IN (SELECT value FROM json_each(?))",
+    )
+    .bind(ids)
+    .fetch_all(pool)
+    .await
+}
+
 /// The plan that queued execution `execution_id`, if a plan did (a plan queues at most one
 /// execution, and an execution belongs to at most one plan).
 pub async fn of_execution(
