@@ -58,6 +58,7 @@ pub fn router() -> Router<AppState> {
         .route("/ui/jobs/{id}", get(pages::job))
         .route("/ui/plans", get(plans::plans))
         .route("/ui/plans/{id}", get(plans::plan))
+        .route("/ui/verifications", get(plans::verifications))
         .route("/ui/verifications/{id}", get(plans::verification))
         .route("/ui/compare", get(plans::compare))
         .merge(viewer::router())

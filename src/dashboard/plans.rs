@@ -255,27 +255,7 @@ pub async fn plans(State(state): State<AppState>, Query(q): Query<ListQuery>) ->
             ]
         })
         .collect();
-    let mut pager = format!(
-        "<p class=\"pager\">{} of {total}",
-        if rows.is_empty() {
-            "0".to_owned()
-        } else {
-            format!("{}–{}", offset + 1, offset as usize + rows.len())
-        }
-    );
-    if offset > 0 {
-        pager.push_str(&format!(
-            " · <a href=\"?offset={}\">previous</a>",
-            offset.saturating_sub(PAGE)
-        ));
-    }
-    if i64::from(offset + PAGE) < total {
-        pager.push_str(&format!(
-            " · <a href=\"?offset={}\">next</a>",
-            offset + PAGE
-        ));
-    }
-    pager.push_str("</p>");
+    let pager = pager(offset, rows.len(), total);
     let list = if rows.is_empty() {
         table(&[], &[])
     } else {
@@ -302,10 +282,78 @@ pub async fn plans(State(state): State<AppState>, Query(q): Query<ListQuery>) ->
         )
     };
     let body = format!(
-        "<section class=\"forms\">{}</section>{pager}{list}",
-        plan_form(&state).await?
+        "<section class=\"forms\">{}</section><p class=\"hint\">Many plans checked in \
+         physics at once (<code>POST /v1/verifications</code>): {}.</p>{pager}{list}",
+        plan_form(&state).await?,
+        link("/ui/verifications", "physics verifications")
     );
     Ok(html::ok("Plans", "/ui/plans", &body))
+}
+
+/// "1–50 of 120 · previous · next" for a page of `shown` rows from `offset`.
+fn pager(offset: u32, shown: usize, total: i64) -> String {
+    let mut pager = format!(
+        "<p class=\"pager\">{} of {total}",
+        if shown == 0 {
+            "0".to_owned()
+        } else {
+            format!("{}–{}", offset + 1, offset as usize + shown)
+        }
+    );
+    if offset > 0 {
+        pager.push_str(&format!(
+            " · <a href=\"?offset={}\">previous</a>",
+            offset.saturating_sub(PAGE)
+        ));
+    }
+    if i64::from(offset + PAGE) < total {
+        pager.push_str(&format!(
+            " · <a href=\"?offset={}\">next</a>",
+            offset + PAGE
+        ));
+    }
+    pager.push_str("</p>");
+    pager
+}
+
+/// The physics verifications, newest first: what each asked, linked to its report.
+pub async fn verifications(State(state): State<AppState>, Query(q): Query<ListQuery>) -> Page {
+    let offset = q.offset.unwrap_or(0);
+    let (rows, total) = crate::service::verifications::list(&state, PAGE, offset).await?;
+    let trs: Vec<Vec<String>> = rows
+        .iter()
+        .map(|v| {
+            vec![
+                link(&format!("/ui/verifications/{}", v.id), short(&v.id)),
+                esc(&v.robots.join(", ")),
+                esc(&v.objects.join(", ")),
+                v.plans.to_string(),
+                link(&format!("/ui/jobs/{}", v.job_id), short(&v.job_id)),
+                format!(
+                    "<span class=\"when\">{}</span>",
+                    esc(&html::when(&v.created_at))
+                ),
+            ]
+        })
+        .collect();
+    let body = format!(
+        "<p class=\"hint\">Each verification plans every combination of its robots, objects, \
+         placements and tasks with <code>verify</code> and runs the feasible ones on a physics \
+         worker (<code>POST /v1/verifications</code>; a running one is a job).</p>{}{}",
+        pager(offset, rows.len(), total),
+        table(
+            &[
+                "verification",
+                "robots",
+                "objects",
+                "plans",
+                "job",
+                "created"
+            ],
+            &trs
+        )
+    );
+    Ok(html::ok("Physics verifications", "/ui/plans", &body))
 }
 
 /// A grasp's parts as stored.
@@ -1058,7 +1106,12 @@ pub async fn verification(State(state): State<AppState>, Path(id): Path<String>)
     let v = match crate::service::verifications::get(&state, &id).await {
         Ok(v) => v,
         Err(crate::service::Error::NotFound { .. }) => {
-            return Ok(html::not_found("verification", &id, "/ui/plans", "plans"));
+            return Ok(html::not_found(
+                "verification",
+                &id,
+                "/ui/verifications",
+                "verifications",
+            ));
         }
         Err(e) => return Err(e.into()),
     };

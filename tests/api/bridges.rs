@@ -2319,6 +2319,17 @@ async fn a_verification_plans_every_combination_on_the_physics_worker_and_tabula
         job_page.contains(&href),
         "the job's page does not link {href}"
     );
+    let listed = app.page("/ui/verifications").await;
+    assert!(
+        listed.contains(&href),
+        "the verifications page does not link {href}"
+    );
+    assert!(
+        app.page("/ui/plans")
+            .await
+            .contains("href=\"/ui/verifications\""),
+        "the plans page does not link the verifications"
+    );
     let page = app.page(&href).await;
     assert!(page.contains("Held in physics"));
     for it in items {
