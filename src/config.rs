@@ -130,7 +130,9 @@ pub struct Config {
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_DB_MAX_BYTES")]
     pub db_max_bytes: Option<u64>,
 
-    /// Jobs running at once; further jobs wait queued. Default: the number of CPUs.
+    /// Computing jobs (training, mappings, grasp batches) running at once; further ones wait
+    /// queued. A verification, which mostly waits for physics workers, takes no slot. Default:
+    /// the number of CPUs.
     #[arg(help_heading = SERVICE_OPTIONS, long, env = "REACHGRASP_JOB_CONCURRENCY",
           value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub job_concurrency: Option<u64>,
