@@ -667,7 +667,7 @@ impl Prepared {
         &self.object
     }
 
-    /// The same request with start seed `seed`.
+    /// Asks for start seed `seed` from now on.
     pub fn with_seed(&mut self, seed: u64) {
         self.settings.dto.seed = seed;
     }

@@ -423,10 +423,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
                 worker,
                 law,
                 safety,
-                trial: body
-                    .verify
-                    .then(|| physics_trial(body, trial_object.clone()))
-                    .flatten(),
+                trial: trial_object.clone().map(|o| physics_trial(body, o)),
             })
         }
         _ => None,
@@ -545,16 +542,15 @@ async fn check_verify(
 
 /// The grasp trial of a plan with `verify`: the grasp's own object (as the grasp was computed,
 /// with its support) and the request's obstacles.
-fn physics_trial(body: &PlanIn, object: Option<crate::grasp::ObjectSpec>) -> Option<PhysicsTrial> {
-    let object = object?;
-    Some(PhysicsTrial {
+fn physics_trial(body: &PlanIn, object: crate::grasp::ObjectSpec) -> PhysicsTrial {
+    PhysicsTrial {
         scene: PhysicsScene {
             support: object.support,
             object,
             obstacles: body.obstacles.clone(),
         },
         trial: body.trial.unwrap_or_default(),
-    })
+    }
 }
 
 /// Why a plan whose motion is not collision-free is infeasible: which link meets what, where
