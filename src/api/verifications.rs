@@ -3,6 +3,7 @@
 //! physics worker, as a job; the result tabulates the grasp trials per system and object.
 
 use axum::extract::State;
+use axum::http::StatusCode;
 use axum::response::Response;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -49,15 +50,16 @@ async fn list_verifications(
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
         .routes(routes!(create_verification, list_verifications))
-        .routes(routes!(get_verification))
+        .routes(routes!(get_verification, delete_verification))
 }
 
 /// Verify many plans in physics (202, a job). Every combination of robot, object, placement
 /// and task set is planned with `verify: true`, one robot's after another's end (the robots
 /// side by side), and waits for its physics worker's trial; progress counts the finished
 /// combinations (`GET /v1/jobs/{id}/events`). Each robot needs a connected worker with the
-/// `grasp_trial` capability (409 otherwise), each object a `mass` and a `friction`. The job holds one job slot
-/// while the workers run.
+/// `grasp_trial` capability (409 otherwise), each object a `mass` and a `friction`. The job
+/// takes no `--job-concurrency` slot (it waits for the workers; its plans are computed in turn
+/// with the requests' at `--request-concurrency`).
 #[utoipa::path(post, path = "/v1/verifications", tag = "plans", request_body = VerificationIn,
     responses((status = 202, description = "Accepted: the job, to follow at its Location", body = JobRecord),
               (status = 409, description = "A robot has no connected worker with the grasp_trial capability", body = Problem, content_type = "application/problem+json"),
@@ -81,4 +83,18 @@ async fn get_verification(
     Path(id): Path<String>,
 ) -> Result<Json<VerificationReport>, ApiError> {
     Ok(Json(service::get(&state, &id).await?))
+}
+
+/// Delete a verification's report. Its plans (and their grasps, trajectories and executions)
+/// stay: each is a plan of its own, deleted with `DELETE /v1/plans/{id}`.
+#[utoipa::path(delete, path = "/v1/verifications/{id}", tag = "plans",
+    params(("id" = String, Path, description = "Verification id")),
+    responses((status = 204, description = "Deleted (its plans stay)"),
+              (status = 404, description = "No such resource", body = Problem, content_type = "application/problem+json")))]
+async fn delete_verification(
+    State(state): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<StatusCode, ApiError> {
+    service::delete(&state, &id).await?;
+    Ok(StatusCode::NO_CONTENT)
 }

@@ -438,6 +438,19 @@ pub async fn list(
     Ok((out, total))
 }
 
+/// Deletes verification `id`'s report (its plans stay).
+pub async fn delete(ctx: &Context, id: &str) -> Result<(), Error> {
+    let gone = sqlx::query("DELETE FROM verifications WHERE id = ?")
+        .bind(id)
+        .execute(&ctx.db)
+        .await?
+        .rows_affected();
+    if gone == 0 {
+        return Err(Error::not_found("verification", id));
+    }
+    Ok(())
+}
+
 /// Verification `id` with every combination's verdict as it stands.
 pub async fn get(ctx: &Context, id: &str) -> Result<VerificationReport, Error> {
     let row =
