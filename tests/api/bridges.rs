@@ -2338,23 +2338,14 @@ async fn a_verification_plans_every_combination_on_the_physics_worker_and_tabula
     }
     // deleting the report keeps its plans
     let report_href = job["result"]["href"].as_str().unwrap();
-    let res = api
-        .client
-        .delete(api.url(report_href))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(res.status(), 204);
-    let res = api.get(report_href).await;
-    assert_eq!(res.status(), 404);
+    let delete = || async {
+        let res = api.client.delete(api.url(report_href)).send().await;
+        res.unwrap().status()
+    };
+    assert_eq!(delete().await, 204);
+    assert_eq!(api.get(report_href).await.status(), 404);
     assert_eq!(app.get("/v1/verifications").await["total"], 0);
-    let res = api
-        .client
-        .delete(api.url(report_href))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(res.status(), 404);
+    assert_eq!(delete().await, 404);
     for it in items {
         let plan = format!("/v1/plans/{}", it["plan_id"].as_str().unwrap());
         assert_eq!(
