@@ -677,76 +677,65 @@ impl Prepared {
         &self,
         regions: &[super::models::NamedGoalRegion],
     ) -> Result<(repo::NewGrasp, GraspResult, GraspScene), Error> {
-        let (settings, object_id, object, sys) = (
+        let (robot, settings, object, sys) = (
+            &self.robot,
             self.settings.clone(),
-            self.object_id.clone(),
             self.object.clone(),
             self.sys.clone(),
         );
-        compute_resolved(&self.robot, settings, object_id, object, sys, regions).await
-    }
-}
-
-async fn compute_resolved(
-    robot: &str,
-    settings: Settings,
-    object_id: Option<String>,
-    object: Object,
-    sys: Arc<HandArm>,
-    regions: &[super::models::NamedGoalRegion],
-) -> Result<(repo::NewGrasp, GraspResult, GraspScene), Error> {
-    let names = sys.model.joint_names();
-    let index = |n: &String| names.iter().position(|m| m == n);
-    let goal_regions: Vec<GoalRegion> = regions
-        .iter()
-        .map(|r| {
-            let joints = r.joints.iter().map(index).collect::<Option<Vec<usize>>>();
-            joints
-                .map(|joints| GoalRegion {
-                    name: r.group.clone(),
-                    joints,
-                    mean: r.mean.clone(),
-                    components: r.components.clone(),
-                    center: r.center.clone(),
-                    radius: r.radius,
-                })
-                .ok_or_else(|| {
-                    Error::invalid(
-                        "$.model",
-                        format!("the model's joints are not all joints of '{robot}'"),
-                    )
-                })
-        })
-        .collect::<Result<_, _>>()?;
-    // The regions' centre.
-    let arm_seed = (!goal_regions.is_empty()).then(|| {
-        let mut q = sys.model.neutral();
-        for g in &goal_regions {
-            for (&j, v) in g.joints.iter().zip(g.centre()) {
-                q[j] = v;
+        let names = sys.model.joint_names();
+        let index = |n: &String| names.iter().position(|m| m == n);
+        let goal_regions: Vec<GoalRegion> = regions
+            .iter()
+            .map(|r| {
+                let joints = r.joints.iter().map(index).collect::<Option<Vec<usize>>>();
+                joints
+                    .map(|joints| GoalRegion {
+                        name: r.group.clone(),
+                        joints,
+                        mean: r.mean.clone(),
+                        components: r.components.clone(),
+                        center: r.center.clone(),
+                        radius: r.radius,
+                    })
+                    .ok_or_else(|| {
+                        Error::invalid(
+                            "$.model",
+                            format!("the model's joints are not all joints of '{robot}'"),
+                        )
+                    })
+            })
+            .collect::<Result<_, _>>()?;
+        // The regions' centre.
+        let arm_seed = (!goal_regions.is_empty()).then(|| {
+            let mut q = sys.model.neutral();
+            for g in &goal_regions {
+                for (&j, v) in g.joints.iter().zip(g.centre()) {
+                    q[j] = v;
+                }
             }
-        }
-        q
-    });
-    let view = sys.clone();
-    let (result, object) = tokio::task::spawn_blocking(move || {
-        let mut req = make_request(object.clone(), &settings);
-        req.arm_seed = arm_seed;
-        req.goal_regions = goal_regions;
-        let r = plan_grasp(&sys, &req).map_err(|e| grasp_error("$", e))?;
-        Ok::<_, Error>(((r, settings.dto), object))
-    })
-    .await
-    .map_err(Error::internal)??;
-    let (result, dto) = result;
-    Ok((
-        new_grasp(robot, object_id, &object, &dto, &result),
-        result,
-        GraspScene {
-            sys: view,
-            object: Some(object),
-        },
-    ))
+            q
+        });
+        let view = sys.clone();
+        let (result, object) = tokio::task::spawn_blocking(move || {
+            let mut req = make_request(object.clone(), &settings);
+            req.arm_seed = arm_seed;
+            req.goal_regions = goal_regions;
+            let r = plan_grasp(&sys, &req).map_err(|e| grasp_error("$", e))?;
+            Ok::<_, Error>(((r, settings.dto), object))
+        })
+        .await
+        .map_err(Error::internal)??;
+        let (result, dto) = result;
+        Ok((
+            new_grasp(robot, self.object_id.clone(), &object, &dto, &result),
+            result,
+            GraspScene {
+                sys: view,
+                object: Some(object),
+            },
+        ))
+    }
 }
 
 /// The stored objects, the seeded everyday objects first.
