@@ -21,6 +21,14 @@ pub struct PlanRow {
     pub created_at: String,
 }
 
+/// The columns of [`PlanRow`] (a macro so queries stay `&'static str` literals).
+macro_rules! columns {
+    () => {
+        "id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, request, \
+         timings, created_at"
+    };
+}
+
 /// A plan to insert (id and timestamp are set here).
 #[derive(Debug, Clone)]
 pub struct NewPlan {
@@ -79,22 +87,20 @@ pub async fn insert_in(
 }
 
 pub async fn get(pool: &SqlitePool, id: &str) -> Result<Option<PlanRow>, sqlx::Error> {
-    sqlx::query_as(
-        "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
-         request, timings, created_at FROM plans WHERE id = ?",
-    )
-    .bind(id)
-    .fetch_optional(pool)
-    .await
+    sqlx::query_as(concat!("SELECT ", columns!(), " FROM plans WHERE id = ?"))
+        .bind(id)
+        .fetch_optional(pool)
+        .await
 }
 
 /// The plans of `ids` that exist, in no particular order (one query however many).
 pub async fn get_many(pool: &SqlitePool, ids: &[&str]) -> Result<Vec<PlanRow>, sqlx::Error> {
     let ids = serde_json::to_string(ids).map_err(|e| sqlx::Error::Encode(Box::new(e)))?;
-    sqlx::query_as(
-        "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
-         request, timings, created_at FROM plans WHERE id IN (SELECT value FROM json_each(?))",
-    )
+    sqlx::query_as(concat!(
+        "SELECT ",
+        columns!(),
+        " FROM plans WHERE id IN (SELECT value FROM json_each(?))"
+    ))
     .bind(ids)
     .fetch_all(pool)
     .await
@@ -106,10 +112,11 @@ pub async fn of_execution(
     pool: &SqlitePool,
     execution_id: &str,
 ) -> Result<Option<PlanRow>, sqlx::Error> {
-    sqlx::query_as(
-        "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
-         request, timings, created_at FROM plans WHERE execution_id = ? LIMIT 1",
-    )
+    sqlx::query_as(concat!(
+        "SELECT ",
+        columns!(),
+        " FROM plans WHERE execution_id = ? LIMIT 1"
+    ))
     .bind(execution_id)
     .fetch_optional(pool)
     .await
@@ -122,11 +129,12 @@ pub async fn list(
     limit: i64,
     offset: i64,
 ) -> Result<(Vec<PlanRow>, i64), sqlx::Error> {
-    let rows = sqlx::query_as(
-        "SELECT id, robot, model_id, grasp_id, trajectory_id, execution_id, feasible, reason, \
-         request, timings, created_at FROM plans WHERE (?1 IS NULL OR robot = ?1) \
-         ORDER BY created_at DESC, id LIMIT ?2 OFFSET ?3",
-    )
+    let rows = sqlx::query_as(concat!(
+        "SELECT ",
+        columns!(),
+        " FROM plans WHERE (?1 IS NULL OR robot = ?1) \
+         ORDER BY created_at DESC, id LIMIT ?2 OFFSET ?3"
+    ))
     .bind(robot)
     .bind(limit)
     .bind(offset)
