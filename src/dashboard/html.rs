@@ -144,6 +144,36 @@ pub fn facts(items: &[(&str, String)]) -> String {
     s
 }
 
+/// A list page's position and its previous/next links: "51–100 of 230 · previous · next".
+/// `query` is appended to each link (e.g. `&job_id=…`, the page's filter). A page past the
+/// end shows "0 of N" and a link back.
+pub fn pager(offset: u32, limit: u32, shown: usize, total: i64, query: &str) -> String {
+    let mut pager = format!(
+        "<p class=\"pager\">{} of {total}",
+        if shown == 0 {
+            "0".to_owned()
+        } else {
+            format!("{}–{}", offset + 1, offset as usize + shown)
+        }
+    );
+    if offset > 0 {
+        let _ = write!(
+            pager,
+            " · <a href=\"?offset={}{query}\">previous</a>",
+            offset.saturating_sub(limit)
+        );
+    }
+    if i64::from(offset) + i64::from(limit) < total {
+        let _ = write!(
+            pager,
+            " · <a href=\"?offset={}{query}\">next</a>",
+            offset + limit
+        );
+    }
+    pager.push_str("</p>");
+    pager
+}
+
 pub fn link(href: &str, text: &str) -> String {
     format!("<a href=\"{}\">{}</a>", esc(href), esc(text))
 }
@@ -276,6 +306,27 @@ pub fn when(rfc3339: &str) -> String {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_pager_counts_from_one_and_links_only_where_there_is_a_page() {
+        let p = super::pager;
+        assert_eq!(
+            p(0, 50, 50, 120, ""),
+            "<p class=\"pager\">1–50 of 120 · <a href=\"?offset=50\">next</a></p>"
+        );
+        assert_eq!(
+            p(100, 50, 20, 120, "&job_id=j"),
+            "<p class=\"pager\">101–120 of 120 · <a href=\"?offset=50&job_id=j\">previous</a></p>"
+        );
+        // exactly one full page: no next
+        assert_eq!(p(0, 50, 50, 50, ""), "<p class=\"pager\">1–50 of 50</p>");
+        // past the end (a stale link): nothing shown, the way back offered
+        assert_eq!(
+            p(200, 50, 0, 120, ""),
+            "<p class=\"pager\">0 of 120 · <a href=\"?offset=150\">previous</a></p>"
+        );
+        assert_eq!(p(0, 50, 0, 0, ""), "<p class=\"pager\">0 of 0</p>");
+    }
+
     #[test]
     fn markup_characters_are_escaped_to_their_entities() {
         // The five characters HTML reserves in text and quoted attributes, and nothing else.

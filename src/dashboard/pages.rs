@@ -520,27 +520,7 @@ pub async fn demonstrations(State(state): State<AppState>, Query(q): Query<DemoL
         ]);
     }
     let filter = q.job_id.map(|j| format!("&job_id={j}")).unwrap_or_default();
-    let mut pager = format!(
-        "<p class=\"pager\">{} of {total}",
-        if total == 0 {
-            "0".to_owned()
-        } else {
-            format!("{}–{}", offset + 1, offset as i64 + rows.len() as i64)
-        }
-    );
-    if offset > 0 {
-        pager.push_str(&format!(
-            " · <a href=\"?offset={}{filter}\">previous</a>",
-            offset.saturating_sub(limit)
-        ));
-    }
-    if ((offset + limit) as i64) < total {
-        pager.push_str(&format!(
-            " · <a href=\"?offset={}{filter}\">next</a>",
-            offset + limit
-        ));
-    }
-    pager.push_str("</p>");
+    let pager = html::pager(offset, limit, rows.len(), total, &filter);
     let heading = match q.job_id {
         Some(j) => format!(
             "<p>From job {}</p>",

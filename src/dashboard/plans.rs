@@ -255,7 +255,7 @@ pub async fn plans(State(state): State<AppState>, Query(q): Query<ListQuery>) ->
             ]
         })
         .collect();
-    let pager = pager(offset, rows.len(), total);
+    let pager = html::pager(offset, PAGE, rows.len(), total, "");
     let list = if rows.is_empty() {
         table(&[], &[])
     } else {
@@ -290,32 +290,6 @@ pub async fn plans(State(state): State<AppState>, Query(q): Query<ListQuery>) ->
     Ok(html::ok("Plans", "/ui/plans", &body))
 }
 
-/// "1–50 of 120 · previous · next" for a page of `shown` rows from `offset`.
-fn pager(offset: u32, shown: usize, total: i64) -> String {
-    let mut pager = format!(
-        "<p class=\"pager\">{} of {total}",
-        if shown == 0 {
-            "0".to_owned()
-        } else {
-            format!("{}–{}", offset + 1, offset as usize + shown)
-        }
-    );
-    if offset > 0 {
-        pager.push_str(&format!(
-            " · <a href=\"?offset={}\">previous</a>",
-            offset.saturating_sub(PAGE)
-        ));
-    }
-    if i64::from(offset + PAGE) < total {
-        pager.push_str(&format!(
-            " · <a href=\"?offset={}\">next</a>",
-            offset + PAGE
-        ));
-    }
-    pager.push_str("</p>");
-    pager
-}
-
 /// The physics verifications, newest first: what each asked, linked to its report.
 pub async fn verifications(State(state): State<AppState>, Query(q): Query<ListQuery>) -> Page {
     let offset = q.offset.unwrap_or(0);
@@ -340,7 +314,7 @@ pub async fn verifications(State(state): State<AppState>, Query(q): Query<ListQu
         "<p class=\"hint\">Each verification plans every combination of its robots, objects, \
          placements and tasks with <code>verify</code> and runs the feasible ones on a physics \
          worker (<code>POST /v1/verifications</code>; a running one is a job).</p>{}{}",
-        pager(offset, rows.len(), total),
+        html::pager(offset, PAGE, rows.len(), total, ""),
         table(
             &[
                 "verification",
