@@ -79,7 +79,7 @@ def cmd_grasps(a):
     svc = Service(a.http)
     objs = seeded(svc)
     rows = []
-    for robot in SYSTEMS:
+    for robot in a.systems.split(","):
         for oname, obj in objs.items():
             for tname, task in TASKS.items():
                 body = {"robot": robot, "object_id": obj["id"], "task_directions": task}
@@ -137,7 +137,7 @@ def cmd_plans(a):
     objs = objects(svc)
     rows = []
     rep = tempfile.mkdtemp(prefix="rg-plans-")
-    for robot in SYSTEMS:
+    for robot in a.systems.split(","):
         w = start_worker(a, robot, rep)
         try:
             start = zeros_start(svc, robot)

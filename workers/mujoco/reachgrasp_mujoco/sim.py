@@ -26,6 +26,11 @@ class RunOptions:
     # `stop_velocity` (the hand's deviation is reported: the object may stop the fingers).
     goal_tolerance: float = 0.01
     stop_velocity: float = 0.05
+    # Arrival against the object: when the settle time is over and the arm is at rest, touching
+    # the object, within `contact_tolerance` of the goal, the motion has arrived (the hand's
+    # contact forces hold the arm off its goal through the servo's finite stiffness, as on a
+    # real arm); the deviation and the contact force are reported with the arrival.
+    contact_tolerance: float = 0.03
     start_tolerance: float = 0.25
     settle_time: float = 2.0
     closed_loop_timeout: float = 30.0
@@ -442,6 +447,12 @@ def arrival(sim: Sim, goal, o: RunOptions, waited: float, allowed: float):
     sim.arrival_errors = {"arm_rad": round(arm_err, 5), "hand_rad": round(hand_err, 5)}
     if arm_err <= o.goal_tolerance and speed <= o.stop_velocity:
         return ("succeeded", None)
+    if waited >= allowed and arm_err <= o.contact_tolerance and speed <= o.stop_velocity:
+        touching, _ = sim.object_contacts()
+        if touching:
+            sim.arrival_errors["in_contact"] = True
+            sim.arrival_errors["contact_force_n"] = round(sum(f for _, f in touching), 2)
+            return ("succeeded", None)
     if waited >= allowed:
         return (
             "failed",
