@@ -824,9 +824,10 @@ pub async fn verification(
         return Ok(None);
     };
     Ok(match crate::store::executions::get(&ctx.db, id).await? {
-        Some(row) if row.grasp_trial => crate::store::executions::trial(&ctx.db, id)
-            .await?
-            .map(|t| Verification::of(&row, t.trial)),
+        Some(row) if row.grasp_trial => {
+            let trial = crate::store::executions::trial(&ctx.db, id).await?;
+            Verification::of_stored(&row, trial)
+        }
         _ => None,
     })
 }
@@ -910,6 +911,17 @@ pub struct Verification {
 }
 
 impl Verification {
+    /// The check of execution `row` with its stored grasp trial: none where it runs no trial
+    /// (or its trial is not stored).
+    pub fn of_stored(
+        row: &crate::store::executions::ExecutionRow,
+        trial: Option<PhysicsTrial>,
+    ) -> Option<Verification> {
+        trial
+            .filter(|_| row.grasp_trial)
+            .map(|t| Verification::of(row, t.trial))
+    }
+
     /// The check of execution `row` (one with a grasp trial, `trial`).
     pub fn of(row: &crate::store::executions::ExecutionRow, trial: TrialSpec) -> Verification {
         let physics = row

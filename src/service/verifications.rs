@@ -485,7 +485,7 @@ pub async fn get(ctx: &Context, id: &str) -> Result<VerificationReport, Error> {
             .await?
             .into_iter()
             .filter_map(|(row, trial)| {
-                let check = Verification::of(&row, trial?.trial);
+                let check = Verification::of_stored(&row, trial)?;
                 Some((row.id, check))
             })
             .collect();
