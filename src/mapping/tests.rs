@@ -1328,6 +1328,12 @@ struct Reach {
     free: f64,
     clear: f64,
     hand: f64,
+    /// The mapping's own objective (its weights, the clearance penalty) solved locally from the
+    /// `clear` solve's posture: its fingertip errors, and its objective minus the mapping's
+    /// (negative: the mapping stopped in a worse local minimum than the one next to the
+    /// reachable posture; positive with tips near: the terms trade the tips away).
+    full_errors: Vec<f64>,
+    full_gain: f64,
 }
 
 fn fingertip_reach(
@@ -1335,6 +1341,7 @@ fn fingertip_reach(
     study: &[(Vec<HumanFrame>, HumanObject)],
     trajs: &[MappedTrajectory],
     hand_too: bool,
+    weights: Weights,
 ) -> Vec<Reach> {
     let mm = MappingModel::from_system(sys).unwrap();
     let opts = SolverOptions {
@@ -1364,6 +1371,8 @@ fn fingertip_reach(
         let mut hand = Mapper::new(mm.clone(), only_tips, opts)
             .unwrap()
             .with_geometry(None);
+        let mut full = Mapper::new(mm.clone(), weights, opts).unwrap();
+        full.set_scene(&traj.registration);
         let (t0, t1) = (traj.times[0], *traj.times.last().unwrap());
         let mut goals = FrameGoals::default();
         let mut prev: [Option<Vec<f64>>; 3] = [None, None, None];
@@ -1378,6 +1387,7 @@ fn fingertip_reach(
                 hand.eval.mm.upper[j] = q[j];
             }
             let mut best = [f64::INFINITY; 3];
+            let mut clear_q = q.to_vec();
             let solvers = [&mut free, &mut clear, &mut hand];
             for (s, mapper) in solvers
                 .into_iter()
@@ -1406,13 +1416,29 @@ fn fingertip_reach(
                         best_q = mapper.solution().to_vec();
                     }
                 }
+                if s == 1 {
+                    clear_q = best_q.clone();
+                }
                 prev[s] = Some(best_q);
             }
+            if let Some(c) = &mut full.clearance {
+                c.object = frames[k].t < t0 + opts.object_free_until * (t1 - t0);
+            }
+            let f = full.solve_first_from(
+                &goals,
+                m.t,
+                &StartReference {
+                    q: clear_q,
+                    objective: 0.0,
+                },
+            );
             out.push(Reach {
                 errors: m.position_error[..m.fingers].to_vec(),
                 free: best[0],
                 clear: best[1],
                 hand: best[2],
+                full_errors: f.position_error[..f.fingers].to_vec(),
+                full_gain: f.objective - m.objective,
             });
         }
     }
@@ -1429,21 +1455,52 @@ fn fingertip_reach(
 fn probe_fingertip_reachability() {
     let study = study(1);
     let spec = RegistrationSpec::default();
+    let only = std::env::var("PROBE_SYSTEMS").unwrap_or_default();
     for name in SYSTEMS {
+        if !only.is_empty() && !only.split(',').any(|s| s == name) {
+            continue;
+        }
         let sys = system(name);
         // The baseline without the anthropomorphism terms only when asked (it doubles the time).
         let baseline = std::env::var_os("PROBE_BASELINE").is_some();
+        // PROBE_W="position,orientation,elbow,swivel" replaces the default weights.
+        let chosen = std::env::var("PROBE_W").ok().map(|v| {
+            let w: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
+            Weights {
+                position: w[0],
+                orientation: w[1],
+                elbow: w[2],
+                swivel: w[3],
+            }
+        });
         let weights = [
-            ("default", Weights::default()),
+            ("default", chosen.unwrap_or_default()),
             (
                 "no anthropomorphism",
                 Weights::default().without_anthropomorphism(),
             ),
         ];
         for (label, w) in weights.into_iter().take(if baseline { 2 } else { 1 }) {
-            let trajs = map_study(&sys, &study, &spec, w);
+            // PROBE_OPTS="tolerance,max_iterations,step_scale" replaces the solver's defaults.
+            let mut so = SolverOptions::default();
+            if let Ok(v) = std::env::var("PROBE_OPTS") {
+                let o: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
+                so.tolerance = o[0];
+                so.max_iterations = o[1] as usize;
+                so.step_scale = o[2];
+            }
+            let trajs = map_study_with(&sys, &study, &spec, w, so);
+            let floors = elbow_floors(&sys, &study, &trajs, lowest_elbow_height(&sys));
+            let (ws, we) = worst_clearances(&trajs);
+            println!(
+                "{name} [{label}] swivel above floor median {:.1}°, elbow above floor mean {:.1} mm; clearance support {:.2} mm object {:.2} mm",
+                median(floors.iter().map(|f| (f[1] - f[0]).to_degrees()).collect()),
+                1e3 * floors.iter().map(|f| f[3] - f[2]).sum::<f64>() / floors.len() as f64,
+                ws * 1e3,
+                we * 1e3
+            );
             let hand_too = std::env::var_os("PROBE_HAND").is_some();
-            let reach = fingertip_reach(&sys, &study, &trajs, hand_too);
+            let reach = fingertip_reach(&sys, &study, &trajs, hand_too, w);
             let n = reach.len() as f64;
             for (what, pick) in [
                 (
@@ -1471,6 +1528,20 @@ fn probe_fingertip_reachability() {
                     p95 * 1e3,
                     best * 1e3
                 );
+                if !ok.is_empty() {
+                    let fe: Vec<f64> = ok
+                        .iter()
+                        .flat_map(|r| r.full_errors.iter().copied())
+                        .collect();
+                    let lower = ok.iter().filter(|r| r.full_gain < 0.0).count();
+                    println!(
+                        "  the mapping objective from that solve: tips median {:.2} mm, p95 {:.2} mm; objective below the mapping's at {lower} of {} frames (median gain {:.3e})",
+                        median(fe.clone()) * 1e3,
+                        quantile95(fe) * 1e3,
+                        ok.len(),
+                        median(ok.iter().map(|r| r.full_gain).collect())
+                    );
+                }
             }
             let all: Vec<f64> = reach
                 .iter()
