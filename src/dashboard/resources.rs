@@ -457,7 +457,8 @@ pub async fn trajectories(State(state): State<AppState>, Query(q): Query<PageQue
 
 /// What a lab checks before it runs a trajectory, from its stored report: timing against the
 /// learned duration and the limits, the exact clearance (closest pair, per kind), what the
-/// avoidance moved, and the approach and workspace-entry segments with their notes. Empty
+/// avoidance moved, how the end meets the grasp, and the approach and workspace-entry segments
+/// with their notes. Empty
 /// for a summary that is not a trajectory report.
 pub(super) fn report_facts(summary: &str) -> String {
     use crate::grasp::ClearanceHit;
@@ -530,6 +531,24 @@ pub(super) fn report_facts(summary: &str) -> String {
                 a.below_target_after,
                 num(a.max_displacement_rad, 3)
             ),
+        ));
+    }
+    if let Some(a) = &r.arrival {
+        items.push((
+            "arrival",
+            if a.from_inside == 0 {
+                "every link touching the object or the table at the goal arrives from outside"
+                    .to_owned()
+            } else {
+                format!(
+                    "{} link(s) came to the goal from inside; end turned by up to {} rad, \
+                     overshoot past the goal {} → {} mm",
+                    a.from_inside,
+                    num(a.max_change_rad, 3),
+                    num(1e3 * a.overshoot_before_m, 2),
+                    num(1e3 * a.overshoot_after_m, 2)
+                )
+            },
         ));
     }
     if let Some(a) = &r.approach {

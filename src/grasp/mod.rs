@@ -19,8 +19,8 @@ pub use approach::{
     ApproachOptions, DEPARTURE_SHARE, PreGrasp, pre_grasp, shape_departure, shape_path,
 };
 pub use clearance::{
-    CLOSING_PRESS, ClearanceHit, PathClearance, PostureCollision, avoid, closing_contacts,
-    path_clearance, posture_collision, scene_checker,
+    Arrival, CLOSING_PRESS, ClearanceHit, PathClearance, PostureCollision, arrive_from_outside,
+    avoid, closing_contacts, path_clearance, posture_collision, scene_checker,
 };
 pub use indexes::{Ellipsoids, Goal, TaskDirection, Transmission};
 pub use objects::{Object, ObjectSpec, ShapeSpec, SupportPlane};

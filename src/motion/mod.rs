@@ -51,7 +51,7 @@ mod model;
 mod nf;
 mod pca;
 mod retime;
-pub use retime::{clearance_progress, cubic_basis};
+pub use retime::{arrival_progress, clearance_progress, cubic_basis};
 pub mod synthetic;
 #[cfg(test)]
 mod tests;

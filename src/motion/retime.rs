@@ -231,6 +231,15 @@ pub fn clearance_progress() -> Vec<f64> {
     xs
 }
 
+/// Where the end of a path is judged as it meets the grasp (`grasp::clearance::
+/// arrive_from_outside`): 40 progress values over its last tenth, closer together towards the
+/// end, where the slow final approach spends its time.
+pub fn arrival_progress() -> Vec<f64> {
+    (1..=40)
+        .map(|i| 1.0 - 0.1 * (i as f64 / 40.0).powi(2))
+        .collect()
+}
+
 /// The Greville abscissae of a clamped uniform cubic B-spline with `count` control points: where
 /// each control point acts most, so control points sampled there reproduce linear functions.
 pub fn greville(count: usize) -> Vec<f64> {

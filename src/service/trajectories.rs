@@ -12,14 +12,14 @@ use super::{Context, Error, Invalid, Keyword};
 use crate::geometry::avoid::{AvoidOptions, AvoidReport, CurveSample};
 use crate::geometry::{Category, GeometryError, ObstacleSpec, SceneShape, ShapeSpec};
 use crate::grasp::{
-    ApproachOptions, GraspResult, HandArm, Object, PathClearance, PreGrasp, avoid,
-    optimizer::EXACT_PENETRATION_TOLERANCE, path_clearance, posture_collision, pre_grasp,
-    scene_checker, shape_departure, shape_path,
+    ApproachOptions, Arrival, GraspResult, HandArm, Object, PathClearance, PreGrasp,
+    arrive_from_outside, avoid, optimizer::EXACT_PENETRATION_TOLERANCE, path_clearance,
+    posture_collision, pre_grasp, scene_checker, shape_departure, shape_path,
 };
 use crate::kinematics::{Data, System, forward_kinematics};
 use crate::motion::{
     MotionError, MotionModel, Trajectory, TrajectoryOptions, TrajectoryPoint, WorkspaceEntry,
-    clearance_progress, cubic_basis,
+    arrival_progress, clearance_progress, cubic_basis,
 };
 use crate::store::grasps as grasp_repo;
 use crate::store::library::LibraryError;
@@ -270,6 +270,11 @@ pub struct TrajectoryReportDto {
     /// scene, and in trajectories stored before paths were moved).
     #[serde(default)]
     pub avoidance: Option<AvoidanceDto>,
+    /// How the end of the path was turned so that the links touching the object or the support
+    /// at the goal arrive from outside (absent without a scene, and in trajectories stored
+    /// before it was checked).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arrival: Option<ArrivalDto>,
     /// The straight approach of a start outside the model's workspace (absent when the start
     /// is inside it, and in trajectories stored before starts outside were planned).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -497,6 +502,34 @@ impl AvoidanceDto {
     }
 }
 
+/// The end of the path as it meets the grasp (`grasp::clearance::arrive_from_outside`; not in
+/// the paper, whose flow ends along its own slowest direction): links within 5 mm of the object
+/// or the support at the goal should arrive from outside it. `from_inside` of them did not
+/// (the last segment's tangent pointed out of the surface, so the link crossed it and came
+/// back); then the end tangent was turned the least amount that makes them all approach, carried
+/// back over the final configurations, and kept where that lessened how much deeper than the
+/// goal itself the final tenth of the progress takes any link into the object or the support
+/// (`overshoot_before_m`, `overshoot_after_m`; exact distances).
+#[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
+pub struct ArrivalDto {
+    pub from_inside: usize,
+    pub overshoot_before_m: f64,
+    pub overshoot_after_m: f64,
+    /// Largest joint change of a configuration of the path (rad; 0: the path was kept).
+    pub max_change_rad: f64,
+}
+
+impl ArrivalDto {
+    fn new(a: &Arrival) -> Self {
+        ArrivalDto {
+            from_inside: a.from_inside,
+            overshoot_before_m: a.overshoot_before,
+            overshoot_after_m: a.overshoot_after,
+            max_change_rad: a.change,
+        }
+    }
+}
+
 /// FK along the points: fingertip and elbow paths (robot base frame).
 fn cartesian_paths(
     system: &System,
@@ -590,6 +623,7 @@ fn trajectory_report(
         grasp,
         clearance: None,
         avoidance: None,
+        arrival: None,
         approach: None,
         departure: None,
         workspace_entry: t.entry.as_ref().map(|e| WorkspaceEntryDto::new(e, ng)),
@@ -848,6 +882,7 @@ pub async fn compute(
                 // path is then moved the least amount needed for a clearance margin before it is
                 // timed.
                 let mut avoidance = None;
+                let mut arrival = None;
                 let mut approach = None;
                 let mut departure = None;
                 // Progress the departure takes, if there is one (the avoidance holds its targets
@@ -903,6 +938,19 @@ pub async fn compute(
                                 &curve,
                                 hold,
                             ));
+                            // The links in contact at the goal arrive from outside (no pad
+                            // crossing the surface and coming back on the final approach).
+                            let end: Vec<CurveSample> = cubic_basis(xs.len(), &arrival_progress())
+                                .into_iter()
+                                .map(|(x, first, w)| CurveSample { x, first, w })
+                                .collect();
+                            arrival = Some(arrive_from_outside(
+                                &sc.sys,
+                                sc.object.as_ref(),
+                                &obstacles,
+                                path,
+                                &end,
+                            ));
                         }
                     })
                     .map_err(|e| {
@@ -917,6 +965,7 @@ pub async fn compute(
                 let mut report =
                     trajectory_report(&system, &l.model, &traj, requested, rate, grasp.clone());
                 report.avoidance = avoidance.map(|a| AvoidanceDto::new(&a));
+                report.arrival = arrival.as_ref().map(ArrivalDto::new);
                 report.approach = approach.as_ref().map(ApproachDto::new);
                 report.departure = departure.as_ref().map(|d| ApproachDto::departure(d, hold));
                 report.clearance = scene.as_ref().map(|sc| {
