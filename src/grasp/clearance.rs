@@ -169,8 +169,9 @@ const ARRIVAL_GAIN: f64 = 5e-5;
 /// What [`arrive_from_outside`] found at a path's end.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Arrival {
-    /// Links near the object or the support at the goal that the path's last segment brought
-    /// there from inside it (their distance falling as the path left the goal backwards).
+    /// Pairs within [`ARRIVAL_CUTOFF`] of the object or the support at the goal that the path's
+    /// last segment does not approach at [`ARRIVAL_COS`] or more: it brings the link there from
+    /// inside (its distance rising into the goal) or nearly tangentially.
     pub from_inside: usize,
     /// How far the path's final stretch went deeper into the object or the support than the
     /// goal itself, before and after (m; 0: nowhere).

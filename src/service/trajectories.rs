@@ -504,12 +504,13 @@ impl AvoidanceDto {
 
 /// The end of the path as it meets the grasp (`grasp::clearance::arrive_from_outside`; not in
 /// the paper, whose flow ends along its own slowest direction): links within 5 mm of the object
-/// or the support at the goal should arrive from outside it. `from_inside` of them did not
-/// (the last segment's tangent pointed out of the surface, so the link crossed it and came
-/// back); then the end tangent was turned the least amount that makes them all approach, carried
-/// back over the final configurations, and kept where that lessened how much deeper than the
-/// goal itself the final tenth of the progress takes any link into the object or the support
-/// (`overshoot_before_m`, `overshoot_after_m`; exact distances).
+/// or the support at the goal should arrive from outside it, the path's end tangent meeting
+/// each pair's exact distance gradient at a cosine of at least 0.1. `from_inside` of them did
+/// not (the tangent pointed out of the surface, or along it: such a link crosses the surface
+/// and comes back); then the tangent was turned the least amount that makes them all approach,
+/// carried back over the final configurations, and kept where that lessened how much deeper than
+/// the goal itself the final tenth of the progress takes any link into the object or the
+/// support (`overshoot_before_m`, `overshoot_after_m`; exact distances).
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct ArrivalDto {
     pub from_inside: usize,
