@@ -718,7 +718,6 @@ mod tests {
     /// distal capsule's segment, minus both radii), not by the checker the function uses.
     #[test]
     fn a_pad_that_would_cross_the_surface_before_its_contact_arrives_from_outside() {
-        use crate::motion::cubic_basis;
         let sys = test_system();
         let nq = sys.model.nq();
         let model = &*sys.model;
@@ -757,11 +756,39 @@ mod tests {
             q[j2] -= by;
             q
         };
-        let xs: Vec<f64> = (1..=200).map(|i| 1.0 - 0.1 * i as f64 / 200.0).collect();
-        let end: Vec<CurveSample> = cubic_basis(5, &xs)
-            .into_iter()
-            .map(|(x, first, w)| CurveSample { x, first, w })
+        // The clamped uniform cubic B-spline of 5 control configurations (knots 0,0,0,0, ½,
+        // 1,1,1,1), its basis by the Cox–de Boor recursion, sampled over the last tenth.
+        let knots = [0.0, 0.0, 0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0];
+        fn basis(k: &[f64], i: usize, p: usize, x: f64) -> f64 {
+            if p == 0 {
+                return f64::from(u8::from(k[i] <= x && x < k[i + 1]));
+            }
+            let a = if k[i + p] > k[i] {
+                (x - k[i]) / (k[i + p] - k[i]) * basis(k, i, p - 1, x)
+            } else {
+                0.0
+            };
+            let b = if k[i + p + 1] > k[i + 1] {
+                (k[i + p + 1] - x) / (k[i + p + 1] - k[i + 1]) * basis(k, i + 1, p - 1, x)
+            } else {
+                0.0
+            };
+            a + b
+        }
+        let end: Vec<CurveSample> = (1..=200)
+            .map(|i| {
+                let x = 1.0 - 0.1 * i as f64 / 200.0;
+                // x > 1/2: the last four configurations carry the curve
+                CurveSample {
+                    x,
+                    first: 1,
+                    w: [1, 2, 3, 4].map(|r| basis(&knots, r, 3, x)),
+                }
+            })
             .collect();
+        for cs in &end {
+            assert!((cs.w.iter().sum::<f64>() - 1.0).abs() < 1e-12, "{cs:?}");
+        }
         let along = |path: &[f64], f: &mut dyn FnMut(&[f64]) -> f64| -> Vec<f64> {
             end.iter()
                 .map(|cs| {

@@ -531,6 +531,15 @@ impl ArrivalDto {
     }
 }
 
+/// The path spline of `count` control configurations at progress values `xs`, as the clearance
+/// code takes it (which configurations make each point, and their weights).
+fn curve_samples(count: usize, xs: &[f64]) -> Vec<CurveSample> {
+    cubic_basis(count, xs)
+        .into_iter()
+        .map(|(x, first, w)| CurveSample { x, first, w })
+        .collect()
+}
+
 /// FK along the points: fingertip and elbow paths (robot base frame).
 fn cartesian_paths(
     system: &System,
@@ -926,11 +935,7 @@ pub async fn compute(
                                 }
                                 approach = Some(found);
                             }
-                            let curve: Vec<CurveSample> =
-                                cubic_basis(xs.len(), &clearance_progress())
-                                    .into_iter()
-                                    .map(|(x, first, w)| CurveSample { x, first, w })
-                                    .collect();
+                            let curve = curve_samples(xs.len(), &clearance_progress());
                             avoidance = Some(avoid(
                                 &sc.sys,
                                 sc.object.as_ref(),
@@ -941,10 +946,7 @@ pub async fn compute(
                             ));
                             // The links in contact at the goal arrive from outside (no pad
                             // crossing the surface and coming back on the final approach).
-                            let end: Vec<CurveSample> = cubic_basis(xs.len(), &arrival_progress())
-                                .into_iter()
-                                .map(|(x, first, w)| CurveSample { x, first, w })
-                                .collect();
+                            let end = curve_samples(xs.len(), &arrival_progress());
                             arrival = Some(arrive_from_outside(
                                 &sc.sys,
                                 sc.object.as_ref(),
