@@ -458,8 +458,7 @@ pub async fn trajectories(State(state): State<AppState>, Query(q): Query<PageQue
 /// What a lab checks before it runs a trajectory, from its stored report: timing against the
 /// learned duration and the limits, the exact clearance (closest pair, per kind), what the
 /// avoidance moved, how the end meets the grasp, and the approach and workspace-entry segments
-/// with their notes. Empty
-/// for a summary that is not a trajectory report.
+/// with their notes. Empty for a summary that is not a trajectory report.
 pub(super) fn report_facts(summary: &str) -> String {
     use crate::grasp::ClearanceHit;
     use crate::service::trajectories::TrajectoryReportDto;
@@ -541,8 +540,8 @@ pub(super) fn report_facts(summary: &str) -> String {
                     .to_owned()
             } else {
                 format!(
-                    "{} link(s) came to the goal from inside; end turned by up to {} rad, \
-                     overshoot past the goal {} → {} mm",
+                    "{} link(s) did not approach the goal from outside; end turned by up to {} \
+                     rad, overshoot past the goal {} → {} mm",
                     a.from_inside,
                     num(a.max_change_rad, 3),
                     num(1e3 * a.overshoot_before_m, 2),

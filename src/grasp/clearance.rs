@@ -287,7 +287,7 @@ pub fn arrive_from_outside(
     let mut best: Option<(f64, Vec<f64>, f64)> = None;
     let mut trial = path.to_vec();
     let violated = |t: &[f64], g: &[f64]| dot(g, t) + ARRIVAL_COS * dot(g, g).sqrt() * len;
-    let mut t: Vec<f64> = goal.iter().zip(last).map(|(g, l)| g - l).collect();
+    let mut t = t;
     for _ in 0..50 {
         let mut worst = 0.0f64;
         for g in &grads {
