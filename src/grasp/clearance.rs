@@ -636,6 +636,46 @@ mod tests {
         }
     }
 
+    /// Finger 0's distal capsule of the test system: radius and length (m).
+    const DISTAL_RADIUS: f64 = 0.008;
+    const DISTAL_LENGTH: f64 = 0.036;
+    /// The ball the pad tests place on that capsule's end (m).
+    const PAD_BALL_RADIUS: f64 = 0.02;
+
+    /// The test system reaching forward and down (shoulder 0.9 rad, elbow 1.2 rad).
+    fn pad_grasp(sys: &HandArm) -> Vec<f64> {
+        let mut q = vec![0.0; sys.model.nq()];
+        q[sys.model.q_index("j2").unwrap()] = 0.9;
+        q[sys.model.q_index("j4").unwrap()] = 1.2;
+        q
+    }
+
+    /// A ball pressing `depth` into the end cap of finger 0's distal capsule at posture `q`
+    /// (placed along the capsule's axis by forward kinematics, so the depth is known in closed
+    /// form: centre distance minus both radii), and its centre.
+    fn ball_on_pad(sys: &HandArm, q: &[f64], depth: f64) -> (Object, Point3<f64>) {
+        let model = &*sys.model;
+        let mut data = Data::new(model);
+        forward_kinematics(model, &mut data, q);
+        let tip = *data.frame(model.frame_id("f0_dist_link").unwrap());
+        let axis = tip.rotation * nalgebra::Vector3::z();
+        let c = tip * Point3::new(0.0, 0.0, DISTAL_LENGTH)
+            + axis * (PAD_BALL_RADIUS + DISTAL_RADIUS - depth);
+        let ball = Object::new(ObjectSpec {
+            name: "ball".into(),
+            shape: ShapeSpec::Sphere {
+                radius: PAD_BALL_RADIUS,
+            },
+            position: [c.x, c.y, c.z],
+            orientation: [1.0, 0.0, 0.0, 0.0],
+            support: None,
+            mass: None,
+            friction: None,
+        })
+        .unwrap();
+        (ball, c)
+    }
+
     /// The closing phase: a fingertip pad pressing 3 mm into the object at the end of the
     /// motion is contact (the press reported, the path free), 8 mm is a collision, and the same
     /// 3 mm reached halfway (before the hand closes) is a collision. The object is placed from
@@ -644,31 +684,9 @@ mod tests {
     #[test]
     fn fingertip_pads_may_press_only_while_the_hand_closes_and_only_so_far() {
         let sys = test_system();
-        let nq = sys.model.nq();
-        let model = &*sys.model;
-        let (j2, j4) = (model.q_index("j2").unwrap(), model.q_index("j4").unwrap());
-        let mut grasp = vec![0.0; nq];
-        grasp[j2] = 0.9;
-        grasp[j4] = 1.2;
-        let mut data = Data::new(model);
-        forward_kinematics(model, &mut data, &grasp);
-        let tip = *data.frame(model.frame_id("f0_dist_link").unwrap());
-        let end = tip * Point3::new(0.0, 0.0, 0.036);
-        let axis = tip.rotation * nalgebra::Vector3::z();
-        let ball = |depth: f64| {
-            let r = 0.02;
-            let c = end + axis * (r + 0.008 - depth);
-            Object::new(ObjectSpec {
-                name: "ball".into(),
-                shape: ShapeSpec::Sphere { radius: r },
-                position: [c.x, c.y, c.z],
-                orientation: [1.0, 0.0, 0.0, 0.0],
-                support: None,
-                mass: None,
-                friction: None,
-            })
-            .unwrap()
-        };
+        let j2 = sys.model.q_index("j2").unwrap();
+        let grasp = pad_grasp(&sys);
+        let ball = |depth: f64| ball_on_pad(&sys, &grasp, depth).0;
         // lifted away by the shoulder, then down onto the ball
         let lifted = |by: f64| {
             let mut q = grasp.clone();
@@ -722,31 +740,19 @@ mod tests {
         let nq = sys.model.nq();
         let model = &*sys.model;
         let j2 = model.q_index("j2").unwrap();
-        let mut grasp = vec![0.0; nq];
-        grasp[j2] = 0.9;
-        grasp[model.q_index("j4").unwrap()] = 1.2;
+        let grasp = pad_grasp(&sys);
         let mut data = Data::new(model);
         let distal = model.frame_id("f0_dist_link").unwrap();
-        forward_kinematics(model, &mut data, &grasp);
-        let tip = *data.frame(distal);
-        let axis = tip.rotation * nalgebra::Vector3::z();
-        let (r, pad) = (0.02, 0.008);
+        let (r, pad) = (PAD_BALL_RADIUS, DISTAL_RADIUS);
         // the ball touches the distal capsule's end cap at the grasp
-        let centre = tip * Point3::new(0.0, 0.0, 0.036) + axis * (r + pad);
-        let object = Object::new(ObjectSpec {
-            name: "ball".into(),
-            shape: ShapeSpec::Sphere { radius: r },
-            position: [centre.x, centre.y, centre.z],
-            orientation: [1.0, 0.0, 0.0, 0.0],
-            support: None,
-            mass: None,
-            friction: None,
-        })
-        .unwrap();
+        let (object, centre) = ball_on_pad(&sys, &grasp, 0.0);
         let mut pad_distance = |q: &[f64]| {
             forward_kinematics(model, &mut data, q);
             let f = *data.frame(distal);
-            let (a, b) = (f * Point3::origin(), f * Point3::new(0.0, 0.0, 0.036));
+            let (a, b) = (
+                f * Point3::origin(),
+                f * Point3::new(0.0, 0.0, DISTAL_LENGTH),
+            );
             let ab = b - a;
             let s = ((centre - a).dot(&ab) / ab.norm_squared()).clamp(0.0, 1.0);
             (centre - (a + ab * s)).norm() - r - pad
