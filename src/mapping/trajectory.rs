@@ -121,10 +121,11 @@ impl Mapper {
         let mut goals = FrameGoals::default();
         self.goals(first, &reg, &mut goals);
         self.set_scene(&reg);
-        let m = self.solve_first(&goals, first.t);
+        self.solve_first(&goals, first.t);
+        let (q, objective) = self.chain();
         Ok(StartReference {
-            q: self.q.clone(),
-            objective: m.objective,
+            q: q.to_vec(),
+            objective,
         })
     }
 
@@ -402,13 +403,14 @@ pub fn batch_starts(
             .map(|(g, r)| (distance(g), r))
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, r)| r.clone());
-        let metrics = match &nearest {
+        match &nearest {
             Some(r) => mapper.solve_first_from(&goals, first.t, r),
             None => mapper.solve_first(&goals, first.t),
         };
+        let (q, objective) = mapper.chain();
         let start = StartReference {
-            q: mapper.q.clone(),
-            objective: metrics.objective,
+            q: q.to_vec(),
+            objective,
         };
         solved.push((goals, start.clone()));
         out.push(Some(start));
