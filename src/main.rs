@@ -658,7 +658,7 @@ fn map(args: MapArgs) -> anyhow::Result<()> {
             position: Some(p),
             orientation: Some(o),
             elbow: Some(e),
-            swivel: None,
+            ..WeightsIn::default()
         },
         Some(_) => anyhow::bail!("--weights takes three numbers: position,orientation,elbow"),
     };

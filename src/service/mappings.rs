@@ -106,6 +106,13 @@ pub struct WeightsIn {
     /// On `2 (1 − cos Δφ)`, the elbow swivel-angle difference (not in the paper).
     #[schema(minimum = 0)]
     pub swivel: Option<f64>,
+    /// Fingertip priority `K ≥ 1` (not in the paper): each frame's weighted solve is followed by
+    /// a second one from its result with the orientation, elbow and swivel weights divided by
+    /// `K`, so the fingertips (kept clear of the scene) come first and the anthropomorphism
+    /// terms act in the self-motion they leave. Default 1000; `1` is the paper's single
+    /// weighted sum.
+    #[schema(minimum = 1)]
+    pub fingertip_priority: Option<f64>,
 }
 
 /// Scale of the human arm transport (horizontal, about the object): a positive number, or
@@ -223,6 +230,14 @@ pub struct WeightsDto {
     /// Absent in mappings stored before the swivel term.
     #[serde(default)]
     pub swivel: f64,
+    /// The fingertip-priority factor `K` (`1`: the paper's single weighted sum, as every
+    /// mapping stored before the stage was mapped).
+    #[serde(default = "single_weighted_sum")]
+    pub fingertip_priority: f64,
+}
+
+fn single_weighted_sum() -> f64 {
+    1.0
 }
 
 /// Aggregate metrics over frames (of one demonstration or of a whole mapping).
@@ -428,6 +443,8 @@ pub struct MappedDemoDto {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MappingParams {
     pub weights: Weights,
+    /// [`SolverOptions::fingertip_priority`].
+    pub fingertip_priority: f64,
     pub registration: RegistrationSpec,
     pub output_rate_hz: Option<f64>,
 }
@@ -464,6 +481,15 @@ pub fn parse_params(
                 format!("must be finite and non-negative, got {v}"),
             ));
         }
+    }
+    let fingertip_priority = weights
+        .fingertip_priority
+        .unwrap_or(SolverOptions::default().fingertip_priority);
+    if !(fingertip_priority.is_finite() && fingertip_priority >= 1.0) {
+        errors.push(Invalid::new(
+            "$.weights.fingertip_priority",
+            format!("must be finite and at least 1, got {fingertip_priority}"),
+        ));
     }
     if weights_ok && w.validate().is_err() {
         errors.push(Invalid::new(
@@ -589,6 +615,7 @@ pub fn parse_params(
     }
     Ok(MappingParams {
         weights: w,
+        fingertip_priority,
         registration: spec,
         output_rate_hz,
     })
@@ -700,7 +727,10 @@ pub fn run_mapping(
             &anchor,
             &items,
             params.weights,
-            SolverOptions::default(),
+            SolverOptions {
+                fingertip_priority: params.fingertip_priority,
+                ..SolverOptions::default()
+            },
             threads,
             progress,
             &flag,
@@ -1008,19 +1038,21 @@ pub fn map_offline(
         .collect();
     Ok(OfflineMapping {
         robot: robot.to_owned(),
-        weights: weights_dto(&params.weights),
+        weights: weights_dto(params),
         output_rate_hz: params.output_rate_hz,
         summary: MappingSummary::of(trajectories.iter().map(|t| t.metrics.as_slice())),
         demonstrations,
     })
 }
 
-fn weights_dto(w: &Weights) -> WeightsDto {
+fn weights_dto(p: &MappingParams) -> WeightsDto {
+    let w = &p.weights;
     WeightsDto {
         position: w.position,
         orientation: w.orientation,
         elbow: w.elbow,
         swivel: w.swivel,
+        fingertip_priority: p.fingertip_priority,
     }
 }
 
@@ -1223,7 +1255,7 @@ pub async fn submit(ctx: &Context, body: &MappingIn) -> Result<(JobRecord, Strin
         robot: body.robot.clone(),
         demonstrations: selected.into_iter().map(|(id, _)| id).collect(),
         filter,
-        weights: weights_dto(&params.weights),
+        weights: weights_dto(&params),
         registration: body.registration.clone(),
         output_rate_hz: params.output_rate_hz,
     };
@@ -1295,18 +1327,26 @@ mod tests {
             WeightsIn {
                 position: Some(-1.0),
                 orientation: Some(f64::NAN),
-                elbow: None,
-                swivel: None,
+                ..WeightsIn::default()
             },
             RegistrationIn::default(),
             None,
         );
         assert_eq!(paths(&e), ["$.weights.position", "$.weights.orientation"]);
+        for k in [0.5, 0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let w = WeightsIn {
+                fingertip_priority: Some(k),
+                ..WeightsIn::default()
+            };
+            let e = bad(w, RegistrationIn::default(), None);
+            assert_eq!(paths(&e), ["$.weights.fingertip_priority"], "{k}");
+        }
         let zero = WeightsIn {
             position: Some(0.0),
             orientation: Some(0.0),
             elbow: Some(0.0),
             swivel: Some(0.0),
+            fingertip_priority: None,
         };
         assert_eq!(
             paths(&bad(zero, RegistrationIn::default(), None)),

@@ -365,6 +365,12 @@ async fn bad_input_is_a_4xx_naming_the_field_and_stores_nothing() {
         ),
         (
             json!({"robot": "wam_ihy", "demonstrations": [good],
+                   "weights": {"fingertip_priority": 0.5}}),
+            "$.weights.fingertip_priority",
+            "at least 1",
+        ),
+        (
+            json!({"robot": "wam_ihy", "demonstrations": [good],
                    "registration": {"placement": [3.0, 0.0, 0.3]}}),
             "$.registration.placement",
             "beyond its reach",
