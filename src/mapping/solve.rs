@@ -171,7 +171,9 @@ pub struct FrameMetrics {
     pub elbow_distance_mean: f64,
     /// `F` of eq. 5 at the solution.
     pub objective: f64,
+    /// Iterations of both stages (the weighted solve and the fingertip-priority one).
     pub iterations: usize,
+    /// Whether the weighted solve (the frame chain's) converged.
     pub converged: bool,
     /// Elbow swivel angles ([`super::objective::swivel_angle`]) of the registered human arm and
     /// of the robot arm, and the absolute difference wrapped to `[0, π]`, rad (NaN without arm
@@ -383,10 +385,8 @@ impl Mapper {
             terms: weights.terms(),
             priority_terms: {
                 // Divided rather than the position and clearance weights multiplied: the same
-                // minimiser, but the objective keeps the weighted one's scale, so the solver's
-                // step-size estimate and stopping tolerance mean the same in both stages (a
-                // stiffer objective shrank the step until the fixed-point residual looked
-                // converged 4 mm inside the object on one pa10_t42 frame).
+                // minimiser at the weighted objective's scale, for which the tolerances and the
+                // clearance weight were chosen.
                 let k = options.fingertip_priority;
                 Weights {
                     orientation: weights.orientation / k,
