@@ -80,8 +80,10 @@ pub struct SolverOptions {
     /// first, the anthropomorphism terms only in the self-motion they leave. One weighted sum
     /// trades about 7 mm of fingertip error for the elbow and swivel terms where those press
     /// against their joint-limit floors; solving the frame chain with the stiffer sum instead
-    /// stops in worse minima (measured in `probe_fingertip_reachability`). `1` turns the stage
-    /// off (the paper's single weighted sum). Not in the paper.
+    /// stops in worse minima (measured in `probe_fingertip_reachability`). `1` (the default)
+    /// turns the stage off: the paper's single weighted sum. Off by default because the motion
+    /// models learned from the prioritised mappings lost plans downstream (README, Mappings);
+    /// `1000` is the measured setting. Not in the paper.
     pub fingertip_priority: f64,
     /// Iteration cap of the fingertip-priority stage.
     pub priority_max_iterations: usize,
@@ -102,7 +104,7 @@ impl Default for SolverOptions {
             clearance_weight: 1e3,
             clearance_margin: 0.005,
             object_free_until: 0.9,
-            fingertip_priority: 1e3,
+            fingertip_priority: 1.0,
             priority_max_iterations: 200,
         }
     }

@@ -109,8 +109,8 @@ pub struct WeightsIn {
     /// Fingertip priority `K ≥ 1` (not in the paper): each frame's weighted solve is followed by
     /// a second one from its result with the orientation, elbow and swivel weights divided by
     /// `K`, so the fingertips (kept clear of the scene) come first and the anthropomorphism
-    /// terms act in the self-motion they leave. Default 1000; `1` is the paper's single
-    /// weighted sum.
+    /// terms act in the self-motion they leave. Default 1, the paper's single weighted sum
+    /// (the stage off); 1000 is the measured setting.
     #[schema(minimum = 1)]
     pub fingertip_priority: Option<f64>,
 }
