@@ -256,6 +256,8 @@ pub struct Mapper {
     /// start (the frame chain runs on the weighted objective alone), and a batch's first-frame
     /// reference. Equal to `q` when the priority stage is off.
     pub(super) chain: Vec<f64>,
+    /// Set by the first-frame solves only (the batch references need it; a warm-started frame
+    /// would pay one more forward kinematics for nothing).
     pub(super) chain_objective: f64,
     /// The previous frame's output (`q`), whose step bound the priority stage keeps.
     pub(super) previous: Vec<f64>,
@@ -478,7 +480,6 @@ impl Mapper {
     /// the object from opposite sides, a pinch the box then kept the solve in).
     fn prioritise(&mut self, goals: &FrameGoals, tolerance: f64) -> usize {
         self.chain.copy_from_slice(&self.q);
-        self.chain_objective = self.eval.value(&self.terms, goals, &self.q);
         if self.options.fingertip_priority == 1.0 {
             return 0;
         }
@@ -563,6 +564,7 @@ impl Mapper {
         self.lo.copy_from_slice(&lower);
         self.hi.copy_from_slice(&upper);
         self.previous.copy_from_slice(&self.q);
+        self.chain_objective = self.eval.value(&self.terms, goals, &self.q);
         total_iter += self.prioritise(goals, self.options.first_frame_tolerance);
         self.metrics(goals, t, total_iter, converged)
     }
@@ -592,9 +594,10 @@ impl Mapper {
             false,
         );
         self.previous.copy_from_slice(&self.q);
+        let local_objective = self.eval.value(&self.terms, goals, &self.q);
+        self.chain_objective = local_objective;
         let extra = self.prioritise(goals, self.options.first_frame_tolerance);
         let local = self.metrics(goals, t, report.iterations + extra, report.converged);
-        let local_objective = self.chain_objective;
         let factor = self.options.first_frame_fallback;
         // A reference objective of exactly 0 would make any residual "much worse"; the floor is
         // far below any real frame's objective (fingertip errors of ~1e-5 m).
@@ -666,7 +669,7 @@ impl Mapper {
     }
 
     /// The last frame's weighted solution (the frame chain's posture; [`Self::solution`] when
-    /// the fingertip-priority stage is off) and its objective.
+    /// the fingertip-priority stage is off) and, after a first-frame solve, its objective.
     pub fn chain(&self) -> (&[f64], f64) {
         (&self.chain, self.chain_objective)
     }
