@@ -41,6 +41,7 @@
 // chains over 3-5 zipped arrays read worse than the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+mod baselines;
 mod bspline;
 mod control;
 mod error;
@@ -57,6 +58,7 @@ pub mod synthetic;
 mod tests;
 mod timing;
 
+pub use baselines::{Dmp, ProMp};
 pub use bspline::{MAX_DIM, TensorBSpline};
 pub use control::ControlParams;
 pub use error::MotionError;
