@@ -3,11 +3,14 @@
 //! trials) is ingested, mapped onto each robot (eq. 1-7), and for every object position a model
 //! is trained on the other four and tested on it. Reported per system: the mean
 //! arc-length-resampled joint-space deviation (rad) from the held-out mapped trajectories of
-//! (a) the NF model, (b) the straight joint line, (c) the straight line in PCA space (`k → ∞`),
-//! and `a / b`.
+//! (a) the NF model, (b) the straight joint line, (c) a DMP and (d) a ProMP conditioned on start
+//! and goal (both trained on the same folds), and `a / b`.
 //!
 //! The NF model is trained with its goal-conditioned residual profile
 //! ([`reachgrasp::motion::ResidualProfile`]); `NO_PROFILE=1` trains the plain NF path.
+//!
+//! Then, per system and joint group, the variance the first three principal components explain
+//! in a model trained on every demonstration (the paper's footnote 2: more than 88 %).
 //!
 //! `cargo run --release --example motion_heldout -- [subjects] [trials]` (defaults 2 and 5).
 
@@ -23,7 +26,9 @@ use reachgrasp::mapping::{
 use reachgrasp::motion::mapped::{
     DEFAULT_ACCELERATION_LIMIT, DEFAULT_JERK_LIMIT, system_groups, system_limits,
 };
-use reachgrasp::motion::{DEFAULT_PROFILE_RIDGE, JointTrajectory, ProfileInputs, TrainOptions};
+use reachgrasp::motion::{
+    DEFAULT_PROFILE_RIDGE, JointTrajectory, ProfileInputs, TrainOptions, train,
+};
 use reachgrasp::service::models::held_out_folds;
 
 const SYSTEMS: [&str; 6] = [
@@ -79,9 +84,10 @@ fn main() {
         })
         .collect();
     println!(
-        "| system | folds | held-out demos (refused) | (a) NF | (b) joint line | (c) PCA line | a / b |"
+        "| system | folds | held-out demos (refused) | (a) NF | (b) joint line | (c) DMP | (d) ProMP | a / b |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
+    let mut variance = Vec::new();
     for name in SYSTEMS {
         let sys = System::from_file(
             &Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("robots/systems/{name}.toml")),
@@ -117,16 +123,28 @@ fn main() {
             workspace_margin,
             ..TrainOptions::default()
         };
+        let (all, _) = train(&trajs, &limits, &opts).expect("a model of every demonstration");
+        variance.push((
+            name,
+            all.manifolds
+                .iter()
+                .map(|m| {
+                    let v = &m.pca.all_explained_variance;
+                    (v.iter().take(3).sum::<f64>(), m.pca.d(), v.len())
+                })
+                .collect::<Vec<_>>(),
+        ));
         let summary =
             held_out_folds(&trajs, &positions, &limits, &opts, |_, _| {}).expect("5 positions");
         for f in &summary.folds {
             match (&f.result, &f.error) {
                 (Some(r), _) => eprintln!(
-                    "  {name} position {}: NF {:.4}, joint line {:.4}, PCA line {:.4}, ratio {:.3}, refused {}/{}",
+                    "  {name} position {}: NF {:.4}, joint line {:.4}, DMP {:.4}, ProMP {:.4}, ratio {:.3}, refused {}/{}",
                     f.position_index,
                     r.nf,
                     r.joint_line,
-                    r.pca_line,
+                    r.dmp.unwrap_or(f64::NAN),
+                    r.promp.unwrap_or(f64::NAN),
                     r.ratio_to_joint_line,
                     r.refused,
                     r.demonstrations
@@ -141,19 +159,32 @@ fn main() {
         let ok = summary.folds.iter().filter(|f| f.result.is_some()).count();
         match summary.overall {
             Some(o) => println!(
-                "| {name} | {ok}/{} | {} ({}) | {:.4} | {:.4} | {:.4} | {:.3} |",
+                "| {name} | {ok}/{} | {} ({}) | {:.4} | {:.4} | {:.4} | {:.4} | {:.3} |",
                 summary.folds.len(),
                 o.demonstrations,
                 o.refused,
                 o.nf,
                 o.joint_line,
-                o.pca_line,
+                o.dmp.unwrap_or(f64::NAN),
+                o.promp.unwrap_or(f64::NAN),
                 o.ratio_to_joint_line
             ),
             None => println!(
-                "| {name} | {ok}/{} | - | - | - | - | - |",
+                "| {name} | {ok}/{} | - | - | - | - | - | - |",
                 summary.folds.len()
             ),
+        }
+    }
+    println!();
+    println!("| system | group | first 3 components | components kept / joints |");
+    println!("|---|---|---|---|");
+    for (name, groups) in variance {
+        for (g, (first3, kept, joints)) in groups.iter().enumerate() {
+            let group = if g == 0 { "arm" } else { "hand" };
+            println!(
+                "| {name} | {group} | {:.1} % | {kept} / {joints} |",
+                100.0 * first3
+            );
         }
     }
 }

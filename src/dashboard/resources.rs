@@ -382,6 +382,12 @@ pub async fn model(State(state): State<AppState>, Path(id): Path<String>) -> Pag
                     num(o["ratio_to_joint_line"].as_f64().unwrap_or(f64::NAN), 3)
                 ),
             ));
+            if let (Some(dmp), Some(promp)) = (o["dmp"].as_f64(), o["promp"].as_f64()) {
+                items.push((
+                    "held-out deviation (DMP / ProMP)",
+                    format!("{} / {}", num(dmp, 4), num(promp, 4)),
+                ));
+            }
         }
     }
     items.push(("API", link(&format!("/v1/models/{id}"), "JSON")));

@@ -6,8 +6,8 @@ use super::control::ControlGroup;
 use super::fit::{DemoY, MAX_COEFFICIENTS, certify, fit_spline};
 use super::retime;
 use super::{
-    Certificate, Components, ControlParams, FlowOptions, FlowPath, MAX_DIM, MotionError,
-    NaturalCubic, NavigationFunction, Pca, Pchip, TensorBSpline, integrate_flow,
+    Certificate, Components, ControlParams, Dmp, FlowOptions, FlowPath, MAX_DIM, MotionError,
+    NaturalCubic, NavigationFunction, Pca, Pchip, ProMp, TensorBSpline, integrate_flow,
 };
 
 /// A demonstrated (mapped) joint trajectory: `times` (s, increasing) and `positions`
@@ -464,7 +464,12 @@ pub struct ManifoldFit {
 }
 
 /// Humanlikeness on held-out demonstrations: mean arc-length-resampled joint-space deviation
-/// from the demonstrated path, for the NF model and the two baselines.
+/// from the demonstrated path, for the NF model, the straight joint line and two learned
+/// baselines trained on the same demonstrations ([`ProMp`](super::ProMp) conditioned on start
+/// and goal, [`Dmp`](super::Dmp)).
+///
+/// No straight line in PCA space: with the exact start and goal kept, its back-projection is the
+/// straight joint line (the map is affine), so it only ever repeated that column.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HeldOutReport {
     pub demonstrations: usize,
@@ -472,7 +477,11 @@ pub struct HeldOutReport {
     pub refused: usize,
     pub nf: f64,
     pub joint_line: f64,
-    pub pca_line: f64,
+    /// `None` in reports stored before the baselines existed.
+    #[serde(default)]
+    pub dmp: Option<f64>,
+    #[serde(default)]
+    pub promp: Option<f64>,
     /// `nf / joint_line` (the goal: ≤ 0.7).
     pub ratio_to_joint_line: f64,
 }
@@ -838,7 +847,7 @@ pub fn train(
         duration,
         flow: opts.flow,
     };
-    let held_out = held_out_report(&model, demos, &held_idx);
+    let held_out = held_out_report(&model, demos, &train_idx, &held_idx);
     let report = TrainReport {
         manifolds: fits,
         duration,
@@ -1170,18 +1179,23 @@ fn duration_model(demos: &[JointTrajectory], train_idx: &[usize], n: usize) -> D
 fn held_out_report(
     model: &MotionModel,
     demos: &[JointTrajectory],
+    train_idx: &[usize],
     held_idx: &[usize],
 ) -> Option<HeldOutReport> {
     if held_idx.is_empty() {
         return None;
     }
     let n = model.n_joints;
+    let train: Vec<&JointTrajectory> = train_idx.iter().map(|&i| &demos[i]).collect();
+    let promp = ProMp::fit(&train, n);
+    let dmp = Dmp::fit(&train, n);
     let mut report = HeldOutReport {
         demonstrations: held_idx.len(),
         refused: 0,
         nf: 0.0,
         joint_line: 0.0,
-        pca_line: 0.0,
+        dmp: dmp.as_ref().map(|_| 0.0),
+        promp: promp.as_ref().map(|_| 0.0),
         ratio_to_joint_line: 0.0,
     };
     let mut used = 0;
@@ -1189,15 +1203,11 @@ fn held_out_report(
         let dm = &demos[di];
         let start = dm.frame(0, n);
         let goal = dm.frame(dm.frames() - 1, n);
-        let mut dev = [0.0; 3];
+        let mut dev = [0.0; 2];
         let mut ok = true;
-        for (slot, planner) in [
-            Baseline::NavigationFunction,
-            Baseline::JointLine,
-            Baseline::PcaLine,
-        ]
-        .iter()
-        .enumerate()
+        for (slot, planner) in [Baseline::NavigationFunction, Baseline::JointLine]
+            .iter()
+            .enumerate()
         {
             let o = TrajectoryOptions {
                 planner: *planner,
@@ -1215,12 +1225,32 @@ fn held_out_report(
         used += 1;
         report.nf += dev[0];
         report.joint_line += dev[1];
-        report.pca_line += dev[2];
+        // The baselines are judged on the demonstrations the model accepts, so every column
+        // averages over the same ones.
+        if let (Some(sum), Some(d)) = (report.dmp.as_mut(), &dmp) {
+            *sum += arc_length_deviation(&d.path(start, goal), &dm.positions, n, 100);
+        }
+        if let Some(p) = &promp {
+            match p.path(start, goal) {
+                Some(path) => {
+                    if let Some(sum) = report.promp.as_mut() {
+                        *sum += arc_length_deviation(&path, &dm.positions, n, 100);
+                    }
+                }
+                None => report.promp = None,
+            }
+        }
     }
     if used > 0 {
-        report.nf /= used as f64;
-        report.joint_line /= used as f64;
-        report.pca_line /= used as f64;
+        let u = used as f64;
+        report.nf /= u;
+        report.joint_line /= u;
+        if let Some(v) = report.dmp.as_mut() {
+            *v /= u;
+        }
+        if let Some(v) = report.promp.as_mut() {
+            *v /= u;
+        }
         report.ratio_to_joint_line = report.nf / report.joint_line.max(f64::MIN_POSITIVE);
     }
     Some(report)

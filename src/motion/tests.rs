@@ -269,7 +269,9 @@ fn closed_loop_law_drives_a_perturbed_simulated_state_to_the_goal() {
 }
 
 #[test]
-fn nf_model_beats_both_baselines_on_held_out_positions() {
+fn nf_model_beats_the_joint_line_on_held_out_positions() {
+    // On this synthetic study (one smooth family per position) the learned baselines do far
+    // better still (ProMP 0.02, DMP 0.03-0.06 rad against NF 0.25): they are printed, not judged.
     let data = small_study(6);
     // interior object positions (the outer ones lie outside the certified goal region of a
     // model trained without them, and are refused)
@@ -277,11 +279,11 @@ fn nf_model_beats_both_baselines_on_held_out_positions() {
         let (_, report) = train(&data.demos, &data.limits, &options(&data, Some(held))).unwrap();
         let h = report.held_out.unwrap();
         println!(
-            "held-out position {held}: NF {:.4}, joint line {:.4}, PCA line {:.4}, ratio {:.3}, refused {}",
-            h.nf, h.joint_line, h.pca_line, h.ratio_to_joint_line, h.refused
+            "held-out position {held}: NF {:.4}, joint line {:.4}, DMP {:?}, ProMP {:?}, ratio {:.3}, refused {}",
+            h.nf, h.joint_line, h.dmp, h.promp, h.ratio_to_joint_line, h.refused
         );
         assert_eq!(h.refused, 0);
-        assert!(h.nf < h.joint_line && h.nf < h.pca_line);
+        assert!(h.nf < h.joint_line);
         for m in &report.manifolds {
             assert!(m.train_alignment > 0.5 && m.held_out_alignment.unwrap() > 0.5);
         }
@@ -350,14 +352,14 @@ fn mapped_pa10_t42() -> (
 }
 
 #[test]
-fn nf_model_beats_both_baselines_on_held_out_mapped_demonstrations() {
+fn nf_model_beats_the_joint_line_dmp_and_promp_on_held_out_mapped_pa10_t42() {
     let (sys, humans, demos) = mapped_pa10_t42();
     let limits = mapped::system_limits(
         &sys,
         mapped::DEFAULT_ACCELERATION_LIMIT,
         mapped::DEFAULT_JERK_LIMIT,
     );
-    let (mut nf, mut jl, mut pl, mut used) = (0.0, 0.0, 0.0, 0);
+    let (mut nf, mut jl, mut dmp, mut promp, mut used) = (0.0, 0.0, 0.0, 0.0, 0);
     for held in 0..5u32 {
         let opts = TrainOptions {
             groups: mapped::system_groups(&sys),
@@ -372,18 +374,21 @@ fn nf_model_beats_both_baselines_on_held_out_mapped_demonstrations() {
         assert!(model.manifolds.iter().all(|m| m.profile.is_some()));
         let h = report.held_out.unwrap();
         println!(
-            "held-out position {held}: NF {:.4}, joint line {:.4}, PCA line {:.4}, ratio {:.3}, refused {}/{}",
-            h.nf, h.joint_line, h.pca_line, h.ratio_to_joint_line, h.refused, h.demonstrations
+            "held-out position {held}: NF {:.4}, joint line {:.4}, DMP {:?}, ProMP {:?}, ratio {:.3}, refused {}/{}",
+            h.nf, h.joint_line, h.dmp, h.promp, h.ratio_to_joint_line, h.refused, h.demonstrations
         );
         let n = (h.demonstrations - h.refused) as f64;
         nf += h.nf * n;
         jl += h.joint_line * n;
-        pl += h.pca_line * n;
+        dmp += h.dmp.unwrap() * n;
+        promp += h.promp.unwrap() * n;
         used += h.demonstrations - h.refused;
     }
     println!(
-        "all folds: NF / joint line {:.3}, {used} demonstrations",
-        nf / jl
+        "all folds: NF / joint line {:.3}, DMP / joint line {:.3}, ProMP / joint line {:.3}, {used} demonstrations",
+        nf / jl,
+        dmp / jl,
+        promp / jl
     );
     // 20 of 20 planned. 0.624 when written, on demonstrations registered under the robot's
     // table (shoulder onto shoulder, everything scaled 1.5x); 0.867 since they are registered
@@ -395,9 +400,12 @@ fn nf_model_beats_both_baselines_on_held_out_mapped_demonstrations() {
         used >= 18,
         "only {used} held-out demonstrations were planned"
     );
+    assert!(nf < jl, "NF {nf} vs joint line {jl}");
+    // Issue 19: no worse than the DMP and ProMP baselines (0.798 against 1.233 and 0.830 of the
+    // joint line when written; on wam_t42 and wam_ob4f the ProMP is ahead, see the README).
     assert!(
-        nf < jl && nf < pl,
-        "NF {nf} vs joint line {jl}, PCA line {pl}"
+        nf < dmp && nf < promp,
+        "NF {nf} vs DMP {dmp}, ProMP {promp}"
     );
     assert!(nf / jl <= 0.9, "NF / joint line {:.3}", nf / jl);
 }

@@ -202,8 +202,9 @@ pub struct ManifoldDto {
 }
 
 /// Humanlikeness on held-out data: mean arc-length-resampled joint-space deviation (rad) from the
-/// held-out mapped trajectory, for the NF model, the straight joint line and the straight line in
-/// PCA space (`k → ∞`).
+/// held-out mapped trajectory, for the NF model, the straight joint line and two learned baselines
+/// trained on the same demonstrations: a DMP (Pastor's goal-change form, one forcing term per
+/// joint) and a ProMP conditioned on the start and the goal.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct HeldOutDto {
     pub demonstrations: usize,
@@ -211,7 +212,12 @@ pub struct HeldOutDto {
     pub refused: usize,
     pub nf: f64,
     pub joint_line: f64,
-    pub pca_line: f64,
+    /// Absent in models trained before the baselines were reported.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dmp: Option<f64>,
+    /// Absent in models trained before the baselines were reported.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub promp: Option<f64>,
     /// `nf / joint_line` (the goal: ≤ 0.7).
     pub ratio_to_joint_line: f64,
 }
@@ -309,7 +315,8 @@ fn held_out_dto(h: &HeldOutReport) -> HeldOutDto {
         refused: h.refused,
         nf: h.nf,
         joint_line: h.joint_line,
-        pca_line: h.pca_line,
+        dmp: h.dmp,
+        promp: h.promp,
         ratio_to_joint_line: h.ratio_to_joint_line,
     }
 }
@@ -708,7 +715,9 @@ pub fn held_out_folds(
         return None;
     }
     let mut folds = Vec::new();
-    let (mut sum_nf, mut sum_jl, mut sum_pl) = (0.0, 0.0, 0.0);
+    let (mut sum_nf, mut sum_jl) = (0.0, 0.0);
+    // A baseline's overall figure only when every fold that trained has it.
+    let (mut sum_dmp, mut sum_promp) = (Some(0.0), Some(0.0));
     let (mut total, mut used, mut refused) = (0usize, 0usize, 0usize);
     for (f, &p) in distinct.iter().enumerate() {
         progress(f, distinct.len());
@@ -730,7 +739,8 @@ pub fn held_out_folds(
                 used += n;
                 sum_nf += h.nf * n as f64;
                 sum_jl += h.joint_line * n as f64;
-                sum_pl += h.pca_line * n as f64;
+                sum_dmp = sum_dmp.zip(h.dmp).map(|(s, v)| s + v * n as f64);
+                sum_promp = sum_promp.zip(h.promp).map(|(s, v)| s + v * n as f64);
                 folds.push(FoldDto {
                     position_index: p,
                     result: Some(held_out_dto(&h)),
@@ -753,7 +763,8 @@ pub fn held_out_folds(
             refused,
             nf: sum_nf / u,
             joint_line: sum_jl / u,
-            pca_line: sum_pl / u,
+            dmp: sum_dmp.map(|s| s / u),
+            promp: sum_promp.map(|s| s / u),
             ratio_to_joint_line: sum_nf / sum_jl.max(f64::MIN_POSITIVE),
         }
     });
