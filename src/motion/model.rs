@@ -1252,6 +1252,10 @@ fn held_out_report(
             *v /= u;
         }
         report.ratio_to_joint_line = report.nf / report.joint_line.max(f64::MIN_POSITIVE);
+    } else {
+        // nothing was judged: no figure rather than a zero deviation
+        report.dmp = None;
+        report.promp = None;
     }
     Some(report)
 }
