@@ -167,6 +167,7 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
     )
     .await;
     assert_eq!(status["seeding"]["trained"], 6, "{status}");
+    let mut defaults = Vec::new();
     for robot in robots {
         let r = status["robots"]
             .as_array()
@@ -185,7 +186,9 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         )
         .await;
         assert_eq!(model["trained_at"], job["finished_at"], "{r} vs {job}");
+        defaults.push((robot, id.to_owned()));
     }
+    default_models_converge_from_random_pairs(&app, &defaults).await;
 
     // With the seeded models, the wam_t42 bottle plan from the zero posture sweeps a proximal
     // link through the bottle when it runs into the grasp directly (measured: 43.8 mm deep). Left
@@ -407,5 +410,82 @@ async fn assert_reused(db: &Path) {
             app.state().seed.pending_job(robot).is_none(),
             "{robot} is being seeded again"
         );
+    }
+}
+
+/// Issue 19's certificate claim on the seeded default models themselves: 10,000 random
+/// (start, goal) pairs per system, each group's start uniform in 0.98 of its workspace ball and
+/// its goal uniform in its certified goal region, integrated with the model's own flow settings.
+/// Every flow must converge to within 1e-6 rad of its goal (PCA coordinates are orthonormal
+/// joint-space coordinates, so that is the joint-space error on the manifold). The certificate
+/// the models carry makes `γ` fall monotonically, so the pairs on which it rises are counted and
+/// must be none: a rise would mean the stored certificate is wrong.
+async fn default_models_converge_from_random_pairs(app: &TestApp, defaults: &[(&str, String)]) {
+    use rand::{RngExt, SeedableRng};
+    use reachgrasp::motion::{FlowPath, integrate_flow};
+    use sqlx::sqlite::{SqliteConnectOptions, SqlitePoolOptions};
+
+    let options = SqliteConnectOptions::new()
+        .filename(app._dir.path().join("db/test.db"))
+        .read_only(true);
+    let pool = SqlitePoolOptions::new()
+        .max_connections(1)
+        .connect_with(options)
+        .await
+        .unwrap();
+    for (robot, id) in defaults {
+        let model = reachgrasp::store::models::load_model(&pool, id)
+            .await
+            .unwrap()
+            .unwrap_or_else(|| panic!("{robot}: default model {id} stored"));
+        let robot = robot.to_string();
+        tokio::task::spawn_blocking(move || {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(19);
+            // uniform in a ball: a Gaussian direction, radius r·u^(1/d)
+            let mut ball = |c: &[f64], r: f64| -> Vec<f64> {
+                let d = c.len();
+                let g: Vec<f64> = (0..d)
+                    .map(|_| {
+                        let (u1, u2): (f64, f64) =
+                            (rng.random_range(1e-12..1.0), rng.random_range(0.0..1.0));
+                        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+                    })
+                    .collect();
+                let norm = g.iter().map(|x| x * x).sum::<f64>().sqrt();
+                let radius = r * rng.random_range(0.0f64..1.0).powf(1.0 / d as f64);
+                c.iter()
+                    .zip(&g)
+                    .map(|(c, x)| c + radius * x / norm)
+                    .collect()
+            };
+            let mut path = FlowPath::default();
+            let (mut worst, mut rises, mut steps) = (0.0f64, 0usize, 0usize);
+            for _ in 0..10_000 {
+                for m in &model.manifolds {
+                    let y0 = ball(&m.nf.center, 0.98 * m.nf.radius);
+                    let yd = ball(&m.certificate.goal_center, m.certificate.goal_radius);
+                    integrate_flow(&m.nf, &y0, &yd, &model.flow, &mut path);
+                    assert!(
+                        path.converged && path.final_error <= 1e-6,
+                        "{robot}: from {y0:?} to {yd:?}: converged {}, error {}",
+                        path.converged,
+                        path.final_error
+                    );
+                    worst = worst.max(path.final_error);
+                    steps = steps.max(path.steps);
+                    rises += usize::from(path.gamma.windows(2).any(|w| w[1] > w[0]));
+                }
+            }
+            eprintln!(
+                "{robot}: 10,000 pairs converged, largest final error {worst:.2e}, most steps \
+                 {steps}, flows on which γ rose {rises}"
+            );
+            assert_eq!(
+                rises, 0,
+                "{robot}: γ rose although the certificate says it cannot"
+            );
+        })
+        .await
+        .unwrap();
     }
 }
