@@ -19,7 +19,7 @@ mod viewer;
 
 use axum::Router;
 use axum::http::header;
-use axum::response::IntoResponse;
+use axum::response::{IntoResponse, Redirect};
 use axum::routing::get;
 
 use crate::service::Context as AppState;
@@ -34,6 +34,9 @@ const FAVICON: &[u8] = include_bytes!("../../assets/dashboard/favicon.svg");
 pub fn router() -> Router<AppState> {
     Router::new()
         .route("/", get(pages::home))
+        // The pages live under /ui/…; its bare prefix is where a user looks for the overview.
+        .route("/ui", get(|| async { Redirect::permanent("/") }))
+        .route("/ui/", get(|| async { Redirect::permanent("/") }))
         .route("/assets/style.css", get(style))
         .route("/assets/app.js", get(script))
         .route("/favicon.ico", get(favicon))

@@ -75,13 +75,21 @@ fn feasible_text(feasible: bool, reason: Option<&str>) -> String {
 
 /// The start choices, as the JSON the API takes for `start`: `"current"` (the connected
 /// worker's measured state) or `"zero"` (the zero configuration of whichever robot is chosen,
-/// resolved by the service), so that no robot and start chosen together can disagree.
-fn start_select() -> String {
-    "<div class=\"field\"><label>start</label><select name=\"start\" data-type=\"json\" \
-     data-path=\"$.start\"><option value=\"&quot;current&quot;\" selected>current: where the \
-     connected worker is</option><option value=\"&quot;zero&quot;\">zero configuration of the \
-     robot</option></select><span class=\"field-error\"></span></div>"
-        .to_owned()
+/// resolved by the service), so that no robot and start chosen together can disagree. With no
+/// worker connected there is no current state, so the zero configuration is preselected (a plan
+/// from `"current"` would be refused).
+fn start_select(worker_connected: bool) -> String {
+    let (current, zero) = if worker_connected {
+        (" selected", "")
+    } else {
+        ("", " selected")
+    };
+    format!(
+        "<div class=\"field\"><label>start</label><select name=\"start\" data-type=\"json\" \
+         data-path=\"$.start\"><option value=\"&quot;current&quot;\"{current}>current: where the \
+         connected worker is</option><option value=\"&quot;zero&quot;\"{zero}>zero configuration \
+         of the robot</option></select><span class=\"field-error\"></span></div>"
+    )
 }
 
 /// The "plan and execute" form: robot, object, task directions, start, and execution on a
@@ -142,7 +150,7 @@ async fn plan_form(state: &AppState) -> Result<String, PageError> {
         d1,
         k1,
         g1,
-        start_select(),
+        start_select(!workers.is_empty()),
         field(
             "execute",
             "execute",

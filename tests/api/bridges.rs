@@ -2324,11 +2324,15 @@ async fn a_verification_plans_every_combination_on_the_physics_worker_and_tabula
         listed.contains(&href),
         "the verifications page does not link {href}"
     );
+    let plans_page = app.page("/ui/plans").await;
     assert!(
-        app.page("/ui/plans")
-            .await
-            .contains("href=\"/ui/verifications\""),
+        plans_page.contains("href=\"/ui/verifications\""),
         "the plans page does not link the verifications"
+    );
+    // With a worker connected, the form starts where it is.
+    assert!(
+        plans_page.contains("value=\"&quot;current&quot;\" selected"),
+        "the plan form does not preselect the connected worker's state"
     );
     let page = app.page(&href).await;
     assert!(page.contains("Held in physics"));

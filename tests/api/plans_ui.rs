@@ -44,6 +44,16 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     ] {
         assert!(html.contains(needle), "{needle}");
     }
+    // The bare prefix of the pages leads to the overview.
+    let no_follow = reqwest::Client::builder()
+        .redirect(reqwest::redirect::Policy::none())
+        .build()
+        .unwrap();
+    for prefix in ["/ui", "/ui/"] {
+        let res = no_follow.get(app.url(prefix)).send().await.unwrap();
+        assert_eq!(res.status(), 308, "{prefix}");
+        assert_eq!(res.headers()["location"], "/", "{prefix}");
+    }
     let (_, home) = page(&app, "/").await;
     assert!(home.contains("<a href=\"/ui/plans\">Plans</a>"), "nav");
     assert!(
@@ -148,11 +158,15 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     let select = &list[list.find("name=\"start\"").unwrap()..];
     let select = &select[..select.find("</select>").unwrap()];
     assert_eq!(select.matches("<option").count(), 2, "{select}");
+    // No worker is connected here, so there is no current state: "zero" is preselected.
     assert!(
-        select.contains("value=\"&quot;current&quot;\" selected"),
+        select.contains("value=\"&quot;zero&quot;\" selected"),
         "{select}"
     );
-    assert!(select.contains("value=\"&quot;zero&quot;\""), "{select}");
+    assert!(
+        select.contains("value=\"&quot;current&quot;\">"),
+        "{select}"
+    );
     assert!(!select.contains("joint_names"), "{select}");
     // What the form sends for "zero" plans from the chosen robot's zero configuration.
     let res = app
@@ -323,6 +337,16 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     let (status, _) = page(&app, "/ui/compare").await;
     assert_eq!(status, 200, "the empty comparison is its form");
 
+    // The bare prefix of the pages leads to the overview.
+    let no_follow = reqwest::Client::builder()
+        .redirect(reqwest::redirect::Policy::none())
+        .build()
+        .unwrap();
+    for prefix in ["/ui", "/ui/"] {
+        let res = no_follow.get(app.url(prefix)).send().await.unwrap();
+        assert_eq!(res.status(), 308, "{prefix}");
+        assert_eq!(res.headers()["location"], "/", "{prefix}");
+    }
     let (_, home) = page(&app, "/").await;
     // The two compared, the one from "zero" and the closed-loop one.
     assert!(home.contains("href=\"/ui/plans\"><span class=\"count\">4</span> plans"));
