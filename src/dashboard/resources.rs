@@ -316,21 +316,39 @@ pub async fn mapping(
 pub async fn models(State(state): State<AppState>, Query(q): Query<PageQuery>) -> Page {
     let (rows, total) =
         model_repo::list_models(&state.db, None, 100, q.offset.unwrap_or(0)).await?;
+    // The model plans use when none is named, per robot on this page.
+    let mut defaults = std::collections::BTreeMap::new();
+    for m in &rows {
+        if !defaults.contains_key(&m.robot) {
+            let d = model_repo::default_model_for(&state.db, &m.robot).await?;
+            defaults.insert(m.robot.clone(), d.map(|d| d.id));
+        }
+    }
     let trs: Vec<Vec<String>> = rows
         .iter()
         .map(|m| {
+            let is_default = defaults.get(&m.robot).and_then(|d| d.as_deref()) == Some(&m.id);
             vec![
                 link(&format!("/ui/models/{}", m.id), short(&m.id)),
                 esc(&m.robot),
                 esc(&m.status),
+                if is_default {
+                    "default".into()
+                } else {
+                    String::new()
+                },
                 link(&format!("/ui/jobs/{}", m.job_id), "job"),
                 esc(&m.created_at),
             ]
         })
         .collect();
     let body = format!(
-        "<p class=\"pager\">{total} models</p>{}",
-        table(&["model", "robot", "status", "job", "created"], &trs)
+        "<p class=\"pager\">{total} models; a robot's default is what its plans use when none \
+         is named</p>{}",
+        table(
+            &["model", "robot", "status", "plans use", "job", "created"],
+            &trs
+        )
     );
     Ok(html::ok("Models", "/ui/models", &body))
 }
@@ -343,9 +361,20 @@ pub async fn model(State(state): State<AppState>, Path(id): Path<String>) -> Pag
         .report
         .as_deref()
         .and_then(|r| serde_json::from_str(r).ok());
+    let is_default = model_repo::default_model_for(&state.db, &m.robot)
+        .await?
+        .is_some_and(|d| d.id == m.id);
     let mut items = vec![
         ("robot", link(&format!("/ui/robots/{}", m.robot), &m.robot)),
         ("status", esc(&m.status)),
+        (
+            "default",
+            if is_default {
+                "yes: plans of this robot use it when none is named".into()
+            } else {
+                "no".into()
+            },
+        ),
         ("job", link(&format!("/ui/jobs/{}", m.job_id), &m.job_id)),
     ];
     let mut manifolds = Vec::new();

@@ -711,6 +711,41 @@ async fn the_default_model_shapes_paths_with_its_residual_profile() {
     assert!(r["duration"].as_f64().unwrap() > r["learned_duration"].as_f64().unwrap());
     assert!(r["max_acceleration_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
     assert!(r["max_velocity_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
+
+    // The dashboard says which of the two the robot's plans use: the one `/v1/status` names as
+    // the robot's default model (neither is marked, so the newest).
+    let status: Value = app.get("/v1/status").await.json().await.unwrap();
+    let robot = status["robots"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["id"] == ROBOT)
+        .unwrap();
+    let default_id = robot["default_model"]["id"].as_str().unwrap().to_owned();
+    assert_eq!(default_id, plain["id"].as_str().unwrap());
+    let mut defaults = 0;
+    let list = app.get("/ui/models").await.text().await.unwrap();
+    for model in [&shaped, &plain] {
+        let id = model["id"].as_str().unwrap();
+        let is_default = id == default_id;
+        defaults += usize::from(is_default);
+        let row = &list[list.find(&format!("/ui/models/{id}")).unwrap()..];
+        let row = &row[..row.find("</tr>").unwrap()];
+        assert_eq!(row.contains(">default<"), is_default, "{id}: {row}");
+        let page = app
+            .get(&format!("/ui/models/{id}"))
+            .await
+            .text()
+            .await
+            .unwrap();
+        let said = if is_default {
+            "<dd>yes: plans"
+        } else {
+            "<dd>no</dd>"
+        };
+        assert!(page.contains(said), "{id}: the page does not say {said}");
+    }
+    assert_eq!(defaults, 1);
 }
 
 #[tokio::test]
