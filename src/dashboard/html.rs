@@ -337,3 +337,8 @@ mod tests {
         assert_eq!(super::esc("plain"), "plain");
     }
 }
+
+/// The first 8 characters of an id, as lists and links show it.
+pub fn short(id: &str) -> &str {
+    &id[..8.min(id.len())]
+}

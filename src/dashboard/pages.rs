@@ -6,7 +6,8 @@ use serde::Deserialize;
 use uuid::Uuid;
 
 use super::html::{
-    self, PageError, esc, facts, field, figure, form, link, num, progress, table, value_facts,
+    self, PageError, esc, facts, field, figure, form, link, num, progress, short, table,
+    value_facts,
 };
 use crate::grasp::{GraspResult, ObjectSpec, ShapeSpec};
 use crate::jobs::JobRecord;
@@ -35,6 +36,21 @@ pub fn result_href(j: &JobRecord) -> Option<String> {
     })
 }
 
+/// What the result link says: the resource and its short id, so that six model jobs in a row
+/// are six different links.
+fn result_text(j: &JobRecord) -> String {
+    match &j.result {
+        Some(r) if r.resource == "demonstrations" => "demonstrations".into(),
+        Some(r) if r.resource == "grasps/batches" => format!("grasp batch {}", short(&r.id)),
+        Some(r) => format!(
+            "{} {}",
+            r.resource.strip_suffix('s').unwrap_or(&r.resource),
+            short(&r.id)
+        ),
+        None => "result".into(),
+    }
+}
+
 fn jobs_table(jobs: &[JobRecord]) -> String {
     let rows: Vec<Vec<String>> = jobs
         .iter()
@@ -44,7 +60,7 @@ fn jobs_table(jobs: &[JobRecord]) -> String {
                 esc(&j.kind),
                 progress(&j.id.to_string(), j.status.as_str(), j.progress.fraction),
                 result_href(j)
-                    .map(|h| link(&h, "result"))
+                    .map(|h| link(&h, &result_text(j)))
                     .unwrap_or_default(),
                 esc(&j.created_at),
             ]

@@ -11,11 +11,12 @@ use serde::Deserialize;
 use serde_json::Value;
 
 use super::html::{
-    self, PageError, esc, facts, field, figure, form, link, num, table, value_facts, value_text,
+    self, PageError, esc, facts, field, figure, form, link, num, short, table, value_facts,
+    value_text,
 };
 use super::pages::task_fields;
 use super::resources::{
-    execution_fraction, execution_progress, physics_fact, report_facts, safety_fact, short,
+    execution_fraction, execution_progress, physics_fact, report_facts, safety_fact,
 };
 use crate::grasp::{GraspResult, ObjectSpec};
 use crate::service::Context as AppState;

@@ -4,7 +4,9 @@
 use axum::extract::{Path, Query, State};
 use serde::Deserialize;
 
-use super::html::{self, PageError, esc, facts, field, figure, form, link, num, progress, table};
+use super::html::{
+    self, PageError, esc, facts, field, figure, form, link, num, progress, short, table,
+};
 use crate::bridge::Mode;
 use crate::service::Context as AppState;
 use crate::store::executions::{self as execution_repo, ExecutionState};
@@ -14,10 +16,6 @@ use crate::store::models as model_repo;
 use crate::store::trajectories as trajectory_repo;
 
 type Page = Result<axum::response::Response, PageError>;
-
-pub(super) fn short(id: &str) -> &str {
-    &id[..8.min(id.len())]
-}
 
 fn pretty(json: &str) -> String {
     serde_json::from_str::<serde_json::Value>(json)

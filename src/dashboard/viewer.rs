@@ -22,7 +22,7 @@ use axum::routing::{get, post};
 use nalgebra::Isometry3;
 use serde::Deserialize;
 
-use super::html::{self, PageError, esc, link};
+use super::html::{self, PageError, esc, link, short};
 use crate::figures::viewer::{Track, ViewGrasp, ViewInput, pose_of, view_scene};
 use crate::geometry::{ObstacleSpec, pose_from_parts};
 use crate::grasp::{GraspResult, ObjectSpec};
@@ -78,10 +78,6 @@ async fn license() -> impl IntoResponse {
 }
 
 type Page = Result<Response, PageError>;
-
-fn short(id: &str) -> &str {
-    &id[..8.min(id.len())]
-}
 
 /// The viewer page: canvas, playback controls, and where its scene (and live events) come from;
 /// `note` (HTML) is shown above the canvas, for what the scene lacks.

@@ -746,6 +746,13 @@ async fn the_default_model_shapes_paths_with_its_residual_profile() {
         assert!(page.contains(said), "{id}: the page does not say {said}");
     }
     assert_eq!(defaults, 1);
+    // The jobs page tells the two training jobs apart by the model each made.
+    let jobs = app.get("/ui/jobs").await.text().await.unwrap();
+    for model in [&shaped, &plain] {
+        let id = model["id"].as_str().unwrap();
+        let text = format!("/ui/models/{id}\">model {}</a>", &id[..8]);
+        assert!(jobs.contains(&text), "the jobs page has no {text}");
+    }
 }
 
 #[tokio::test]
