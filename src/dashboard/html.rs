@@ -304,6 +304,11 @@ pub fn when(rfc3339: &str) -> String {
         .to_owned()
 }
 
+/// The first 8 characters of an id, as lists and links show it.
+pub fn short(id: &str) -> &str {
+    &id[..8.min(id.len())]
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -336,9 +341,4 @@ mod tests {
         );
         assert_eq!(super::esc("plain"), "plain");
     }
-}
-
-/// The first 8 characters of an id, as lists and links show it.
-pub fn short(id: &str) -> &str {
-    &id[..8.min(id.len())]
 }
