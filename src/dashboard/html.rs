@@ -113,6 +113,20 @@ pub fn not_found(what: &str, id: &str, list_href: &str, list_label: &str) -> Res
         .into_response()
 }
 
+/// A page for a dashboard path that does not exist (a browser gets HTML, not problem+json).
+pub fn no_such_page(path: &str) -> Response {
+    let body = format!(
+        "<section class=\"notfound\"><p>There is no page at <code>{}</code>; the link may be \
+         mistyped.</p><p><a href=\"/\">Overview</a></p></section>",
+        esc(path)
+    );
+    (
+        StatusCode::NOT_FOUND,
+        Html(page("Page not found", "/", &body)),
+    )
+        .into_response()
+}
+
 /// An HTML table; cells are already HTML.
 pub fn table(headers: &[&str], rows: &[Vec<String>]) -> String {
     if rows.is_empty() {

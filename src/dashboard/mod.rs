@@ -37,6 +37,11 @@ pub fn router() -> Router<AppState> {
         // The pages live under /ui/…; its bare prefix is where a user looks for the overview.
         .route("/ui", get(|| async { Redirect::permanent("/") }))
         .route("/ui/", get(|| async { Redirect::permanent("/") }))
+        // Any other path under /ui/ is a page that does not exist: say so in HTML.
+        .route(
+            "/ui/{*rest}",
+            get(|uri: axum::http::Uri| async move { html::no_such_page(uri.path()) }),
+        )
         .route("/assets/style.css", get(style))
         .route("/assets/app.js", get(script))
         .route("/favicon.ico", get(favicon))

@@ -248,6 +248,23 @@ async fn unknown_ids_give_a_readable_not_found_page() {
         );
         assert!(html.contains("<code>nope</code>"), "{path}");
     }
+    // A dashboard path that is no page at all: an HTML page saying so, the API stays problem+json.
+    let res = app.get("/ui/no-such-page").await;
+    assert_eq!(res.status(), 404);
+    assert!(
+        res.headers()["content-type"]
+            .to_str()
+            .unwrap()
+            .starts_with("text/html")
+    );
+    let html = res.text().await.unwrap();
+    assert!(html.contains("There is no page at <code>/ui/no-such-page</code>"));
+    let res = app.get("/v1/no-such-resource").await;
+    assert_eq!(res.status(), 404);
+    assert_eq!(
+        res.headers()["content-type"].to_str().unwrap(),
+        "application/problem+json"
+    );
 }
 
 #[tokio::test]
