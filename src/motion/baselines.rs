@@ -22,10 +22,10 @@ pub const PATH_SAMPLES: usize = 101;
 /// Diagonal loading of the ProMP weight covariance, relative to its mean variance. The weights
 /// of a model's demonstrations come from a few object positions (about 40 demonstrations, 4
 /// positions, 120 weights on a 10-joint system), so the sample covariance over-fits them: with
-/// 1e-6 the conditioned mean reproduces training demonstrations at 0.35 of the joint line but
-/// held-out positions at 0.9-1.4 of it. Over the six bundled systems' held-out folds
-/// (`examples/motion_heldout.rs`) 1e-2 and 1e-1 both give 0.50-1.14 (mean deviation 0.283 and
-/// 0.284 rad); the baseline gets the better of the two, so the comparison is against its
+/// 1e-6 the conditioned mean reproduces training demonstrations at about 0.35 of the joint line
+/// but held-out positions at 0.67-1.37 of it. Over the six bundled systems' held-out folds
+/// (`examples/motion_heldout.rs`) 1e-2 gives 0.50-1.14 and 1e-1 0.56-1.13 (mean deviation 0.283
+/// and 0.284 rad); the baseline gets the better of the two, so the comparison is against its
 /// strongest form we measured.
 const PROMP_LOADING: f64 = 1e-2;
 
