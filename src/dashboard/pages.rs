@@ -698,13 +698,37 @@ pub async fn grasps(State(state): State<AppState>) -> Page {
 
 /// The fields of JSON objects, in order, as one facts list.
 fn object_facts(objects: &[&serde_json::Value]) -> String {
-    value_facts(
-        objects
-            .iter()
-            .filter_map(|v| v.as_object())
-            .flatten()
-            .map(|(k, v)| (k.as_str(), v)),
-    )
+    let items: Vec<(&str, serde_json::Value)> = objects
+        .iter()
+        .filter_map(|v| v.as_object())
+        .flatten()
+        .map(|(k, v)| (k.as_str(), readable_grasp_value(k, v)))
+        .collect();
+    value_facts(items.iter().map(|(k, v)| (*k, v)))
+}
+
+/// A grasp quantity as a reader should see it: the API keeps JSON finite with sentinels, which
+/// the pages say in words: `max_spread_violation` is -10 when the hand has no spread-order pair
+/// (eq. 28 has no rows), and an ellipsoid semi-axis is capped at 1e6 where the hand cannot move
+/// or resist along that axis at all.
+pub(super) fn readable_grasp_value(key: &str, v: &serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    if key.ends_with("max_spread_violation") && v.as_f64().is_some_and(|x| x <= -10.0) {
+        return Value::String("none: the hand has no spread-order pair".into());
+    }
+    if (key.contains("semi-axes") || key.contains("semi_axes"))
+        && let Value::Array(a) = v
+    {
+        return Value::Array(
+            a.iter()
+                .map(|x| match x.as_f64() {
+                    Some(x) if x >= 1e6 => Value::String("unbounded".into()),
+                    _ => x.clone(),
+                })
+                .collect(),
+        );
+    }
+    v.clone()
 }
 
 pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Page {
@@ -871,4 +895,35 @@ pub async fn job(State(state): State<AppState>, Path(id): Path<String>) -> Page 
         "",
     );
     Ok(html::ok(&format!("Job {}", &id[..8]), "/ui/jobs", &body))
+}
+
+#[cfg(test)]
+mod tests {
+    use serde_json::json;
+
+    use super::readable_grasp_value;
+
+    /// The sentinels the grasp optimiser writes (`optimizer.rs`: the spread violation floored at
+    /// -10, a semi-axis capped at 1e6) read as words; every other value, including a real
+    /// violation and finite semi-axes, is left as it is.
+    #[test]
+    fn grasp_sentinels_read_as_words_and_nothing_else_changes() {
+        assert_eq!(
+            readable_grasp_value("max_spread_violation", &json!(-10.0)),
+            json!("none: the hand has no spread-order pair")
+        );
+        assert_eq!(
+            readable_grasp_value("max_spread_violation", &json!(-0.02)),
+            json!(-0.02)
+        );
+        assert_eq!(
+            readable_grasp_value("hand force semi-axes", &json!([10.6, 69.1, 1e6])),
+            json!([10.6, 69.1, "unbounded"])
+        );
+        assert_eq!(
+            readable_grasp_value("arm force semi-axes", &json!([2.1, 2.8, 3.2])),
+            json!([2.1, 2.8, 3.2])
+        );
+        assert_eq!(readable_grasp_value("cost", &json!(-10.0)), json!(-10.0));
+    }
 }

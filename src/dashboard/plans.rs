@@ -14,7 +14,7 @@ use super::html::{
     self, PageError, esc, facts, field, figure, form, link, num, short, table, value_facts,
     value_text,
 };
-use super::pages::task_fields;
+use super::pages::{readable_grasp_value, task_fields};
 use super::resources::{
     execution_fraction, execution_progress, physics_fact, report_facts, safety_fact,
 };
@@ -406,10 +406,19 @@ fn grasp_numbers(r: &GraspResult) -> Result<Vec<Section>, PageError> {
             .into_iter()
             .map(|(k, v)| (format!("exact.{k}"), v)),
     );
+    let readable = |items: Vec<(String, Value)>| -> Vec<(String, Value)> {
+        items
+            .into_iter()
+            .map(|(k, v)| {
+                let v = readable_grasp_value(&k, &v);
+                (k, v)
+            })
+            .collect()
+    };
     Ok(vec![
         ("Cost terms", labelled(&flat(&r.terms)?)),
-        ("Residuals and exact check", labelled(&residuals)),
-        ("Ellipsoids", ellipsoids),
+        ("Residuals and exact check", labelled(&readable(residuals))),
+        ("Ellipsoids", readable(ellipsoids)),
     ])
 }
 
