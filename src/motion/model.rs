@@ -1226,36 +1226,25 @@ fn held_out_report(
         report.nf += dev[0];
         report.joint_line += dev[1];
         // The baselines are judged on the demonstrations the model accepts, so every column
-        // averages over the same ones.
-        if let (Some(sum), Some(d)) = (report.dmp.as_mut(), &dmp) {
-            *sum += arc_length_deviation(&d.path(start, goal), &dm.positions, n, 100);
-        }
-        if let Some(p) = &promp {
-            match p.path(start, goal) {
-                Some(path) => {
-                    if let Some(sum) = report.promp.as_mut() {
-                        *sum += arc_length_deviation(&path, &dm.positions, n, 100);
-                    }
-                }
-                None => report.promp = None,
-            }
-        }
+        // averages over the same ones; a ProMP conditioning that fails drops its column.
+        let deviation = |path: &[f64]| arc_length_deviation(path, &dm.positions, n, 100);
+        report.dmp = report
+            .dmp
+            .zip(dmp.as_ref())
+            .map(|(sum, d)| sum + deviation(&d.path(start, goal)));
+        report.promp = report
+            .promp
+            .zip(promp.as_ref().and_then(|p| p.path(start, goal)))
+            .map(|(sum, path)| sum + deviation(&path));
     }
+    // nothing judged: no baseline figure rather than a zero deviation
+    let u = used as f64;
+    report.dmp = report.dmp.filter(|_| used > 0).map(|sum| sum / u);
+    report.promp = report.promp.filter(|_| used > 0).map(|sum| sum / u);
     if used > 0 {
-        let u = used as f64;
         report.nf /= u;
         report.joint_line /= u;
-        if let Some(v) = report.dmp.as_mut() {
-            *v /= u;
-        }
-        if let Some(v) = report.promp.as_mut() {
-            *v /= u;
-        }
         report.ratio_to_joint_line = report.nf / report.joint_line.max(f64::MIN_POSITIVE);
-    } else {
-        // nothing was judged: no figure rather than a zero deviation
-        report.dmp = None;
-        report.promp = None;
     }
     Some(report)
 }
