@@ -397,6 +397,73 @@ impl TensorBSpline {
         best
     }
 
+    /// Bounds of the derivatives over one knot cell (`cell[i]` in `0..intervals`): the gradient's
+    /// components lie in `[grad_lo[i], grad_hi[i]]` and `|∂²s/∂y_i∂y_j| ≤ hess[i][j]` anywhere in
+    /// the cell. Same argument as [`Self::derivative_bounds`], restricted to the `4^d`
+    /// coefficients that support the cell: the first derivatives are quadratic and the second
+    /// (mixed) derivatives linear (bilinear) B-splines in the differenced axes, with the first
+    /// (mixed second) coefficient differences over the spacing as coefficients, and non-negative
+    /// bases that sum to one keep a spline within its coefficients.
+    pub fn cell_bounds(
+        &self,
+        cell: &[usize],
+        grad_lo: &mut [f64],
+        grad_hi: &mut [f64],
+        hess: &mut [[f64; MAX_DIM]; MAX_DIM],
+    ) {
+        let d = self.dim;
+        let mut strides = [0usize; MAX_DIM];
+        let mut base = 0;
+        for i in 0..d {
+            strides[i] = self.stride(i);
+            base += cell[i] * strides[i];
+        }
+        for i in 0..d {
+            grad_lo[i] = f64::INFINITY;
+            grad_hi[i] = f64::NEG_INFINITY;
+            hess[i][..d].fill(0.0);
+        }
+        let c = &self.coefficients;
+        let mut digit = [0usize; MAX_DIM];
+        for _ in 0..(1usize << (2 * d)) {
+            let mut off = base;
+            for i in 0..d {
+                off += digit[i] * strides[i];
+            }
+            for i in 0..d {
+                if digit[i] >= 3 {
+                    continue;
+                }
+                let hi_ = self.spacing[i];
+                let diff = (c[off + strides[i]] - c[off]) / hi_;
+                grad_lo[i] = grad_lo[i].min(diff);
+                grad_hi[i] = grad_hi[i].max(diff);
+                if digit[i] < 2 {
+                    let s = strides[i];
+                    let second = (c[off + 2 * s] - 2.0 * c[off + s] + c[off]) / (hi_ * hi_);
+                    hess[i][i] = hess[i][i].max(second.abs());
+                }
+                for j in i + 1..d {
+                    if digit[j] >= 3 {
+                        continue;
+                    }
+                    let (si, sj) = (strides[i], strides[j]);
+                    let mixed = (c[off + si + sj] - c[off + si] - c[off + sj] + c[off])
+                        / (hi_ * self.spacing[j]);
+                    hess[i][j] = hess[i][j].max(mixed.abs());
+                    hess[j][i] = hess[i][j];
+                }
+            }
+            for dg in digit.iter_mut().take(d) {
+                *dg += 1;
+                if *dg < 4 {
+                    break;
+                }
+                *dg = 0;
+            }
+        }
+    }
+
     /// Multiply every coefficient (shrinks the field).
     pub fn scale(&mut self, factor: f64) {
         self.coefficients.iter_mut().for_each(|c| *c *= factor);
@@ -408,6 +475,50 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    /// The per-cell bounds contain the gradient and the central-difference Hessian at random
+    /// points of random cells.
+    #[test]
+    fn cell_bounds_contain_the_sampled_derivatives() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for dim in 1..=3 {
+            let s = random_spline(dim, &mut rng);
+            for _ in 0..10 {
+                let cell: Vec<usize> = (0..dim).map(|_| rng.random_range(0..5)).collect();
+                let (mut lo, mut hi) = ([0.0; MAX_DIM], [0.0; MAX_DIM]);
+                let mut hess = [[0.0; MAX_DIM]; MAX_DIM];
+                s.cell_bounds(&cell, &mut lo, &mut hi, &mut hess);
+                for _ in 0..200 {
+                    let y: Vec<f64> = (0..dim)
+                        .map(|i| {
+                            let a = s.lower()[i] + cell[i] as f64 * s.spacing()[i];
+                            a + rng.random_range(0.001..0.999) * s.spacing()[i]
+                        })
+                        .collect();
+                    let mut g = [0.0; MAX_DIM];
+                    s.value_gradient(&y, &mut g);
+                    for i in 0..dim {
+                        assert!(g[i] >= lo[i] - 1e-12 && g[i] <= hi[i] + 1e-12);
+                        for j in 0..dim {
+                            let h = 1e-5;
+                            let (mut yp, mut ym) = (y.clone(), y.clone());
+                            yp[j] += h;
+                            ym[j] -= h;
+                            let (mut gp, mut gm) = ([0.0; MAX_DIM], [0.0; MAX_DIM]);
+                            s.value_gradient(&yp, &mut gp);
+                            s.value_gradient(&ym, &mut gm);
+                            let second = (gp[i] - gm[i]) / (2.0 * h);
+                            assert!(
+                                second.abs() <= hess[i][j] + 1e-6,
+                                "∂²s/∂{i}∂{j} = {second} > {}",
+                                hess[i][j]
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
 
     fn random_spline(dim: usize, rng: &mut ChaCha8Rng) -> TensorBSpline {
         let lower: Vec<f64> = (0..dim).map(|i| -1.0 - 0.3 * i as f64).collect();

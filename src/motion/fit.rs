@@ -5,7 +5,10 @@ use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use super::bspline::Local;
-use super::{Certificate, MAX_DIM, MotionError, NavigationFunction, TensorBSpline};
+use super::{
+    Certificate, CertificateKind, MAX_DIM, MotionError, NavigationFunction, TensorBSpline,
+    no_critical_point,
+};
 
 /// Largest spline the dense normal equations accept (a Cholesky of this size takes ~1 s).
 pub const MAX_COEFFICIENTS: usize = 3000;
@@ -213,7 +216,11 @@ fn spline_bound(
 /// margin: `α·S(k c_a + c_b) + B_0 ≤ 2k(1 − MARGIN)`, `S` the radial bound. Automatic `k`: the flow depends on
 /// `s/k ≈ α c_a`, so the learned shaping is kept best by the largest admissible `α`; take the
 /// smallest `k` (from 2 up) whose `α` is within 5 % of the best.
-#[allow(clippy::too_many_arguments)] // the fit, the two balls, k and the group for errors
+///
+/// [`CertificateKind::NoCriticalPoint`]: from there, the largest `α ≤ 1` whose field the branch
+/// and bound of [`no_critical_point`] certifies (`α = 1` tried first, then bisection between
+/// the `γ`-decreasing `α`, which that certificate implies, and 1).
+#[allow(clippy::too_many_arguments)] // the fit, the two balls, k, the kind and the group for errors
 pub(crate) fn certify(
     mut template: TensorBSpline,
     fit: &SplineFit,
@@ -222,6 +229,7 @@ pub(crate) fn certify(
     goal_center: &[f64],
     goal_radius: f64,
     k: Option<f64>,
+    kind: CertificateKind,
     group: usize,
 ) -> Result<(NavigationFunction, Certificate), MotionError> {
     let offset: f64 = goal_center
@@ -305,6 +313,56 @@ pub(crate) fn certify(
         }
         alpha *= 0.999;
     };
-    let cert = nf.certificate(goal_center, goal_radius, alpha);
+    let critical = no_critical_point(&nf, goal_center, goal_radius);
+    if kind == CertificateKind::GammaDecreasing || !critical.holds {
+        // γ decreasing implies no critical point; a failed branch and bound (budget) keeps the
+        // closed-form certificate and says so
+        let mut cert = nf.certificate(goal_center, goal_radius, alpha);
+        cert.critical_points = Some(critical);
+        return Ok((nf, cert));
+    }
+    let base = nf.clone();
+    let with = |a: f64, template: &mut TensorBSpline| {
+        for ((c, ca), cb) in template
+            .coefficients_mut()
+            .iter_mut()
+            .zip(&fit.c_a)
+            .zip(&fit.c_b)
+        {
+            *c = a * (chosen_k * ca + cb);
+        }
+        let nf = NavigationFunction {
+            spline: template.clone(),
+            ..base.clone()
+        };
+        let critical = no_critical_point(&nf, goal_center, goal_radius);
+        (nf, critical)
+    };
+    let mut best = (nf, critical, alpha);
+    let (full, full_critical) = with(1.0, &mut template);
+    if full_critical.holds {
+        best = (full, full_critical, 1.0);
+    } else {
+        let (mut lo, mut hi) = (alpha, 1.0);
+        for _ in 0..CRITICAL_BISECTIONS {
+            let mid = 0.5 * (lo + hi);
+            let (nf, critical) = with(mid, &mut template);
+            if critical.holds {
+                lo = mid;
+                best = (nf, critical, mid);
+            } else {
+                hi = mid;
+            }
+        }
+    }
+    let (nf, critical, alpha) = best;
+    let mut cert = nf.certificate(goal_center, goal_radius, alpha);
+    cert.kind = CertificateKind::NoCriticalPoint;
+    cert.holds = critical.holds;
+    cert.critical_points = Some(critical);
     Ok((nf, cert))
 }
+
+/// Bisection steps on the shrink under the navigation-function certificate (`α` to 1/256 of
+/// the interval between the `γ`-decreasing shrink and 1).
+const CRITICAL_BISECTIONS: usize = 8;

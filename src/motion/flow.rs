@@ -53,19 +53,34 @@ impl FlowPath {
     }
 }
 
-/// `dy/ds = f/(2(2 − p))`: the flow `f = −(∇γ − (γ/k)∇log β)` reparametrised so that
-/// `dγ/ds = −γ` exactly (since `∇γ·f = −2γ(2 − p)`), i.e. `γ(s) = γ_0 e^{−s}`. The certificate
-/// keeps `2 − p` above `2·MARGIN`, so the field is bounded and the integration length known.
+/// `dy/ds = γf/‖f‖²`: the flow `f = −(∇γ − (γ/k)∇log β)` (parallel to `−∇φ`, so `φ` decreases
+/// along it wherever `f ≠ 0`) at speed `γ/‖f‖`. Near the goal `f ≈ −2(y − y_d)`, so
+/// `dy/ds ≈ −(y − y_d)/2` and `γ(s) ≈ γ_0 e^{−s}`. Neither `γ` nor `φ` serves as the parameter:
+/// `γ` may rise under the navigation-function certificate ([`super::no_critical_point`]), and
+/// `φ` is nearly flat (`≈ 1`) on the plateaus a large `k` makes, where a `φ`-decay parameter
+/// would ask for steps of 10¹² workspace radii. Returns `false` where the field is not finite or
+/// vanishes (outside the workspace, or a critical point).
 #[inline]
 fn rhs(nf: &NavigationFunction, y: &[f64], y_d: &[f64], out: &mut [f64]) -> bool {
     let d = nf.dim();
-    let p = nf.flow(y, y_d, out);
-    let den = 2.0 * (2.0 - p);
-    if den.is_nan() || den <= 0.0 || !den.is_finite() {
+    let mut g = [0.0; MAX_DIM];
+    let log_beta = nf.log_beta(y, &mut g);
+    let mut gamma = 0.0;
+    for i in 0..d {
+        let e = y[i] - y_d[i];
+        gamma += e * e;
+    }
+    let mut f2 = 0.0;
+    for i in 0..d {
+        out[i] = -2.0 * (y[i] - y_d[i]) + gamma / nf.k * g[i];
+        f2 += out[i] * out[i];
+    }
+    let scale = gamma / f2;
+    if !(scale.is_finite() && f2 > 0.0 && log_beta.is_finite()) {
         return false;
     }
     for o in out.iter_mut().take(d) {
-        *o /= den;
+        *o *= scale;
     }
     true
 }
@@ -120,7 +135,7 @@ const B4: [f64; 7] = [
     1.0 / 40.0,
 ];
 
-/// Integrate the flow from `y0` to `y_d` (adaptive Dormand–Prince in the `γ`-decay parameter),
+/// Integrate the flow from `y0` to `y_d` (adaptive Dormand–Prince in the parameter of [`rhs`]),
 /// writing into `out` (its buffers are reused). Steps are bounded by `opts.max_steps`.
 pub fn integrate_flow(
     nf: &NavigationFunction,

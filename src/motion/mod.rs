@@ -6,8 +6,11 @@
 //! hand), and for each group learns a PCA manifold ([`Pca`]) and, in its coordinates `y`, a
 //! navigation function ([`NavigationFunction`]) `φ = γ/(γ^k + β)^{1/k}` whose fictitious obstacle
 //! `β = β_0·exp(s(y))` carries a tensor-product cubic B-spline `s` ([`TensorBSpline`]) fitted to the
-//! demonstrated velocity directions. Every model carries a closed-form convergence
-//! [`Certificate`]. [`MotionModel::trajectory`] integrates the flow, back-projects it with the
+//! demonstrated velocity directions. Every model carries a convergence [`Certificate`]: the
+//! closed-form bound under which `γ` strictly decreases (the default), or navigation-function
+//! theory's "no critical point but the goal", proved by branch and bound ([`no_critical_point`],
+//! [`CertificateKind`]), under which `γ` may rise; the integrator ([`integrate_flow`]) assumes
+//! only the latter, which the former implies. [`MotionModel::trajectory`] integrates the flow, back-projects it with the
 //! exact start and goal kept, and times it; [`ControlParams::control`] is the closed-loop law.
 //!
 //! Feeding the mapping's output: one [`JointTrajectory`] per mapped demonstration, `times` the
@@ -44,6 +47,7 @@
 mod baselines;
 mod bspline;
 mod control;
+mod critical;
 mod error;
 mod fit;
 mod flow;
@@ -61,6 +65,7 @@ mod timing;
 pub use baselines::{Dmp, ProMp};
 pub use bspline::{MAX_DIM, TensorBSpline};
 pub use control::ControlParams;
+pub use critical::{BOX_BUDGET, CriticalPointCertificate, no_critical_point};
 pub use error::MotionError;
 pub use fit::{MAX_COEFFICIENTS as MAX_SPLINE_COEFFICIENTS, SplineFit};
 pub use flow::{FlowOptions, FlowPath, integrate_flow};
@@ -70,6 +75,6 @@ pub use model::{
     PhaseMap, ProfileInputs, ResidualProfile, TrainOptions, TrainReport, Trajectory,
     TrajectoryOptions, TrajectoryPoint, WorkspaceEntry, arc_length_deviation, train,
 };
-pub use nf::{Certificate, NavigationFunction};
+pub use nf::{Certificate, CertificateKind, NavigationFunction};
 pub use pca::{Components, Pca};
 pub use timing::{MinimumJerk, NaturalCubic, Pchip};

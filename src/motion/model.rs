@@ -6,8 +6,9 @@ use super::control::ControlGroup;
 use super::fit::{DemoY, MAX_COEFFICIENTS, certify, fit_spline};
 use super::retime;
 use super::{
-    Certificate, Components, ControlParams, Dmp, FlowOptions, FlowPath, MAX_DIM, MotionError,
-    NaturalCubic, NavigationFunction, Pca, Pchip, ProMp, TensorBSpline, integrate_flow,
+    Certificate, CertificateKind, Components, ControlParams, Dmp, FlowOptions, FlowPath, MAX_DIM,
+    MotionError, NaturalCubic, NavigationFunction, Pca, Pchip, ProMp, TensorBSpline,
+    integrate_flow,
 };
 
 /// A demonstrated (mapped) joint trajectory: `times` (s, increasing) and `positions`
@@ -157,6 +158,9 @@ pub struct TrainOptions {
     /// What the residual profile is linear in.
     #[serde(default)]
     pub profile_inputs: ProfileInputs,
+    /// The theorem the field's shrink is chosen for.
+    #[serde(default)]
+    pub certificate: CertificateKind,
 }
 
 /// Most knot intervals per PCA axis a model may ask for.
@@ -302,6 +306,7 @@ impl Default for TrainOptions {
             flow: FlowOptions::default(),
             profile_ridge: None,
             profile_inputs: ProfileInputs::default(),
+            certificate: CertificateKind::default(),
         }
     }
 }
@@ -981,6 +986,7 @@ fn train_group(
         &goal_center,
         goal_radius,
         k,
+        opts.certificate,
         gi,
     )?;
     let train_ys: Vec<Vec<f64>> = train_idx.iter().map(|&i| ys[i].clone()).collect();

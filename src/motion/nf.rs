@@ -3,7 +3,20 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{MAX_DIM, TensorBSpline};
+use super::{CriticalPointCertificate, MAX_DIM, TensorBSpline};
+
+/// Which theorem certifies a model's convergence.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum CertificateKind {
+    /// `γ` strictly decreases along the flow (`sup (y − y_d)·∇log β < 2k`): the field is
+    /// shrunk until this closed-form bound holds. Models stored before the choice existed.
+    #[default]
+    GammaDecreasing,
+    /// `φ` has no critical point but the goal ([`super::no_critical_point`]): navigation-function
+    /// theory; `γ` may rise on the way, which lets the field keep more of its fit.
+    NoCriticalPoint,
+}
 
 /// `φ = γ/(γ^k + β)^{1/k}` (eq. 9) with `γ = ‖y − y_d‖²` and `β = β_0·exp(s(y))`, where
 /// `β_0 = R² − ‖y − c‖²` is the workspace ball (the outer boundary, positive inside) and `s` the
@@ -25,11 +38,16 @@ pub struct NavigationFunction {
     pub spline: TensorBSpline,
 }
 
-/// Closed-form convergence certificate. Along the flow,
+/// Convergence certificate. Closed-form part: along the flow,
 /// `γ̇ = −2γ(2 − (y − y_d)·∇log β / k)`, so `γ` strictly decreases whenever
 /// `bound ≥ sup (y − y_d)·∇log β` over the workspace ball and the goal region is below `2k`.
+/// Navigation-function part ([`CriticalPointCertificate`]): no critical point but the goal,
+/// which is all convergence needs.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Certificate {
+    /// The theorem the field's shrink was chosen for; `holds` refers to it.
+    #[serde(default)]
+    pub kind: CertificateKind,
     pub k: f64,
     /// The spline's share: `sup (y − y_d)·∇s`, bounded cell by cell from the coefficient
     /// differences ([`TensorBSpline::radial_bound`]).
@@ -39,10 +57,17 @@ pub struct Certificate {
     pub workspace_bound: f64,
     /// `spline_bound + workspace_bound`.
     pub bound: f64,
-    /// `bound < 2k`.
+    /// The certificate of `kind` holds.
     pub holds: bool,
-    /// Guaranteed decay rate: `γ̇ ≤ −rate·γ` with `rate = 2(2 − bound/k)`.
+    /// `bound < 2k`: `γ` strictly decreases (what `holds` meant before `kind` existed; the
+    /// serde default reads models stored then, whose `holds` was exactly this).
+    #[serde(default = "yes")]
+    pub gamma_decreasing: bool,
+    /// `2(2 − bound/k)`: with `gamma_decreasing`, `γ̇ ≤ −rate·γ` (no guaranteed decay if ≤ 0).
     pub decay_rate: f64,
+    /// The branch and bound's result; absent in models stored before it existed.
+    #[serde(default)]
+    pub critical_points: Option<CriticalPointCertificate>,
     /// Factor the fitted spline was multiplied by to satisfy the certificate (1 = unshrunk).
     pub shrink: f64,
     /// Goal region: ball with this centre and radius (the certificate holds for goals in it).
@@ -51,6 +76,10 @@ pub struct Certificate {
     /// Workspace ball (starts must lie strictly inside).
     pub workspace_center: Vec<f64>,
     pub workspace_radius: f64,
+}
+
+fn yes() -> bool {
+    true
 }
 
 /// Coefficient budget for refining the spline before bounding it.
@@ -173,12 +202,15 @@ impl NavigationFunction {
         let bound = spline_bound + workspace_bound;
         let holds = reach < r && bound < 2.0 * self.k;
         Certificate {
+            kind: CertificateKind::GammaDecreasing,
             k: self.k,
             spline_bound,
             workspace_bound,
             bound,
             holds,
+            gamma_decreasing: holds,
             decay_rate: 2.0 * (2.0 - bound / self.k),
+            critical_points: None,
             shrink,
             goal_center: goal_center.to_vec(),
             goal_radius: rg,
