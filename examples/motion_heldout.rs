@@ -27,7 +27,7 @@ use reachgrasp::motion::mapped::{
     DEFAULT_ACCELERATION_LIMIT, DEFAULT_JERK_LIMIT, system_groups, system_limits,
 };
 use reachgrasp::motion::{
-    DEFAULT_PROFILE_RIDGE, JointTrajectory, ProfileInputs, TrainOptions, train,
+    CertificateKind, DEFAULT_PROFILE_RIDGE, JointTrajectory, ProfileInputs, TrainOptions, train,
 };
 use reachgrasp::service::models::held_out_folds;
 
@@ -53,6 +53,10 @@ fn main() {
     };
     let profile_inputs: ProfileInputs = std::env::var("PROFILE_INPUTS")
         .map(|v| serde_json::from_value(serde_json::Value::String(v)).expect("profile inputs"))
+        .unwrap_or_default();
+    // `CERTIFICATE=no_critical_point`: the navigation-function certificate chooses the shrink.
+    let certificate: CertificateKind = std::env::var("CERTIFICATE")
+        .map(|v| serde_json::from_value(serde_json::Value::String(v)).expect("certificate kind"))
         .unwrap_or_default();
     let defaults = TrainOptions::default();
     let goal_margin = env_or("GOAL_MARGIN", defaults.goal_margin);
@@ -121,9 +125,23 @@ fn main() {
             profile_inputs,
             goal_margin,
             workspace_margin,
+            certificate,
             ..TrainOptions::default()
         };
         let (all, _) = train(&trajs, &limits, &opts).expect("a model of every demonstration");
+        for m in &all.manifolds {
+            let c = &m.certificate;
+            let cp = c.critical_points.as_ref();
+            eprintln!(
+                "{name}: k {} shrink {:.3} γ decreasing {} no critical point {:?} ({} boxes, depth {})",
+                c.k,
+                c.shrink,
+                c.gamma_decreasing,
+                cp.map(|p| p.holds),
+                cp.map_or(0, |p| p.boxes),
+                cp.map_or(0, |p| p.depth),
+            );
+        }
         variance.push((
             name,
             all.manifolds

@@ -141,6 +141,7 @@ async fn seed_robot(state: &AppState, robot: &str, demos: Vec<String>) -> anyhow
         held_out: Some(false),
         residual_profile: None,
         profile_ridge: None,
+        certificate: None,
         acceleration_limit: None,
         jerk_limit: None,
         control: None,

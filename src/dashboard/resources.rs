@@ -392,11 +392,7 @@ pub async fn model(State(state): State<AppState>, Path(id): Path<String>) -> Pag
                     3,
                 ),
                 num(g["train_alignment"].as_f64().unwrap_or(f64::NAN), 3),
-                if g["certificate"]["holds"].as_bool() == Some(true) {
-                    "holds".into()
-                } else {
-                    "does not hold".into()
-                },
+                certificate_cell(&g["certificate"]),
             ]);
         }
         if let Some(o) = r["held_out"]["overall"].as_object() {
@@ -845,4 +841,22 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
         "/ui/executions",
         &body,
     ))
+}
+
+/// A manifold's certificate in words: whether it holds, which theorem, and how much of the
+/// fitted field it kept.
+fn certificate_cell(c: &serde_json::Value) -> String {
+    let theorem = match c["kind"].as_str() {
+        Some("no_critical_point") => "no critical point but the goal (γ may rise)",
+        _ => "γ strictly decreasing",
+    };
+    format!(
+        "{}: {theorem}; field kept × {}",
+        if c["holds"].as_bool() == Some(true) {
+            "holds"
+        } else {
+            "does not hold"
+        },
+        num(c["shrink"].as_f64().unwrap_or(f64::NAN), 2)
+    )
 }

@@ -19,8 +19,9 @@ use crate::motion::mapped::{
     DEFAULT_ACCELERATION_LIMIT, DEFAULT_JERK_LIMIT, system_groups, system_limits,
 };
 use crate::motion::{
-    Certificate, Components, ControlParams, DEFAULT_PROFILE_RIDGE, HeldOutReport, JointTrajectory,
-    KChoice, MotionError, MotionModel, TrainOptions, TrainReport, train,
+    Certificate, CertificateKind, Components, ControlParams, CriticalPointCertificate,
+    DEFAULT_PROFILE_RIDGE, HeldOutReport, JointTrajectory, KChoice, MotionError, MotionModel,
+    TrainOptions, TrainReport, train,
 };
 use crate::store::{mappings as mapping_repo, models as repo};
 
@@ -118,7 +119,7 @@ pub struct CreateModel {
     /// position; default true).
     pub held_out: Option<bool>,
     /// Learn the goal-conditioned residual profile that shapes each path between its exact start
-    /// and goal like the demonstrations (default true). The NF flow strictly approaches its goal
+    /// and goal like the demonstrations (default true). The NF flow approaches its goal
     /// and its field does not depend on the goal, so on its own it cannot follow a hand that opens
     /// before it closes or a reach whose shape changes with the object's position; the profile
     /// carries that part. Flow, certificate and closed-loop law are the same either way.
@@ -127,6 +128,10 @@ pub struct CreateModel {
     /// start-goal difference); must be positive.
     #[schema(exclusive_minimum = 0)]
     pub profile_ridge: Option<f64>,
+    /// Which certificate decides how much of the learned field is kept (default
+    /// `gamma_decreasing`: `γ` strictly decreasing; `no_critical_point` keeps more of the field,
+    /// lets `γ` rise on the way and takes 4-9 times longer to train).
+    pub certificate: Option<CertificateKind>,
     /// Joint acceleration limit, rad/s², positive (default 5; URDF has none).
     #[schema(exclusive_minimum = 0)]
     pub acceleration_limit: Option<f64>,
@@ -140,20 +145,30 @@ pub struct CreateModel {
     pub default: bool,
 }
 
-/// A convergence certificate (DESIGN §5): `γ` strictly decreases along the flow for every goal in
-/// the goal region and start in the workspace ball, since `bound < 2k`.
+/// A convergence certificate (DESIGN §5) for every goal in the goal region and start in the
+/// workspace ball: `gamma_decreasing` (`bound < 2k`: `γ` strictly decreases along the flow) or
+/// `no_critical_point` (navigation-function theory: `φ` has no critical point but the goal,
+/// proved by branch and bound; `γ` may rise on the way), whichever `kind` says.
 #[derive(Debug, Clone, Serialize, Deserialize, ToSchema)]
 pub struct CertificateDto {
     /// `arm` or `hand`.
     pub group: String,
+    /// The theorem the field's shrink was chosen for; `holds` refers to it.
+    pub kind: CertificateKind,
     pub k: f64,
     pub spline_bound: f64,
     pub workspace_bound: f64,
     /// `spline_bound + workspace_bound`, the closed-form bound of `sup (y − y_d)·∇log β`.
     pub bound: f64,
     pub holds: bool,
-    /// Guaranteed decay: `γ̇ ≤ −decay_rate·γ` (per unit flow time).
+    /// `bound < 2k`: `γ` strictly decreases along the flow.
+    pub gamma_decreasing: bool,
+    /// With `gamma_decreasing`: `γ̇ ≤ −decay_rate·γ` (per unit flow time); no guaranteed decay
+    /// when it is not positive.
     pub decay_rate: f64,
+    /// The branch and bound proving that `φ` has no critical point but the goal; absent for
+    /// models trained before it existed.
+    pub critical_points: Option<CriticalPointCertificate>,
     /// Factor the fitted field was multiplied by to satisfy the certificate (1 = unshrunk).
     pub shrink: f64,
     /// Workspace ball in PCA coordinates (starts must lie strictly inside).
@@ -297,12 +312,15 @@ pub fn group_name(system_groups: usize, g: usize) -> String {
 pub fn certificate_dto(group: String, c: &Certificate) -> CertificateDto {
     CertificateDto {
         group,
+        kind: c.kind,
         k: c.k,
         spline_bound: c.spline_bound,
         workspace_bound: c.workspace_bound,
         bound: c.bound,
         holds: c.holds,
+        gamma_decreasing: c.gamma_decreasing,
         decay_rate: c.decay_rate,
+        critical_points: c.critical_points.clone(),
         shrink: c.shrink,
         workspace_center: c.workspace_center.clone(),
         workspace_radius: c.workspace_radius,
@@ -565,6 +583,7 @@ fn validate_training(body: &CreateModel, system: &System) -> Result<Validated, E
             .residual_profile
             .unwrap_or(true)
             .then_some(profile_ridge),
+        certificate: body.certificate.unwrap_or_default(),
         ..TrainOptions::default()
     };
     errors.extend(options.check(n).into_iter().map(option_error));

@@ -361,7 +361,11 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
         );
         let c = &m["certificate"];
         assert_eq!(c["holds"], true);
+        assert_eq!(c["kind"], "gamma_decreasing");
+        assert_eq!(c["gamma_decreasing"], true);
         assert!(c["bound"].as_f64().unwrap() < 2.0 * c["k"].as_f64().unwrap());
+        // γ decreasing implies no critical point: the branch and bound confirms it
+        assert_eq!(c["critical_points"]["holds"], true, "{c}");
         assert!(m["goal_region"]["radius"].as_f64().unwrap() > 0.0);
         assert!(m["train_alignment"].as_f64().unwrap() > 0.5);
     }
@@ -755,6 +759,65 @@ async fn the_default_model_shapes_paths_with_its_residual_profile() {
     }
 }
 
+/// Issue 19: under the navigation-function certificate the stored model says so, keeps at least
+/// as much of its fitted field as under the `γ`-decreasing bound (more where that bound was what
+/// shrank it), and its trajectories converge to the exact goal.
+#[tokio::test]
+async fn a_model_certified_by_navigation_function_theory_keeps_more_field_and_converges() {
+    let app = app().await;
+    let study = setup(&app).await;
+    let body = |certificate: &str| {
+        json!({"robot": ROBOT, "mappings": [study.mapping], "residual_profile": false,
+               "held_out": false, "certificate": certificate})
+    };
+    let decreasing = submit_model(&app, &body("gamma_decreasing")).await;
+    let model = submit_model(&app, &body("no_critical_point")).await;
+    let shrinks = |m: &Value| -> Vec<f64> {
+        m["report"]["manifolds"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|g| g["certificate"]["shrink"].as_f64().unwrap())
+            .collect()
+    };
+    let mut kept_more = false;
+    for (m, old) in model["report"]["manifolds"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(shrinks(&decreasing))
+    {
+        let c = &m["certificate"];
+        assert_eq!(c["kind"], "no_critical_point", "{c}");
+        assert_eq!(c["holds"], true, "{c}");
+        assert_eq!(c["critical_points"]["holds"], true, "{c}");
+        assert!(c["critical_points"]["boxes"].as_u64().unwrap() > 0, "{c}");
+        let shrink = c["shrink"].as_f64().unwrap();
+        assert!(shrink >= old, "{shrink} < {old}");
+        kept_more |= shrink > old && c["gamma_decreasing"] == false;
+    }
+    assert!(kept_more, "{model}");
+    let id = model["id"].as_str().unwrap();
+    let (start, goal) = study.ends[2].clone();
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": id, "start": named(&study.joint_names, &start),
+                    "goal": named(&study.joint_names, &goal), "duration": "auto", "rate": 50}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let t: Value = res.json().await.unwrap();
+    assert_eq!(t["report"]["converged"], true);
+    let points = t["points"].as_array().unwrap();
+    assert_eq!(points[points.len() - 1]["positions"], json!(goal));
+    let certs = t["report"]["certificates"].as_array().unwrap();
+    assert!(
+        certs.iter().all(|c| c["kind"] == "no_critical_point"),
+        "{certs:?}"
+    );
+}
+
 #[tokio::test]
 async fn bad_training_requests_are_refused_and_nothing_is_stored() {
     let app = app().await;
@@ -814,6 +877,7 @@ async fn bad_training_requests_are_refused_and_nothing_is_stored() {
         (with(json!({"k": "fast"})), "$.k"),
         (with(json!({"k": 0.5})), "$.k"),
         (with(json!({"profile_ridge": -1.0})), "$.profile_ridge"),
+        (with(json!({"certificate": "strongest"})), "$.certificate"),
         (
             with(json!({"residual_profile": false, "profile_ridge": 0.1})),
             "$.profile_ridge",
