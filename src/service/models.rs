@@ -153,7 +153,9 @@ pub struct CreateModel {
 pub struct CertificateDto {
     /// `arm` or `hand`.
     pub group: String,
-    /// The theorem the field's shrink was chosen for; `holds` refers to it.
+    /// The theorem the field's shrink was chosen for; `holds` refers to it. (Reports stored
+    /// before the choice existed read as `gamma_decreasing`, which they were.)
+    #[serde(default)]
     pub kind: CertificateKind,
     pub k: f64,
     pub spline_bound: f64,
@@ -162,18 +164,26 @@ pub struct CertificateDto {
     pub bound: f64,
     pub holds: bool,
     /// `bound < 2k`: `γ` strictly decreases along the flow.
+    #[serde(default = "stored_before_kinds")]
     pub gamma_decreasing: bool,
     /// With `gamma_decreasing`: `γ̇ ≤ −decay_rate·γ` (per unit flow time); no guaranteed decay
     /// when it is not positive.
     pub decay_rate: f64,
     /// The branch and bound proving that `φ` has no critical point but the goal; absent for
     /// models trained before it existed.
+    #[serde(default)]
     pub critical_points: Option<CriticalPointCertificate>,
     /// Factor the fitted field was multiplied by to satisfy the certificate (1 = unshrunk).
     pub shrink: f64,
     /// Workspace ball in PCA coordinates (starts must lie strictly inside).
     pub workspace_center: Vec<f64>,
     pub workspace_radius: f64,
+}
+
+/// Every certificate stored before `kind` existed was a `γ`-decreasing one that held (training
+/// refused any other).
+fn stored_before_kinds() -> bool {
+    true
 }
 
 /// The goal region of one joint group: a ball in PCA coordinates.

@@ -818,6 +818,85 @@ async fn a_model_certified_by_navigation_function_theory_keeps_more_field_and_co
     );
 }
 
+/// A model stored before certificates had a kind (its report and model JSON without `kind`,
+/// `gamma_decreasing`, `critical_points`) still reads, shows and plans: as the `γ`-decreasing
+/// certificate it was.
+#[tokio::test]
+async fn a_model_stored_before_certificate_kinds_reads_and_plans() {
+    let app = app().await;
+    let study = setup(&app).await;
+    let model = submit_model(
+        &app,
+        &json!({"robot": ROBOT, "mappings": [study.mapping], "residual_profile": false,
+                "held_out": false}),
+    )
+    .await;
+    let id = model["id"].as_str().unwrap();
+    let pool = pool(&app).await;
+    let (report, stored): (String, String) =
+        sqlx::query_as("SELECT report, model FROM models WHERE id = ?")
+            .bind(id)
+            .fetch_one(&pool)
+            .await
+            .unwrap();
+    fn strip(v: &mut Value) -> usize {
+        let mut n = 0;
+        match v {
+            Value::Object(map) => {
+                if map.contains_key("decay_rate") {
+                    for key in ["kind", "gamma_decreasing", "critical_points"] {
+                        n += usize::from(map.remove(key).is_some());
+                    }
+                }
+                n += map.values_mut().map(strip).sum::<usize>();
+            }
+            Value::Array(items) => n += items.iter_mut().map(strip).sum::<usize>(),
+            _ => {}
+        }
+        n
+    }
+    let (mut report, mut stored): (Value, Value) = (
+        serde_json::from_str(&report).unwrap(),
+        serde_json::from_str(&stored).unwrap(),
+    );
+    assert!(strip(&mut report) >= 6 && strip(&mut stored) >= 6);
+    sqlx::query("UPDATE models SET report = ?, model = ? WHERE id = ?")
+        .bind(report.to_string())
+        .bind(stored.to_string())
+        .bind(id)
+        .execute(&pool)
+        .await
+        .unwrap();
+    let res = app.get(&format!("/v1/models/{id}")).await;
+    assert_eq!(res.status(), 200);
+    let read: Value = res.json().await.unwrap();
+    for m in read["report"]["manifolds"].as_array().unwrap() {
+        let c = &m["certificate"];
+        assert_eq!(c["kind"], "gamma_decreasing", "{c}");
+        assert_eq!(c["gamma_decreasing"], true, "{c}");
+        assert!(c["critical_points"].is_null(), "{c}");
+    }
+    assert_eq!(app.get(&format!("/ui/models/{id}")).await.status(), 200);
+    let (start, goal) = study.ends[1].clone();
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": id, "start": named(&study.joint_names, &start),
+                    "goal": named(&study.joint_names, &goal), "duration": "auto", "rate": 50}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let t: Value = res.json().await.unwrap();
+    assert_eq!(t["report"]["converged"], true);
+    assert!(
+        t["report"]["certificates"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|c| c["kind"] == "gamma_decreasing" && c["critical_points"].is_null())
+    );
+}
+
 #[tokio::test]
 async fn bad_training_requests_are_refused_and_nothing_is_stored() {
     let app = app().await;
