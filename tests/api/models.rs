@@ -333,6 +333,25 @@ async fn submit_model(app: &TestApp, body: &Value) -> Value {
     app.get(&model_href).await.json().await.unwrap()
 }
 
+/// A trajectory of `model` between the study's `i`-th demonstrated start and goal: created,
+/// converged, ending exactly on the goal.
+async fn converged_trajectory(app: &TestApp, study: &Study, model: &str, i: usize) -> Value {
+    let (start, goal) = study.ends[i].clone();
+    let res = app
+        .post_json(
+            "/v1/trajectories",
+            &json!({"model": model, "start": named(&study.joint_names, &start),
+                    "goal": named(&study.joint_names, &goal), "duration": "auto", "rate": 50}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let t: Value = res.json().await.unwrap();
+    assert_eq!(t["report"]["converged"], true);
+    let points = t["points"].as_array().unwrap();
+    assert_eq!(points[points.len() - 1]["positions"], json!(goal));
+    t
+}
+
 fn named(names: &[String], q: &[f64]) -> Value {
     json!({"joint_names": names, "positions": q})
 }
@@ -797,20 +816,7 @@ async fn a_model_certified_by_navigation_function_theory_keeps_more_field_and_co
         kept_more |= shrink > old && c["gamma_decreasing"] == false;
     }
     assert!(kept_more, "{model}");
-    let id = model["id"].as_str().unwrap();
-    let (start, goal) = study.ends[2].clone();
-    let res = app
-        .post_json(
-            "/v1/trajectories",
-            &json!({"model": id, "start": named(&study.joint_names, &start),
-                    "goal": named(&study.joint_names, &goal), "duration": "auto", "rate": 50}),
-        )
-        .await;
-    assert_eq!(res.status(), 201);
-    let t: Value = res.json().await.unwrap();
-    assert_eq!(t["report"]["converged"], true);
-    let points = t["points"].as_array().unwrap();
-    assert_eq!(points[points.len() - 1]["positions"], json!(goal));
+    let t = converged_trajectory(&app, &study, model["id"].as_str().unwrap(), 2).await;
     let certs = t["report"]["certificates"].as_array().unwrap();
     assert!(
         certs.iter().all(|c| c["kind"] == "no_critical_point"),
@@ -877,17 +883,7 @@ async fn a_model_stored_before_certificate_kinds_reads_and_plans() {
         assert!(c["critical_points"].is_null(), "{c}");
     }
     assert_eq!(app.get(&format!("/ui/models/{id}")).await.status(), 200);
-    let (start, goal) = study.ends[1].clone();
-    let res = app
-        .post_json(
-            "/v1/trajectories",
-            &json!({"model": id, "start": named(&study.joint_names, &start),
-                    "goal": named(&study.joint_names, &goal), "duration": "auto", "rate": 50}),
-        )
-        .await;
-    assert_eq!(res.status(), 201);
-    let t: Value = res.json().await.unwrap();
-    assert_eq!(t["report"]["converged"], true);
+    let t = converged_trajectory(&app, &study, id, 1).await;
     assert!(
         t["report"]["certificates"]
             .as_array()
