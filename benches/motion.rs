@@ -1,14 +1,16 @@
 //! Motion model benchmarks: training on the default-size synthetic study (250 demonstrations of
 //! 100 frames, arm 7 + hand 4 joints; target ≤ 2 s), one trajectory (≤ 2 ms) and one
 //! evaluation of the closed-loop law (≤ 5 µs). Trained as `POST /v1/models` trains by default,
-//! with the residual profile; `train_250_demos_plain_nf` is the same without it.
+//! with the residual profile; `train_250_demos_plain_nf` is the same without it,
+//! `train_250_demos_no_critical_point` with the navigation-function certificate choosing the
+//! shrink, and `trajectory_no_critical_point` a trajectory of that model.
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use reachgrasp::motion::synthetic::{SyntheticStudy, curved_study};
 use reachgrasp::motion::{
-    Components, DEFAULT_PROFILE_RIDGE, TrainOptions, TrajectoryOptions, train,
+    CertificateKind, Components, DEFAULT_PROFILE_RIDGE, TrainOptions, TrajectoryOptions, train,
 };
 
 fn bench(c: &mut Criterion) {
@@ -28,6 +30,10 @@ fn bench(c: &mut Criterion) {
         profile_ridge: None,
         ..opts.clone()
     };
+    let critical = TrainOptions {
+        certificate: CertificateKind::NoCriticalPoint,
+        ..opts.clone()
+    };
     let mut group = c.benchmark_group("motion");
     group.sample_size(10);
     group.bench_function("train_250_demos", |b| {
@@ -35,6 +41,9 @@ fn bench(c: &mut Criterion) {
     });
     group.bench_function("train_250_demos_plain_nf", |b| {
         b.iter(|| train(black_box(&data.demos), &data.limits, &plain).unwrap())
+    });
+    group.bench_function("train_250_demos_no_critical_point", |b| {
+        b.iter(|| train(black_box(&data.demos), &data.limits, &critical).unwrap())
     });
     group.finish();
 
@@ -46,6 +55,15 @@ fn bench(c: &mut Criterion) {
     c.bench_function("trajectory", |b| {
         b.iter(|| {
             model
+                .trajectory(black_box(&start), black_box(&goal), &topts)
+                .unwrap()
+        })
+    });
+
+    let (certified, _) = train(&data.demos, &data.limits, &critical).unwrap();
+    c.bench_function("trajectory_no_critical_point", |b| {
+        b.iter(|| {
+            certified
                 .trajectory(black_box(&start), black_box(&goal), &topts)
                 .unwrap()
         })
