@@ -40,7 +40,7 @@ use super::{MAX_DIM, NavigationFunction};
 /// Boxes the branch and bound may examine before it gives up (the certificate then does not
 /// hold). The bundled systems' manifolds (2-3 components) need 230-42,000 at the
 /// `γ`-decreasing shrink and up to the budget near the largest shrink it certifies; the budget
-/// bounds training time (about 0.1 s per 100,000 boxes).
+/// bounds training time.
 pub const BOX_BUDGET: usize = 400_000;
 
 /// Deepest halving of a knot cell.
