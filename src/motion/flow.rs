@@ -63,20 +63,15 @@ impl FlowPath {
 #[inline]
 fn rhs(nf: &NavigationFunction, y: &[f64], y_d: &[f64], out: &mut [f64]) -> bool {
     let d = nf.dim();
-    let mut g = [0.0; MAX_DIM];
-    let log_beta = nf.log_beta(y, &mut g);
-    let mut gamma = 0.0;
+    let p = nf.flow(y, y_d, out);
+    let (mut gamma, mut f2, mut r2) = (0.0, 0.0, 0.0);
     for i in 0..d {
-        let e = y[i] - y_d[i];
-        gamma += e * e;
-    }
-    let mut f2 = 0.0;
-    for i in 0..d {
-        out[i] = -2.0 * (y[i] - y_d[i]) + gamma / nf.k * g[i];
+        gamma += (y[i] - y_d[i]).powi(2);
         f2 += out[i] * out[i];
+        r2 += (y[i] - nf.center[i]).powi(2);
     }
     let scale = gamma / f2;
-    if !(scale.is_finite() && f2 > 0.0 && log_beta.is_finite()) {
+    if !(r2 < nf.radius * nf.radius && p.is_finite() && scale.is_finite() && f2 > 0.0) {
         return false;
     }
     for o in out.iter_mut().take(d) {
