@@ -49,6 +49,26 @@ fn joint_error_scale(m: &ManifoldModel) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The flow of `m` from a random start in its workspace ball (98 % of the radius) to a random
+/// goal in its certified goal region, into `path`, asserted converged; returns the goal.
+fn converged_random_flow(
+    m: &ManifoldModel,
+    rng: &mut ChaCha8Rng,
+    opts: &FlowOptions,
+    path: &mut FlowPath,
+) -> Vec<f64> {
+    let c = &m.certificate;
+    let y0 = ball_sample(rng, &m.nf.center, 0.98 * m.nf.radius);
+    let yd = ball_sample(rng, &c.goal_center, c.goal_radius);
+    integrate_flow(&m.nf, &y0, &yd, opts, path);
+    assert!(
+        path.converged,
+        "steps {} error {}",
+        path.steps, path.final_error
+    );
+    yd
+}
+
 /// A full joint vector whose group projections are `ys[g]`, plus a small off-manifold residual.
 fn joint_vector(
     model: &MotionModel,
@@ -96,14 +116,7 @@ fn certified_flow_converges_for_1000_random_start_goal_pairs() {
         let w_row = joint_error_scale(m);
         let mut steps = 0;
         for _ in 0..1000 {
-            let y0 = ball_sample(&mut rng, &m.nf.center, 0.98 * m.nf.radius);
-            let yd = ball_sample(&mut rng, &c.goal_center, c.goal_radius);
-            integrate_flow(&m.nf, &y0, &yd, &flow_opts, &mut path);
-            assert!(
-                path.converged,
-                "steps {} error {}",
-                path.steps, path.final_error
-            );
+            converged_random_flow(m, &mut rng, &flow_opts, &mut path);
             assert!(w_row * path.final_error < 1e-3);
             for w in path.gamma.windows(2) {
                 assert!(w[1] < w[0], "γ rose from {} to {}", w[0], w[1]);
@@ -980,14 +993,7 @@ fn no_critical_point_certificate_keeps_more_field_and_every_pair_converges() {
         let mut peak_p: f64 = f64::NEG_INFINITY;
         let mut worst: f64 = 0.0;
         for _ in 0..10_000 {
-            let y0 = ball_sample(&mut rng, &m.nf.center, 0.98 * m.nf.radius);
-            let yd = ball_sample(&mut rng, &c.goal_center, c.goal_radius);
-            integrate_flow(&m.nf, &y0, &yd, &flow_opts, &mut path);
-            assert!(
-                path.converged,
-                "steps {} error {}",
-                path.steps, path.final_error
-            );
+            let yd = converged_random_flow(m, &mut rng, &flow_opts, &mut path);
             worst = worst.max(w_row * path.final_error);
             if path.gamma.windows(2).any(|w| w[1] > w[0]) {
                 rising += 1;
