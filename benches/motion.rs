@@ -3,14 +3,16 @@
 //! evaluation of the closed-loop law (≤ 5 µs). Trained as `POST /v1/models` trains by default,
 //! with the residual profile; `train_250_demos_plain_nf` is the same without it,
 //! `train_250_demos_no_critical_point` with the navigation-function certificate choosing the
-//! shrink, and `trajectory_no_critical_point` a trajectory of that model.
+//! shrink, `trajectory_no_critical_point` a trajectory of that model, and
+//! `control_path_follower` one period of the closed-loop law along a plan's path (≤ 5 µs).
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use reachgrasp::motion::synthetic::{SyntheticStudy, curved_study};
 use reachgrasp::motion::{
-    CertificateKind, Components, DEFAULT_PROFILE_RIDGE, TrainOptions, TrajectoryOptions, train,
+    CLOCK_TOLERANCE, CertificateKind, Components, DEFAULT_PROFILE_RIDGE, PathFollower,
+    TrainOptions, TrajectoryOptions, train,
 };
 
 fn bench(c: &mut Criterion) {
@@ -74,6 +76,22 @@ fn bench(c: &mut Criterion) {
     let mut u = vec![0.0; n];
     c.bench_function("control_law", |b| {
         b.iter(|| params.control(black_box(&q), black_box(&goal), &mut u))
+    });
+
+    // One period of the closed-loop law along a path (issue 19): the robot a little off the
+    // path at its middle, the clock reset each time so that it stays there.
+    let path = model.trajectory(&start, &goal, &topts).unwrap().points;
+    let mid = path[path.len() / 2].clone();
+    let off: Vec<f64> = mid.positions.iter().map(|x| x + 0.005).collect();
+    let mut reference = vec![0.0; n];
+    let mut follower = PathFollower::new(8.0, CLOCK_TOLERANCE, vec![5.0; n]);
+    follower.step(&path, &off, mid.t, &mut reference, &mut u);
+    let at = follower.clone();
+    c.bench_function("control_path_follower", |b| {
+        b.iter(|| {
+            follower.clone_from(&at);
+            follower.step(&path, black_box(&off), 0.01, &mut reference, &mut u)
+        })
     });
 }
 

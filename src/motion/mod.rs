@@ -11,7 +11,9 @@
 //! theory's "no critical point but the goal", proved by branch and bound ([`no_critical_point`],
 //! [`CertificateKind`]), under which `γ` may rise; the integrator ([`integrate_flow`]) assumes
 //! only the latter, which the former implies. [`MotionModel::trajectory`] integrates the flow, back-projects it with the
-//! exact start and goal kept, and times it; [`ControlParams::control`] is the closed-loop law.
+//! exact start and goal kept, and times it; [`PathFollower`] is the closed-loop law that runs
+//! that timed path with a governed clock, and [`ControlParams::control`] the bare law (eq. 8) for
+//! a goal without a path.
 //!
 //! Feeding the mapping's output: one [`JointTrajectory`] per mapped demonstration, `times` the
 //! resampled frame times and `positions` the robot's independent joint values per frame
@@ -51,6 +53,7 @@ mod critical;
 mod error;
 mod fit;
 mod flow;
+mod follow;
 pub mod mapped;
 mod model;
 mod nf;
@@ -69,6 +72,7 @@ pub use critical::{BOX_BUDGET, CriticalPointCertificate, no_critical_point};
 pub use error::MotionError;
 pub use fit::{MAX_COEFFICIENTS as MAX_SPLINE_COEFFICIENTS, SplineFit};
 pub use flow::{FlowOptions, FlowPath, integrate_flow};
+pub use follow::{CLOCK_TOLERANCE, PathFollower};
 pub use model::{
     Baseline, DEFAULT_PROFILE_RIDGE, DurationModel, ENTRY_DEPTH, HeldOutReport, JointLimits,
     JointTrajectory, KChoice, MAX_SPLINE_INTERVALS, ManifoldFit, ManifoldModel, MotionModel,
