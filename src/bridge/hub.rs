@@ -392,6 +392,9 @@ impl Hub {
                 Mode::OpenLoop | Mode::Streaming => None,
             };
             let filtered = early.as_ref().is_some_and(|p| p.safety().is_some());
+            // A law with a path runs only where the worker follows it: a worker that ran the
+            // bare law instead would drive another motion than the plan's.
+            let follows = early.as_ref().is_some_and(|p| p.law_path().is_some());
             // A grasp trial needs a physics worker: a kinematic one would report the motion
             // as done and say nothing of the grasp.
             let physics = row.grasp_trial;
@@ -400,6 +403,7 @@ impl Hub {
                 w.snapshot.robot == row.robot
                     && can(cap)
                     && (!filtered || can(Capability::SafetyFilter))
+                    && (!follows || can(Capability::PathFollowing))
                     && (!physics || can(Capability::GraspTrial))
                     && row.worker.as_ref().is_none_or(|n| *n == w.snapshot.name)
             };
@@ -410,6 +414,25 @@ impl Hub {
                     && row.created_at < *d
                 {
                     let secs = self.0.settings.queue_timeout.unwrap_or_default().as_secs();
+                    // What the execution needs beyond its mode, and why.
+                    let needs: Vec<&str> = [
+                        (
+                            filtered,
+                            "safety_filter (this closed-loop law runs in a scene)",
+                        ),
+                        (
+                            follows,
+                            "path_following (this closed-loop law runs the plan's path)",
+                        ),
+                        (
+                            physics,
+                            "grasp_trial (a physics worker: this execution ends in a grasp \
+                             trial)",
+                        ),
+                    ]
+                    .into_iter()
+                    .filter_map(|(needed, what)| needed.then_some(what))
+                    .collect();
                     let reason = format!(
                         "no worker: no compatible worker for robot '{}'{}{} connected within \
                          {secs} s",
@@ -418,20 +441,10 @@ impl Hub {
                             .as_ref()
                             .map(|w| format!(" named '{w}'"))
                             .unwrap_or_default(),
-                        match (filtered, physics) {
-                            (true, true) => {
-                                " with the safety_filter and grasp_trial capabilities (this \
-                                 closed-loop law runs in a scene, then a grasp trial in physics)"
-                            }
-                            (true, false) => {
-                                " with the safety_filter capability (this closed-loop law runs \
-                                 in a scene)"
-                            }
-                            (false, true) => {
-                                " with the grasp_trial capability (a physics worker: this \
-                                 execution ends in a grasp trial)"
-                            }
-                            (false, false) => "",
+                        if needs.is_empty() {
+                            String::new()
+                        } else {
+                            format!(" with the capabilities {}", needs.join(" and "))
                         }
                     );
                     if repo::finish(

@@ -38,6 +38,10 @@ pub enum Capability {
     /// Runs a closed-loop law through the control-barrier-function safety filter of its
     /// payload's `safety` scene (a payload with a scene goes only to such a worker).
     SafetyFilter,
+    /// Runs a closed-loop law along its payload's `path` (the open-loop humanlike motion,
+    /// with a clock that waits while the robot is off it): a payload with a path goes only to
+    /// such a worker. Added to protocol version 1 like `streaming`.
+    PathFollowing,
     /// Follows live joint setpoints (a `stream` payload, then `setpoint` messages until `end`):
     /// teleoperation from the retargeting WebSocket. Added to protocol version 1 without a
     /// version change: a worker that does not announce it never receives either message.

@@ -74,6 +74,7 @@ impl WorkerOptions {
             capabilities: vec![
                 Capability::OpenLoop,
                 Capability::ClosedLoop,
+                Capability::PathFollowing,
                 Capability::Streaming,
             ],
             geometry: None,

@@ -642,6 +642,7 @@ fn capability_words(caps: &[crate::bridge::protocol::Capability]) -> String {
             C::OpenLoop => "open loop",
             C::ClosedLoop => "closed loop",
             C::SafetyFilter => "safety filter",
+            C::PathFollowing => "path following",
             C::Streaming => "teleoperation (streaming)",
             C::GraspTrial => "grasp trial (physics)",
         })
@@ -823,7 +824,8 @@ pub async fn execution(State(state): State<AppState>, Path(id): Path<String>) ->
         figure(
             &format!("/v1/executions/{id}/plot.svg"),
             if mode == Mode::ClosedLoop {
-                "Measured joint positions over time (closed loop: no planned trajectory)"
+                "Measured joint positions over time, against the law's path (dashed) where it \
+                 runs one (a bare law has no planned trajectory)"
             } else {
                 "Planned (dashed) vs measured joint positions over time"
             },

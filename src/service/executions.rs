@@ -4,7 +4,7 @@
 
 use super::models::JointValues;
 use super::{Context, Error, Invalid};
-use crate::bridge::protocol::Feedback;
+use crate::bridge::protocol::{Capability, Feedback};
 use crate::bridge::{
     ExecutionPayload, Mode, PayloadIssue, PayloadPart, TrackingSummary, WorkerName,
 };
@@ -87,13 +87,27 @@ pub async fn create(
 ) -> Result<ExecutionView, Error> {
     let (payload, paths) = resolve(ctx, robot, mode, source, goal).await?;
     let mut worker = worker.map(WorkerName::parse).transpose()?;
-    // A trajectory must start where the robot will be (a law runs from wherever it is):
-    // checked against the connected workers now, and run on the one it was checked against.
-    if let ExecutionPayload::Trajectory {
-        joint_names,
-        points,
-        ..
-    } = &payload
+    // A trajectory, and a law that runs one (a stored trajectory in closed loop), must start
+    // where the robot will be (a bare law runs from wherever it is): checked against the
+    // connected workers now, and run on the one it was checked against.
+    let timed = match &payload {
+        ExecutionPayload::Trajectory {
+            joint_names,
+            points,
+            ..
+        } => Some((joint_names, points, &[][..])),
+        ExecutionPayload::Model {
+            params,
+            path: Some(points),
+            ..
+        } => Some((
+            &params.joint_names,
+            points,
+            &[Capability::PathFollowing][..],
+        )),
+        _ => None,
+    };
+    if let Some((joint_names, points, needs)) = timed
         && let Some(first) = points.first()
     {
         let path = if paths.points == "$.trajectory_id" {
@@ -104,7 +118,7 @@ pub async fn create(
         let checked = super::bridges::check_start(
             ctx,
             robot,
-            (worker.as_ref().map(WorkerName::as_str), &[]),
+            (worker.as_ref().map(WorkerName::as_str), needs),
             joint_names,
             &first.positions,
             &path,
@@ -293,6 +307,9 @@ async fn resolve(
                     params,
                     goal,
                     safety: None,
+                    // no start is known here to generate the open-loop path from: the worker
+                    // runs the bare law (eq. 8) from where its robot is
+                    path: None,
                 },
                 PayloadPaths::all("$.model_id", "$.model_id", "$.goal.positions"),
             ))
@@ -344,6 +361,13 @@ async fn stored_trajectory(
                 )
             })?;
             let params = params(ctx, &model_id, robot, "$.trajectory_id").await?;
+            // The model generated the trajectory in its own joint order; the law runs it.
+            if t.joint_names != params.joint_names {
+                return Err(Error::invalid(
+                    "$.trajectory_id",
+                    "the trajectory's joints differ from its model's",
+                ));
+            }
             let goal = ordered_goal(
                 &JointValues {
                     joint_names: t.joint_names,
@@ -363,6 +387,7 @@ async fn stored_trajectory(
                     params,
                     goal,
                     safety: None,
+                    path: Some(t.points),
                 },
                 paths,
             ))

@@ -114,8 +114,8 @@ pub async fn model(
     Ok((row.robot, model, demos))
 }
 
-/// An execution, its joint names, what was planned (empty for a closed-loop law) and what was
-/// measured.
+/// An execution, its joint names, what was planned (a closed-loop law's path; empty for a bare
+/// law or a stream) and what was measured.
 pub async fn execution(
     ctx: &Context,
     id: &str,
@@ -127,7 +127,9 @@ pub async fn execution(
             points,
             ..
         } => (joint_names, points),
-        ExecutionPayload::Model { params, .. } => (params.joint_names.clone(), Vec::new()),
+        ExecutionPayload::Model { params, path, .. } => {
+            (params.joint_names.clone(), path.unwrap_or_default())
+        }
         ExecutionPayload::Stream { joint_names, .. } => (joint_names, Vec::new()),
     };
     Ok((row, joint_names, planned, history))

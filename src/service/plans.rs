@@ -108,7 +108,8 @@ pub struct PlanIn {
     /// The grasp trial's lift, hold and shakes (only with `verify`; default 0.1 m, 2 s, 2).
     pub trial: Option<crate::bridge::TrialSpec>,
     /// Execution mode (default `open_loop`: follow the trajectory; `closed_loop`: the worker
-    /// runs the model's control law to the grasp configuration).
+    /// runs the model's law along the trajectory's path to the grasp configuration, with a
+    /// clock that waits while the robot is pushed off it).
     pub mode: Option<crate::bridge::RequestedMode>,
     /// Worker to execute on (default: the connected worker of the robot the start was checked
     /// against, or any when none is connected); also the worker whose state `"current"` reads.
@@ -428,8 +429,9 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         }
         _ => None,
     };
-    // A closed-loop law is run here first, as the reference worker runs it (its stages, its
-    // safety filter, no pushes): a law that stops short of the grasp is no plan to queue.
+    // A closed-loop law is run here first, as the reference worker runs it (along its path,
+    // through its safety filter, no pushes): a law that stops short of the grasp is no plan to
+    // queue.
     if let (
         Some(ExecutionRequest {
             law: Some((model, params)),
@@ -445,6 +447,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
             params: params.clone(),
             goal: t.goal.clone(),
             safety: Some(Box::new(spec.clone())),
+            path: Some(t.points.clone()),
         };
         let (sys, names, start) = (sys.clone(), t.joint_names.clone(), t.start.clone());
         let short =
@@ -695,8 +698,8 @@ async fn attempt(
             obstacles: body.obstacles.clone(),
             approach_standoff: body.approach_standoff,
         };
-        // The closed-loop law is certified inside the workspace only: a start outside it is
-        // entered along a straight line by the open-loop trajectory, which that law cannot run.
+        // A closed-loop execution runs this trajectory's path (`motion::PathFollower`), the
+        // straight entry into the workspace included, so it is planned as open loop is.
         let closed_loop =
             body.executes() && body.mode == Some(crate::bridge::RequestedMode::ClosedLoop);
         // What the worker's safety filter keeps that law clear of (issue 18 item 3).
@@ -706,24 +709,13 @@ async fn attempt(
                 body.obstacles.clone(),
             )
         });
-        let law_scene = closed_loop.then(|| (scene.sys.clone(), scene.object.clone()));
         law_system = closed_loop.then(|| scene.sys.clone());
-        match super::trajectories::compute(ctx, &request, Some(scene), !closed_loop).await {
+        match super::trajectories::compute(ctx, &request, Some(scene), true).await {
             // A motion that collides is kept with the plan for inspection, but the plan is
             // infeasible and nothing is queued.
             Ok((t, clearance)) => {
                 collided = clearance.as_ref().is_some_and(|c| !c.collision_free);
                 reason = clearance.as_ref().and_then(collision_reason);
-                if let (Some(spec), Some((sys, Some(object)))) = (safety.as_mut(), law_scene) {
-                    spec.pre_grasp = law_pre_grasp(
-                        sys,
-                        object,
-                        obstacles.to_vec(),
-                        t.goal.clone(),
-                        body.approach_standoff,
-                    )
-                    .await?;
-                }
                 trajectory = Some(t);
             }
             // The grasp is the goal: a goal the model cannot certify (outside its goal region
@@ -954,31 +946,6 @@ pub enum Write {
     Execution,
 }
 
-/// The pre-grasp a closed-loop law runs to first (the palm backed off by the requested standoff,
-/// or the default one, with the hand opened; see [`SafetySpec::pre_grasp`]), or none where no
-/// clear one is found: the law then runs straight to the grasp, as without an approach.
-async fn law_pre_grasp(
-    sys: std::sync::Arc<crate::grasp::HandArm>,
-    object: crate::grasp::Object,
-    obstacles: Vec<crate::geometry::SceneShape>,
-    goal: Vec<f64>,
-    standoff: Option<f64>,
-) -> Result<Option<Vec<f64>>, Error> {
-    let opts = crate::grasp::ApproachOptions {
-        standoff: standoff
-            .filter(|s| *s > 0.0)
-            .unwrap_or(crate::grasp::approach::DEFAULT_STANDOFF),
-        ..Default::default()
-    };
-    tokio::task::spawn_blocking(move || {
-        crate::grasp::pre_grasp(&sys, Some(&object), &obstacles, &goal, &opts)
-            .ok()
-            .map(|p| p.q)
-    })
-    .await
-    .map_err(Error::internal)
-}
-
 /// Runs a closed-loop payload on the reference worker's simulated robot from `start` (at its
 /// default acceleration limit, no pushes): `None` when it arrives, else why not, in a plan's
 /// terms.
@@ -1036,7 +1003,7 @@ fn simulate_law(
 }
 
 /// The one execution payload builder: a stored trajectory to follow (open loop), or the
-/// model's law run to the trajectory's goal (closed loop).
+/// model's law run along the trajectory's path to its goal (closed loop).
 pub fn payload(
     mode: Mode,
     trajectory: &StoredTrajectory,
@@ -1054,6 +1021,7 @@ pub fn payload(
             params: params.clone(),
             goal: trajectory.goal.clone(),
             safety: safety.map(Box::new),
+            path: Some(trajectory.points.clone()),
         }),
         (Mode::ClosedLoop, None) => Err(Error::internal(anyhow::anyhow!(
             "a closed-loop execution needs the model's law"

@@ -86,6 +86,15 @@ pub enum ExecutionPayload {
         /// `safety_filter` capability.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         safety: Option<Box<SafetySpec>>,
+        /// The open-loop motion the law runs (issue 19, "one motion"): the timed humanlike path
+        /// the model generated for this start and goal, ending at `goal`. The worker follows it
+        /// with a governed clock (`motion::PathFollower`: the clock waits while the robot is
+        /// off the path, so after a push the motion resumes where it left the path) instead of
+        /// running the bare law; a plan's closed loop and a stored trajectory run in closed
+        /// loop carry it. A worker runs such a payload only if it announced `path_following`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        #[schema(value_type = Option<Vec<TrajectoryPointSchema>>)]
+        path: Option<Vec<TrajectoryPoint>>,
     },
     /// Live joint setpoints (streaming): the worker receives them as `setpoint` messages after
     /// the `execute`, moves toward the latest one within its joint limits, holds where it is
@@ -129,7 +138,8 @@ pub struct SafetySpec {
     /// approach direction, the hand opened). With it the worker runs the law in three stages,
     /// as the open-loop trajectory's approach phase moves: to the pre-grasp, then the arm to
     /// the grasp with the hand still open, then the hand closes. The law's own flow closes the
-    /// hand while the arm is still on its way, through the object.
+    /// hand while the arm is still on its way, through the object. Ignored with a `path` (which
+    /// has the approach in it); plans send a path and no pre-grasp.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pre_grasp: Option<Vec<f64>>,
 }
@@ -246,6 +256,14 @@ impl ExecutionPayload {
             ExecutionPayload::Trajectory { .. } => Mode::OpenLoop,
             ExecutionPayload::Model { .. } => Mode::ClosedLoop,
             ExecutionPayload::Stream { .. } => Mode::Streaming,
+        }
+    }
+
+    /// The path a closed-loop law follows (see [`ExecutionPayload::Model`]).
+    pub fn law_path(&self) -> Option<&[TrajectoryPoint]> {
+        match self {
+            ExecutionPayload::Model { path, .. } => path.as_deref(),
+            ExecutionPayload::Trajectory { .. } | ExecutionPayload::Stream { .. } => None,
         }
     }
 

@@ -519,6 +519,7 @@ async fn closed_loop_execution_with_perturbations_converges_to_the_goal() {
             params,
             goal: goal.clone(),
             safety: None,
+            path: None,
         },
         None,
     )
@@ -725,14 +726,98 @@ async fn stored_trajectories_and_models_execute_by_id() {
     assert_eq!(done["state"], "succeeded", "{done}");
     assert_eq!(done["source_id"], stored.id.as_str());
     assert!(done["tracking"]["max_error"].as_f64().unwrap() < 0.05);
-    // its model's law towards its goal (already there: converges at once)
+    // In closed loop the model's law runs the stored trajectory's path, which starts where the
+    // robot no longer is: refused, nothing queued.
+    let before = app.get("/v1/executions").await["total"].clone();
+    let far = app
+        .post(
+            "/v1/executions",
+            &json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": stored.id}),
+        )
+        .await;
+    let p = assert_problem(far, 422, "validation").await;
+    assert_eq!(p["errors"][0]["path"], "$.trajectory_id", "{p}");
+    assert_eq!(app.get("/v1/executions").await["total"], before);
+    // a stored trajectory of the model from here (the goal) back to the start, in closed loop:
+    // the law runs its path there
+    let back_points = min_jerk(&t.goal, &t.start, 2.0, 100.0);
+    let back = insert_trajectory(
+        &app.state.db,
+        &NewTrajectory {
+            model_id: Some(&model_id),
+            robot: ROBOT,
+            joint_names: &names(),
+            points: &back_points,
+            start: &t.goal,
+            goal: &t.start,
+            duration: 2.0,
+            request: "{}",
+            summary: "{}",
+        },
+    )
+    .await
+    .unwrap();
     let closed = app
-        .execute(&json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": stored.id}))
+        .execute(&json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": back.id}))
         .await;
     let done = app.wait(&closed, 20, finished).await;
     assert_eq!(done["state"], "succeeded", "{done}");
     assert_eq!(done["kind"], "model");
     assert_eq!(done["source_id"], model_id.as_str());
+    let last = floats(&done["last_feedback"]["positions"]);
+    assert!(max_abs_diff(&last, &t.start) <= 0.011);
+    // (the largest deviation from the path's reference on the way: the law ran the path, not
+    // the bare flow)
+    assert!(
+        done["tracking"]["max_error"].as_f64().unwrap() < 0.05,
+        "{done}"
+    );
+    // A law with a path goes only to a worker that announced `path_following`: one that did
+    // not never receives it (it would run the bare law, another motion), one that did receives
+    // the path.
+    let mut bare = connected(&app, "bare-law", json!(["open_loop", "closed_loop"])).await;
+    let waiting = app
+        .execute(
+            &json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": back.id,
+                         "worker": "bare-law"}),
+        )
+        .await;
+    let nothing = tokio::time::timeout(Duration::from_millis(300), next_execute(&mut bare)).await;
+    assert!(nothing.is_err(), "the bare-law worker received {nothing:?}");
+    assert_eq!(
+        app.get(&format!("/v1/executions/{waiting}")).await["state"],
+        "queued"
+    );
+    let res = app
+        .post(&format!("/v1/executions/{waiting}/cancel"), &json!({}))
+        .await;
+    assert!(res.status().is_success(), "{}", res.status());
+    let mut follower = connected(
+        &app,
+        "follower",
+        json!(["open_loop", "closed_loop", "path_following"]),
+    )
+    .await;
+    app.execute(
+        &json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": back.id,
+                         "worker": "follower"}),
+    )
+    .await;
+    let sent = tokio::time::timeout(Duration::from_secs(10), next_execute(&mut follower))
+        .await
+        .expect("the follower receives it");
+    let path = sent.payload.law_path().expect("a law with its path");
+    assert_eq!(path.len(), back_points.len());
+    let worst = path
+        .iter()
+        .zip(&back_points)
+        .map(|(a, b)| max_abs_diff(&a.positions, &b.positions))
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 1e-9,
+        "the path sent is {worst} rad off the stored one"
+    );
+
     // the model with another goal, given by name in reverse order
     let mut goal_names = names();
     let mut goal_values = t.other_goal.clone();
@@ -1543,6 +1628,7 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
         params: params.clone(),
         goal: goal.clone(),
         safety: safety.map(Box::new),
+        path: None,
     };
     // (closest of everything with the pads on the ball allowed, the pads on the ball)
     let check = |path: &[f64]| {

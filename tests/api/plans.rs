@@ -161,15 +161,27 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
             p["trajectory"]["points"][0]["positions"],
             turned["positions"]
         );
-        let before = app.total("/v1/plans").await;
+        // In closed loop the worker runs this path (entry line included), so the plan is the
+        // same and queues it with the path (it used to be a 422: the bare law has no entry).
         let mut body = ball_plan(&turned);
         body["execute"] = json!(true);
         body["mode"] = json!("closed_loop");
-        let e = assert_problem(app.post_json("/v1/plans", &body).await, 422, "validation").await;
-        assert_eq!(e["errors"][0]["path"], "$.start", "{e}");
-        let message = e["errors"][0]["message"].as_str().unwrap();
-        assert!(message.contains("closed-loop law"), "{e}");
-        assert_eq!(app.total("/v1/plans").await, before);
+        let res = app.post_json("/v1/plans", &body).await;
+        assert_eq!(res.status(), 201);
+        let closed: Value = res.json().await.unwrap();
+        assert_eq!(closed["feasible"], true, "{}", closed["reason"]);
+        assert_eq!(
+            closed["trajectory"]["report"]["workspace_entry"]["line_fraction"],
+            entry["line_fraction"]
+        );
+        let id = closed["execution_id"].as_str().expect("queued");
+        let exec: Value = app
+            .get(&format!("/v1/executions/{id}"))
+            .await
+            .json()
+            .await
+            .unwrap();
+        assert_eq!(exec["mode"], "closed_loop", "{exec}");
     }
 
     // Bad input: 4xx naming the field, nothing stored.
