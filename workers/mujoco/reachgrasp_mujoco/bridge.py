@@ -95,7 +95,7 @@ class Worker:
             "joint_names": self.info.joint_names,
             # `grasp_trial`: the service sends executions that end in a grasp trial (a plan's
             # `verify`) only to a worker that announces it; `--no-trial` does not.
-            "capabilities": ["open_loop", "closed_loop", "safety_filter", "streaming"]
+            "capabilities": ["open_loop", "closed_loop", "safety_filter", "path_following", "streaming"]
             + (["grasp_trial"] if self.cfg.trial_enabled else []),
             # The service refuses a plan to execute that starts farther than this from our state.
             "start_tolerance": self.cfg.run.start_tolerance,

@@ -124,3 +124,48 @@ class Law:
             v = -kp * grad - self.k_perp * z
             u[joints] = self.k_perp * (qg[joints] - q[joints]) + W @ v
         return u
+
+
+# `motion::CLOCK_TOLERANCE`: the error (rad) at which the clock runs at half speed.
+CLOCK_TOLERANCE = 0.02
+
+
+class PathFollower:
+    """`motion::PathFollower`: a closed-loop law that runs the payload's `path` (the open-loop
+    humanlike motion) with a governed clock. Per period, with `p`, `v` the path at the clock
+    `tau`, `e = max|p - q|` and `g = 1/(1 + (e/e0)^2)`: `u = g v + K (p - q)`, `tau += g dt`.
+    The clock waits while the robot is off the path (a push, a safety filter holding it), so
+    the motion resumes where it left the path."""
+
+    def __init__(self, points, gain: float, tolerance: float = CLOCK_TOLERANCE):
+        self.t = np.array([p["t"] for p in points], float)
+        self.q = np.array([p["positions"] for p in points], float)
+        self.v = np.array([p["velocities"] for p in points], float)
+        self.gain = float(gain)
+        self.tolerance = float(tolerance)
+        self.span = float(self.t[-1] - self.t[0])
+        self.clock = 0.0
+
+    def reference(self):
+        tau = min(self.t[0] + self.clock, self.t[-1])
+        if tau >= self.t[-1] or len(self.t) == 1:
+            return self.q[-1], np.zeros_like(self.q[-1])
+        k = int(np.searchsorted(self.t, tau, side="right") - 1)
+        k = max(0, min(k, len(self.t) - 2))
+        s = min(max((tau - self.t[k]) / (self.t[k + 1] - self.t[k]), 0.0), 1.0)
+        return (self.q[k] + s * (self.q[k + 1] - self.q[k]),
+                self.v[k] + s * (self.v[k + 1] - self.v[k]))
+
+    def step(self, q, dt: float):
+        """The command for the measured `q` and the reference; advances the clock."""
+        p, v = self.reference()
+        e = float(np.max(np.abs(p - q)))
+        g = 1.0 / (1.0 + (e / self.tolerance) ** 2)
+        self.clock = min(self.clock + g * dt, self.span)
+        return g * v + self.gain * (p - q), p
+
+    def progress(self) -> float:
+        return min(self.clock / self.span, 1.0) if self.span > 0 else 1.0
+
+    def at_end(self) -> bool:
+        return self.progress() >= 1.0

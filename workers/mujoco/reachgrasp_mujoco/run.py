@@ -11,7 +11,7 @@ import numpy as np
 
 from . import build as B
 from . import safety as S
-from .law import Law
+from .law import Law, PathFollower
 from .scene import Scene, SceneError, parse_scene, scene_from_object_spec
 from .service import Service
 from .sim import CONTROL_DT, ClosedLoop, Follow, OpenLoop, Pushes, PushOptions, RunOptions, Sim, Trial, TrialOptions
@@ -106,27 +106,7 @@ class Execution:
             trial = None
         elif kind == "trajectory":
             pts = payload.get("points") or []
-            if not pts:
-                raise ExecutionError("the trajectory has no points")
-            prev = -math.inf
-            for i, p in enumerate(pts):
-                ok = (
-                    len(p.get("positions", [])) == n
-                    and len(p.get("velocities", [])) == n
-                    and isinstance(p.get("t"), (int, float))
-                    and _finite(p["positions"]) and _finite(p["velocities"]) and math.isfinite(p["t"])
-                    and p["t"] > prev
-                )
-                if not ok:
-                    raise ExecutionError(f"trajectory point {i} is invalid")
-                if not inside(np.asarray(p["positions"])):
-                    raise ExecutionError(f"trajectory point {i} is outside the joint limits")
-                prev = p["t"]
-            d = float(np.max(np.abs(np.asarray(pts[0]["positions"]) - self.q_start)))
-            if d > run.start_tolerance:
-                raise ExecutionError(
-                    f"the robot is {d:.3f} rad from the trajectory's start (tolerance {run.start_tolerance})"
-                )
+            self._check_points(pts, "trajectory", inside)
             self.goal = np.asarray(pts[-1]["positions"], float)
             self.motion = OpenLoop(self.sim, pts, run)
         else:
@@ -140,14 +120,22 @@ class Execution:
             if not _finite(goal) or not inside(np.asarray(goal, float)):
                 raise ExecutionError("the goal is not finite or outside the joint limits")
             self.goal = np.asarray(goal, float)
+            # The open-loop motion the law runs (`PathFollower`), which has the approach in it.
+            path = payload.get("path")
+            follower = None
+            if path is not None:
+                self._check_points(path, "law's path", inside)
+                if float(np.max(np.abs(np.asarray(path[-1]["positions"], float) - self.goal))) > 1e-6:
+                    raise ExecutionError("the law's path does not end at its goal")
+                follower = PathFollower(path, run.tracking_gain)
             if push is not None and (push.target == "arm" or scene is not None and scene.object is not None):
                 self.pushes = Pushes(push, self.sim, push.seed)
             stages = []
             spec = payload.get("safety")
             if spec is not None:
-                self.safety, stages = self._safety(spec, inside)
+                self.safety, stages = self._safety(spec, inside, follower is None)
             self.motion = ClosedLoop(self.sim, law, self.goal, run, self.pushes if push and push.target == "arm" else None,
-                                     self.safety, stages)
+                                     self.safety, stages, follower)
         if trial is not None and ex.get("trial") is not None:
             trial = dataclasses.replace(trial, **trial_moves(ex["trial"]))
         if trial is not None and push is not None and push.target == "object":
@@ -161,8 +149,34 @@ class Execution:
         b = self.built
         self.object_p0 = self.sim.d.xpos[b.object_body].copy() if b.object_body >= 0 else None
 
-    def _safety(self, spec, inside):
-        """The safety filter and approach stages of a law with a scene (`safety.py`)."""
+    def _check_points(self, pts, what: str, inside):
+        """A timed path the robot can follow from where it is (`ExecutionError` otherwise)."""
+        n = self.sim.n
+        if not isinstance(pts, list) or not pts:
+            raise ExecutionError(f"the {what} has no points")
+        prev = -math.inf
+        for i, p in enumerate(pts):
+            ok = (
+                isinstance(p, dict)
+                and len(p.get("positions", [])) == n
+                and len(p.get("velocities", [])) == n
+                and isinstance(p.get("t"), (int, float))
+                and _finite(p["positions"]) and _finite(p["velocities"]) and math.isfinite(p["t"])
+                and p["t"] > prev
+            )
+            if not ok:
+                raise ExecutionError(f"{what} point {i} is invalid")
+            if not inside(np.asarray(p["positions"])):
+                raise ExecutionError(f"{what} point {i} is outside the joint limits")
+            prev = p["t"]
+        d = float(np.max(np.abs(np.asarray(pts[0]["positions"]) - self.q_start)))
+        tol = self.opts.start_tolerance
+        if d > tol:
+            raise ExecutionError(f"the robot is {d:.3f} rad from the {what}'s start (tolerance {tol})")
+
+    def _safety(self, spec, inside, staged=True):
+        """The safety filter and approach stages of a law with a scene (`safety.py`); no stages
+        for a law that follows a path (`staged` false)."""
         if not isinstance(spec, dict):
             raise ExecutionError("the payload's safety scene must be an object")
         if self.scene is None or self.scene.object is None:
@@ -171,7 +185,7 @@ class Execution:
         stages = []
         pre = spec.get("pre_grasp")
         pairs = S.Pairs(self.sim)
-        if pre is not None:
+        if pre is not None and staged:
             if not isinstance(pre, list) or len(pre) != n or not _finite(pre) or not inside(np.asarray(pre, float)):
                 raise ExecutionError(f"the pre-grasp needs {n} finite values inside the joint limits")
             stages = S.approach_stages(self.sim, pairs, self.q_start, pre, self.goal)

@@ -37,6 +37,9 @@ class RunOptions:
     # Closed loop: the servo reference may run at most this far ahead of the measured state, so
     # a push that displaces the arm drags the reference with it and the law acts from there.
     reference_band: float = 0.05
+    # Closed loop along a path (`law.PathFollower`): the feedback gain, 1/s, as the reference
+    # worker's.
+    tracking_gain: float = 8.0
 
 
 @dataclass
@@ -467,7 +470,7 @@ class ClosedLoop:
     integrated from it and kept within `reference_band` of the measured state)."""
 
     def __init__(self, sim: Sim, law, goal, opts: RunOptions, pushes: Pushes | None,
-                 safety=None, stages=()):
+                 safety=None, stages=(), follower=None):
         self.sim = sim
         self.law = law
         self.goal = np.asarray(goal, float)
@@ -478,6 +481,8 @@ class ClosedLoop:
         self.safety = safety
         self.stages = [np.asarray(s, float) for s in stages]
         self.stage = 0
+        # `law.PathFollower` of a payload with a path: the law runs that motion instead.
+        self.follower = follower
         self.t0 = sim.t
         self.q_ref = sim.q()
         self.initial = max(float(np.max(np.abs(self.q_ref - self.goal))), 1e-9)
@@ -489,8 +494,11 @@ class ClosedLoop:
         q = sim.q()
         while self.stage < len(self.stages) and np.max(np.abs(q - self.stages[self.stage])) <= STAGE_TOLERANCE:
             self.stage += 1
-        target = self.stages[self.stage] if self.stage < len(self.stages) else self.goal
-        u = self.law.control(q, target)
+        if self.follower is not None:
+            u, _ = self.follower.step(q, CONTROL_DT)
+        else:
+            target = self.stages[self.stage] if self.stage < len(self.stages) else self.goal
+            u = self.law.control(q, target)
         if self.safety is not None:
             u = self.safety.filter(sim.d.qpos, u, sim.t - self.t0)
         u = np.clip(u, -sim.vlimit, sim.vlimit)
@@ -503,10 +511,13 @@ class ClosedLoop:
         q = sim.q()
         err = float(np.max(np.abs(q - self.goal)))
         self.tracking_error = err
-        self.progress = min(max(1.0 - err / self.initial, 0.0), 1.0)
+        if self.follower is not None:
+            self.progress = self.follower.progress()
+        else:
+            self.progress = min(max(1.0 - err / self.initial, 0.0), 1.0)
         t = sim.t - self.t0
         pushing = self.pushes is not None and sim.t < self.pushes.active_until
-        if pushing:
+        if pushing or self.follower is not None and not self.follower.at_end():
             return None
         return arrival(sim, self.goal, self.o, t, self.o.closed_loop_timeout)
 
