@@ -580,9 +580,15 @@ impl Run {
                             }
                             stages = approach_stages(sys, &checker, &robot.q, pre, goal);
                         }
+                        // A pair may come as close as it is at a goal; along a path, at any of
+                        // its points: the path is the plan's, checked exactly, and a filter
+                        // that held the robot off it (its margin is 20 mm, the plan's check
+                        // 1 mm) would stop the clock for good.
+                        let along = path.iter().flatten().map(|p| p.positions.as_slice());
                         let goals: Vec<&[f64]> = stages
                             .iter()
                             .map(Vec::as_slice)
+                            .chain(along)
                             .chain([goal.as_slice()])
                             .collect();
                         Some(Box::new(SafetyFilter::staged(

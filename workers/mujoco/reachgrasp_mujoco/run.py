@@ -133,7 +133,7 @@ class Execution:
             stages = []
             spec = payload.get("safety")
             if spec is not None:
-                self.safety, stages = self._safety(spec, inside, follower is None)
+                self.safety, stages = self._safety(spec, inside, path)
             self.motion = ClosedLoop(self.sim, law, self.goal, run, self.pushes if push and push.target == "arm" else None,
                                      self.safety, stages, follower)
         if trial is not None and ex.get("trial") is not None:
@@ -174,9 +174,11 @@ class Execution:
         if d > tol:
             raise ExecutionError(f"the robot is {d:.3f} rad from the {what}'s start (tolerance {tol})")
 
-    def _safety(self, spec, inside, staged=True):
-        """The safety filter and approach stages of a law with a scene (`safety.py`); no stages
-        for a law that follows a path (`staged` false)."""
+    def _safety(self, spec, inside, path=None):
+        """The safety filter and approach stages of a law with a scene (`safety.py`). A law that
+        follows a path runs no stages, and its filter lets a pair come as close as it is
+        anywhere on the path (the plan's, checked exactly; with the filter's 2 cm margin a path
+        that passes closer would be held off for good), at every fifth point."""
         if not isinstance(spec, dict):
             raise ExecutionError("the payload's safety scene must be an object")
         if self.scene is None or self.scene.object is None:
@@ -185,12 +187,13 @@ class Execution:
         stages = []
         pre = spec.get("pre_grasp")
         pairs = S.Pairs(self.sim)
-        if pre is not None and staged:
+        if pre is not None and path is None:
             if not isinstance(pre, list) or len(pre) != n or not _finite(pre) or not inside(np.asarray(pre, float)):
                 raise ExecutionError(f"the pre-grasp needs {n} finite values inside the joint limits")
             stages = S.approach_stages(self.sim, pairs, self.q_start, pre, self.goal)
         try:
-            f = S.SafetyFilter(self.sim, spec, [*stages, self.goal], self.sim.vlimit)
+            along = [np.asarray(p["positions"], float) for p in (path or [])[::5]]
+            f = S.SafetyFilter(self.sim, spec, [*stages, *along, self.goal], self.sim.vlimit)
         except (KeyError, TypeError, ValueError) as e:
             raise ExecutionError(f"the safety scene is unreadable: {e}") from None
         return f, stages
