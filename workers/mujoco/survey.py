@@ -225,8 +225,8 @@ def cmd_fig5(a):
 
 def cmd_pushes(a):
     """Closed-loop executions with pushes on the arm, then the grasp trial. `--case plan`: a plan
-    (robot, object, force along z) from zero executed in closed loop, the law run in the
-    approach's stages through the worker's safety filter; `--case pinch`: to the T42 pinch of
+    (robot, object, force along z) from zero executed in closed loop, the law run along the
+    plan's path through the worker's safety filter; `--case pinch`: to the T42 pinch of
     the reference block (reachgrasp_mujoco.cases) from `--height` above it, the law of the
     robot's default model."""
     from reachgrasp_mujoco.cases import BLOCK, pinch
@@ -253,7 +253,7 @@ def cmd_pushes(a):
                                                      "goal": goal, "worker": f"survey-{robot}"})
             else:
                 # the plan executed in closed loop: the service sends the law with its scene and
-                # the grasp's pre-grasp, which the worker runs in stages through its safety filter
+                # the plan's path, which the worker runs through its safety filter
                 p = svc.post_json("/v1/plans", {"robot": robot, "object_id": objects(svc)[a.object],
                                                 "task_directions": TASKS["force_z"], "start": zeros_start(svc, robot),
                                                 "execute": True, "mode": "closed_loop", "worker": f"survey-{robot}"})
