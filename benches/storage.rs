@@ -150,7 +150,6 @@ async fn run() -> anyhow::Result<()> {
                 approach_standoff: None,
             },
             None,
-            true,
         )
         .await
         .map_err(|e| anyhow::anyhow!("{e:?}"))?;

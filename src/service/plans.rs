@@ -442,13 +442,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         Some(sys),
     ) = (&execution, &trajectory, &law_system)
     {
-        let payload = ExecutionPayload::Model {
-            model_id: model.clone(),
-            params: params.clone(),
-            goal: t.goal.clone(),
-            safety: Some(Box::new(spec.clone())),
-            path: Some(t.points.clone()),
-        };
+        let payload = law_payload((model, params), &t.goal, &t.points, Some(spec.clone()));
         let (sys, names, start) = (sys.clone(), t.joint_names.clone(), t.start.clone());
         let short =
             tokio::task::spawn_blocking(move || simulate_law(&sys, &names, &start, payload))
@@ -710,7 +704,7 @@ async fn attempt(
             )
         });
         law_system = closed_loop.then(|| scene.sys.clone());
-        match super::trajectories::compute(ctx, &request, Some(scene), true).await {
+        match super::trajectories::compute(ctx, &request, Some(scene)).await {
             // A motion that collides is kept with the plan for inspection, but the plan is
             // infeasible and nothing is queued.
             Ok((t, clearance)) => {
@@ -1016,19 +1010,35 @@ pub fn payload(
             joint_names: trajectory.joint_names.clone(),
             points: trajectory.points.clone(),
         }),
-        (Mode::ClosedLoop, Some((model_id, params))) => Ok(ExecutionPayload::Model {
-            model_id: model_id.clone(),
-            params: params.clone(),
-            goal: trajectory.goal.clone(),
-            safety: safety.map(Box::new),
-            path: Some(trajectory.points.clone()),
-        }),
+        (Mode::ClosedLoop, Some((model_id, params))) => Ok(law_payload(
+            (model_id, params),
+            &trajectory.goal,
+            &trajectory.points,
+            safety,
+        )),
         (Mode::ClosedLoop, None) => Err(Error::internal(anyhow::anyhow!(
             "a closed-loop execution needs the model's law"
         ))),
         (Mode::Streaming, _) => Err(Error::internal(anyhow::anyhow!(
             "a plan's execution follows its trajectory or its model's law, not a stream"
         ))),
+    }
+}
+
+/// The model's law run along a trajectory's `path` to its `goal` (what a closed-loop plan
+/// queues, and what it runs itself before queueing).
+fn law_payload(
+    (model_id, params): (&String, &ControlParams),
+    goal: &[f64],
+    path: &[crate::motion::TrajectoryPoint],
+    safety: Option<SafetySpec>,
+) -> ExecutionPayload {
+    ExecutionPayload::Model {
+        model_id: model_id.clone(),
+        params: params.clone(),
+        goal: goal.to_vec(),
+        safety: safety.map(Box::new),
+        path: Some(path.to_vec()),
     }
 }
 

@@ -779,7 +779,7 @@ pub async fn create(
     let (c, b) = (ctx.clone(), body.clone());
     let (draft, _) = ctx
         .compute
-        .run(async move { compute(&c, &b, None, true).await })
+        .run(async move { compute(&c, &b, None).await })
         .await??;
     Ok(trajectories::insert_trajectory(&ctx.db, &draft.as_new()).await?)
 }
@@ -788,15 +788,12 @@ pub async fn create(
 /// grasp).
 /// With a grasp's `scene` (a plan's, or the stored grasp's when the goal is one), the
 /// trajectory's exact clearance in it is reported, and returned beside it.
-///
-/// `enter_workspace`: a start outside the model's workspace enters it along the joint line
-/// (`WorkspaceEntryDto`) instead of being a 422; off for a motion a worker will run under the
-/// closed-loop law, which has no such segment and is certified inside the workspace only.
+/// A start outside the model's workspace enters it along the joint line
+/// (`WorkspaceEntryDto`); a closed-loop law runs that segment too, along the path.
 pub async fn compute(
     ctx: &Context,
     body: &CreateTrajectory,
     scene: Option<super::grasps::GraspScene>,
-    enter_workspace: bool,
 ) -> Result<(TrajectoryDraft, Option<PathClearance>), Rejected> {
     let requested = match &body.duration {
         None => None,
@@ -875,7 +872,7 @@ pub async fn compute(
     let opts = TrajectoryOptions {
         duration: requested,
         rate,
-        enter_workspace,
+        enter_workspace: true,
         ..TrajectoryOptions::default()
     };
     let (traj, report) = {
