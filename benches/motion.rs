@@ -3,7 +3,8 @@
 //! evaluation of the closed-loop law (≤ 5 µs). Trained as `POST /v1/models` trains by default,
 //! with the residual profile; `train_250_demos_plain_nf` is the same without it,
 //! `train_250_demos_no_critical_point` with the navigation-function certificate choosing the
-//! shrink, `trajectory_no_critical_point` a trajectory of that model, and
+//! shrink, `trajectory_no_critical_point` a trajectory of that model, `trajectory_within_limits`
+//! the first trajectory given a duration the joint limits allow, and
 //! `control_path_follower` one period of the closed-loop law along a plan's path (≤ 5 µs).
 
 use std::hint::black_box;
@@ -58,6 +59,20 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             model
                 .trajectory(black_box(&start), black_box(&goal), &topts)
+                .unwrap()
+        })
+    });
+
+    // The same reach given 3 s, which the limits allow: the humanlike clock is kept, so one fit
+    // of the dilation (the learned 1.23 s is refused: then three fits compete, see `retime`).
+    let relaxed = TrajectoryOptions {
+        duration: Some(3.0),
+        ..TrajectoryOptions::default()
+    };
+    c.bench_function("trajectory_within_limits", |b| {
+        b.iter(|| {
+            model
+                .trajectory(black_box(&start), black_box(&goal), &relaxed)
                 .unwrap()
         })
     });

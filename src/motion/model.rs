@@ -1781,26 +1781,7 @@ impl MotionModel {
         };
         let time_optimal = retime::time_optimal_duration(&path, &rate_limits, 400);
         let grid = retime::LimitGrid::new(&path, &rate_limits);
-        let mut clock = grid.fit(requested);
-        if clock.duration() > requested * (1.0 + 1e-12) {
-            // The limits refuse the requested clock. Dilating from a base they refuse everywhere
-            // (the time-optimal duration) fits the dilation to where they bind instead of
-            // spreading it from the humanlike profile, and is often shorter: keep the shorter.
-            let fast = grid.fit(time_optimal.min(requested));
-            if fast.duration() < clock.duration() {
-                clock = fast;
-            }
-            // No clock of the humanlike shape reaches the requested duration: one balanced to
-            // the limits along the whole path gets nearest (never faster than requested: slowed
-            // uniformly to it, which only lowers every use).
-            let mut balanced = grid.fit_balanced(requested);
-            if balanced.duration() < requested {
-                balanced = balanced.slowed(requested / balanced.duration());
-            }
-            if balanced.duration() < clock.duration() {
-                clock = balanced;
-            }
-        }
+        let mut clock = grid.time(requested, time_optimal);
         let (mut p, mut v, mut a, mut jk) =
             (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         let mut points = Vec::new();

@@ -28,6 +28,8 @@
 //! nor jerk-bounded. [`time_optimal_duration`] computes that bound (velocity and acceleration
 //! only) as the reference the response reports beside the duration.
 
+use std::sync::OnceLock;
+
 use super::MinimumJerk;
 
 /// Control points of the path spline.
@@ -42,6 +44,9 @@ const WARP_ROUNDS: usize = 40;
 /// differences of them) within the limits between grid points.
 pub const TARGET_USE: f64 = 0.97;
 
+/// The highest degree a [`BSpline`] has here (the clock's integral: quartic).
+const MAX_DEGREE: usize = 5;
+
 /// A clamped B-spline on `[0, 1]` with several channels (row-major control points).
 #[derive(Clone, Debug)]
 pub struct BSpline {
@@ -55,7 +60,7 @@ impl BSpline {
     /// A clamped uniform B-spline of `degree` through `ctrl` (`count × channels`).
     pub fn clamped_uniform(degree: usize, ctrl: Vec<f64>, channels: usize) -> Self {
         let count = ctrl.len() / channels;
-        assert!(count > degree);
+        assert!(count > degree && degree <= MAX_DEGREE);
         let spans = count - degree;
         let mut knots = vec![0.0; degree + 1];
         knots.extend((1..spans).map(|i| i as f64 / spans as f64));
@@ -115,8 +120,23 @@ impl BSpline {
         }
     }
 
-    /// Every channel at `x ∈ [0, 1]` (de Boor's algorithm; no allocation).
+    /// Every channel at `x ∈ [0, 1]` (no allocation).
     pub fn eval(&self, x: f64, out: &mut [f64]) {
+        let (first, weights) = self.basis(x);
+        let c = self.channels;
+        let rows = &self.ctrl[first * c..(first + self.degree + 1) * c];
+        out[..c].fill(0.0);
+        for (w, row) in weights[..=self.degree].iter().zip(rows.chunks_exact(c)) {
+            for (o, v) in out[..c].iter_mut().zip(row) {
+                *o += w * v;
+            }
+        }
+    }
+
+    /// The basis functions that act at `x ∈ [0, 1]`: the first of the `degree + 1` control
+    /// points they weight, and their values (the triangle of The NURBS Book, A2.2: the weights
+    /// are computed once for every channel, and a channel costs `degree + 1` products).
+    pub fn basis(&self, x: f64) -> (usize, [f64; MAX_DEGREE + 1]) {
         let p = self.degree;
         let count = self.count();
         let x = x.clamp(0.0, 1.0);
@@ -131,29 +151,22 @@ impl BSpline {
             }
         }
         let k = lo;
-        let c = self.channels;
-        // The blending weights depend on `x` and the knots only: once for every channel.
-        let mut alpha = [[0.0f64; 6]; 6];
-        for r in 1..=p {
-            for j in r..=p {
-                let left = self.knots[j + k - p];
-                let den = self.knots[j + 1 + k - r] - left;
-                alpha[r][j] = if den > 0.0 { (x - left) / den } else { 0.0 };
+        let mut n = [0.0f64; MAX_DEGREE + 1];
+        let (mut left, mut right) = ([0.0f64; MAX_DEGREE + 1], [0.0f64; MAX_DEGREE + 1]);
+        n[0] = 1.0;
+        for j in 1..=p {
+            left[j] = x - self.knots[k + 1 - j];
+            right[j] = self.knots[k + j] - x;
+            let mut saved = 0.0;
+            for r in 0..j {
+                // (the span has positive length, so every denominator does)
+                let temp = n[r] / (right[r + 1] + left[j - r]);
+                n[r] = saved + right[r + 1] * temp;
+                saved = left[j - r] * temp;
             }
+            n[j] = saved;
         }
-        let mut d = [0.0f64; 6];
-        for ch in 0..c {
-            for j in 0..=p {
-                d[j] = self.ctrl[(j + k - p) * c + ch];
-            }
-            for r in 1..=p {
-                for j in (r..=p).rev() {
-                    let a = alpha[r][j];
-                    d[j] = (1.0 - a) * d[j - 1] + a * d[j];
-                }
-            }
-            out[ch] = d[p];
-        }
+        (k - p, n)
     }
 }
 
@@ -294,9 +307,12 @@ pub struct Clock {
 /// Time derivatives of `τ` for the dilation value `w`, `w'`, `w''`.
 #[inline]
 fn tau_derivatives(base: f64, w: f64, dw: f64, ddw: f64) -> (f64, f64, f64) {
+    // τ̇ = 1/(T w), τ̈ = −w'/(T² w³), τ⃛ = (3w'² − w w'')/(T³ w⁵), with one division (the
+    // fitting grid evaluates this 1,201 times a round)
     let t1 = 1.0 / (base * w);
-    let t2 = -dw / (base * base * w * w * w);
-    let t3 = (3.0 * dw * dw - w * ddw) / (base.powi(3) * w.powi(5));
+    let t1_3 = t1 * t1 * t1;
+    let t2 = -dw * base * t1_3;
+    let t3 = (3.0 * dw * dw - w * ddw) * base * base * t1_3 * t1 * t1;
     (t1, t2, t3)
 }
 
@@ -430,9 +446,63 @@ impl ClockPoint {
     /// `(ẋ, ẍ, x⃛)` under `clock` (as [`Clock::progress`]).
     fn rates(&self, clock: &Clock) -> (f64, f64, f64) {
         let c = &clock.w.ctrl[self.first..self.first + 4];
-        let dot = |w: &[f64; 4]| w[0] * c[0] + w[1] * c[1] + w[2] * c[2] + w[3] * c[3];
-        let [w, dw, ddw] = self.weights.each_ref().map(dot);
+        #[inline(always)]
+        fn dot(w: &[f64; 4], c: &[f64]) -> f64 {
+            w[0] * c[0] + w[1] * c[1] + w[2] * c[2] + w[3] * c[3]
+        }
+        let [value, d1, d2] = &self.weights;
+        let (w, dw, ddw) = (dot(value, c), dot(d1, c), dot(d2, c));
         chain(self.m, tau_derivatives(clock.base, w, dw, ddw))
+    }
+}
+
+/// The fitting grid's [`ClockPoint`]s: they depend on the grid alone, not on the path or the
+/// limits, so every trajectory shares one set. (Preparing them took a quarter of a trajectory's
+/// time when each grid built its own.)
+fn clock_points() -> &'static [ClockPoint] {
+    static POINTS: OnceLock<Vec<ClockPoint>> = OnceLock::new();
+    POINTS.get_or_init(|| {
+        let basis = WarpBasis::new();
+        (0..=GRID)
+            .map(|g| ClockPoint::new(&basis, g as f64 / GRID as f64))
+            .collect()
+    })
+}
+
+/// Limit use at one grid point, before the roots: the velocity use, and the largest
+/// acceleration and jerk ratios (uses squared and cubed).
+#[derive(Clone, Copy, Debug, Default)]
+struct Use {
+    velocity: f64,
+    acceleration: f64,
+    jerk: f64,
+}
+
+impl Use {
+    /// The larger of two, limit by limit.
+    fn max(self, other: Use) -> Use {
+        Use {
+            velocity: self.velocity.max(other.velocity),
+            acceleration: self.acceleration.max(other.acceleration),
+            jerk: self.jerk.max(other.jerk),
+        }
+    }
+
+    /// The use over [`TARGET_USE`]: one square and one cube root for a whole stretch of the
+    /// grid (a cube root per grid point and round took a sixth of a trajectory).
+    fn over_target(self) -> f64 {
+        self.velocity
+            .max(self.acceleration.sqrt())
+            .max(self.jerk.cbrt())
+            / TARGET_USE
+    }
+
+    /// The largest use over `points`, over [`TARGET_USE`].
+    fn of(points: &[Use]) -> f64 {
+        points
+            .iter()
+            .fold(Use::default(), |m, &u| m.max(u))
+            .over_target()
     }
 }
 
@@ -469,25 +539,27 @@ pub fn sample(path: &Path, clock: &Clock, tau: f64, s: Sample<'_>, scratch: &mut
 /// (Fitting evaluates 1,201 points in each of up to 40 rounds, up to three times a plan; three
 /// divisions per joint and point there took a sixth of a plan's CPU time.)
 pub struct LimitGrid {
-    n: usize,
-    points: Vec<ClockPoint>,
-    /// Per grid point: the largest `|q'_i| / v̄_i`, then per joint `q'/ā`, `q''/ā`, `q'/j̄`,
-    /// `3q''/j̄`, `q'''/j̄` (`1 + 5n` values).
+    /// Joints padded to a multiple of [`LANES`] (the padding's coefficients are 0).
+    padded: usize,
+    points: &'static [ClockPoint],
+    /// Per grid point: the largest `|q'_i| / v̄_i`, then five blocks of `padded` values, each one
+    /// coefficient for every joint: `q''/ā`, `q'/ā`, `q'''/j̄`, `3q''/j̄`, `q'/j̄` (a block per
+    /// coefficient, so that neighbouring joints are summed side by side).
     scaled: Vec<f64>,
 }
+
+/// Joints evaluated side by side in [`LimitGrid::measure`] (one AVX register of `f64`).
+const LANES: usize = 4;
 
 impl LimitGrid {
     pub fn new(path: &Path, limits: &RateLimits<'_>) -> Self {
         let n = path.n;
-        let basis = WarpBasis::new();
-        let width = 1 + 5 * n;
-        let mut points = Vec::with_capacity(GRID + 1);
+        let padded = n.div_ceil(LANES) * LANES;
+        let width = 1 + 5 * padded;
         let mut scaled = vec![0.0; (GRID + 1) * width];
         let (mut d1, mut d2, mut d3) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         for g in 0..=GRID {
-            let tau = g as f64 / GRID as f64;
-            points.push(ClockPoint::new(&basis, tau));
-            let x = MinimumJerk::eval(tau).0;
+            let x = MinimumJerk::eval(g as f64 / GRID as f64).0;
             path.d1.eval(x, &mut d1);
             path.d2.eval(x, &mut d2);
             path.d3.eval(x, &mut d3);
@@ -495,22 +567,84 @@ impl LimitGrid {
             row[0] = (0..n).fold(0.0f64, |m, i| m.max(d1[i].abs() / limits.velocity[i]));
             for i in 0..n {
                 let (a, j) = (limits.acceleration[i], limits.jerk[i]);
-                row[1 + 5 * i..1 + 5 * (i + 1)].copy_from_slice(&[
-                    d1[i] / a,
-                    d2[i] / a,
-                    d1[i] / j,
-                    3.0 * d2[i] / j,
-                    d3[i] / j,
-                ]);
+                let values = [d2[i] / a, d1[i] / a, d3[i] / j, 3.0 * d2[i] / j, d1[i] / j];
+                for (block, value) in values.into_iter().enumerate() {
+                    row[1 + block * padded + i] = value;
+                }
             }
         }
-        LimitGrid { n, points, scaled }
+        LimitGrid {
+            padded,
+            points: clock_points(),
+            scaled,
+        }
+    }
+
+    /// The clock for a path wanted in `requested` seconds: the humanlike clock slowed where the
+    /// limits bind ([`Self::fit`]). If that cannot keep the requested duration, the shortest of
+    /// it; the same fitted from the time-optimal duration `time_optimal` (dilating from a base
+    /// the limits refuse everywhere fits the dilation to where they bind instead of spreading
+    /// it from the humanlike profile, and is often shorter); and the balanced clock
+    /// ([`Self::fit_balanced`]: no clock of the humanlike shape reaches the requested duration,
+    /// and one balanced to the limits along the whole path gets nearest; slowed uniformly to
+    /// the requested duration if faster). Ties go to the humanlike clock.
+    ///
+    /// Exactly that choice, with less work: the dilation of [`Self::fit`] only grows, round after
+    /// round, so its duration so far is a lower bound of its final one, and a fit already longer
+    /// than the balanced clock is abandoned (and the requested duration is known to be refused as
+    /// soon as the humanlike fit passes it).
+    pub fn time(&self, requested: f64, time_optimal: f64) -> Clock {
+        let limit = requested * (1.0 + 1e-12);
+        let mut humanlike = Fitting::new(self, requested, false);
+        while !humanlike.done() && humanlike.clock.duration() <= limit {
+            humanlike.round();
+        }
+        let humanlike = if humanlike.done() {
+            let clock = humanlike.finish();
+            if clock.duration() <= limit {
+                return clock;
+            }
+            Ok(clock)
+        } else {
+            Err(humanlike)
+        };
+        let mut balanced = Fitting::new(self, requested, true).run();
+        if balanced.duration() < requested {
+            balanced = balanced.slowed(requested / balanced.duration());
+        }
+        let bound = balanced.duration();
+        let within = |fit: Result<Clock, Fitting<'_>>| match fit {
+            Ok(clock) => Some(clock),
+            Err(mut fit) => {
+                while !fit.done() {
+                    if fit.clock.duration() > bound {
+                        return None;
+                    }
+                    fit.round();
+                }
+                Some(fit.finish())
+            }
+        };
+        let mut best = within(humanlike);
+        // (from the requested duration itself this fit is the humanlike one again)
+        if time_optimal < requested
+            && let Some(fast) = within(Err(Fitting::new(self, time_optimal, false)))
+            && best.as_ref().is_none_or(|b| fast.duration() < b.duration())
+        {
+            best = Some(fast);
+        }
+        match best {
+            Some(best) if best.duration() <= bound => best,
+            _ => balanced,
+        }
     }
 
     /// Fits the dilation so that the timed path keeps every limit use at or below
     /// [`TARGET_USE`] on a fine grid. Deterministic: a fixed grid and a fixed number of rounds.
+    /// (Run in full, as tests compare [`Self::time`] with it; the service calls `time`.)
+    #[cfg(test)]
     pub fn fit(&self, base: f64) -> Clock {
-        self.fit_with(base, false)
+        Fitting::new(self, base, false).run()
     }
 
     /// As [`Self::fit`], but the dilation also falls below 1 where the limits are slack: every
@@ -519,71 +653,138 @@ impl LimitGrid {
     /// a smooth (C², jerk-bounded) warp of the minimum-jerk law. For when the limits refuse the
     /// humanlike clock at the wanted duration: then no clock keeps its shape anyway, and slowing
     /// only where they bind leaves time unused where they do not.
+    #[cfg(test)]
     pub fn fit_balanced(&self, base: f64) -> Clock {
-        self.fit_with(base, true)
+        Fitting::new(self, base, true).run()
     }
 
-    /// The largest use over the grid under `clock`; each point's use over [`TARGET_USE`] into
-    /// `use_at`.
-    fn measure(&self, clock: &Clock, use_at: &mut [f64]) -> f64 {
-        let width = 1 + 5 * self.n;
-        let mut worst: f64 = 0.0;
+    /// The largest use over the grid under `clock`, over [`TARGET_USE`]. Per grid point into
+    /// `use_at`: the velocity use and the largest acceleration and jerk ratios, before their
+    /// roots ([`Use::of`] takes them once for a whole stretch of the grid: the roots are
+    /// monotone, so the root of the largest ratio is the largest root).
+    fn measure(&self, clock: &Clock, use_at: &mut [Use]) -> f64 {
+        let p = self.padded;
         for ((at, row), out) in self
             .points
             .iter()
-            .zip(self.scaled.chunks_exact(width))
+            .zip(self.scaled.chunks_exact(1 + 5 * p))
             .zip(use_at.iter_mut())
         {
             let (xd, xdd, xddd) = at.rates(clock);
             let (xd2, xd3, xdxdd) = (xd * xd, xd * xd * xd, xd * xdd);
-            // (the roots are monotone: one square and one cube root of the largest ratios per
-            // grid point, not one per joint)
-            let (mut a_max, mut j_max): (f64, f64) = (0.0, 0.0);
-            for c in row[1..].chunks_exact(5) {
-                a_max = a_max.max((c[1] * xd2 + c[0] * xdd).abs());
-                j_max = j_max.max((c[4] * xd3 + c[3] * xdxdd + c[2] * xddd).abs());
+            // (blocks of whole lanes: fixed-size arrays, so that the compiler loads them as
+            // vectors without bounds checks)
+            let (blocks, _) = row[1..].as_chunks::<LANES>();
+            let (a2, rest) = blocks.split_at(p / LANES);
+            let (a1, rest) = rest.split_at(p / LANES);
+            let (j3, rest) = rest.split_at(p / LANES);
+            let (j2, j1) = rest.split_at(p / LANES);
+            // (per lane, then across lanes: `max` is exact, so the order does not change the
+            // result, and the lanes stay in vector registers)
+            let (mut a_max, mut j_max) = ([0.0f64; LANES], [0.0f64; LANES]);
+            for ((((a2, a1), j3), j2), j1) in a2.iter().zip(a1).zip(j3).zip(j2).zip(j1) {
+                for l in 0..LANES {
+                    let a = (a2[l] * xd2 + a1[l] * xdd).abs();
+                    let j = (j3[l] * xd3 + j2[l] * xdxdd + j1[l] * xddd).abs();
+                    // (a comparison, not `f64::max`: the same for numbers, without the NaN
+                    // handling that doubled the loop's instructions)
+                    a_max[l] = if a > a_max[l] { a } else { a_max[l] };
+                    j_max[l] = if j > j_max[l] { j } else { j_max[l] };
+                }
             }
-            let u = (row[0] * xd.abs()).max(a_max.sqrt()).max(j_max.cbrt());
-            *out = u / TARGET_USE;
-            worst = worst.max(*out);
+            *out = Use {
+                velocity: row[0] * xd.abs(),
+                acceleration: a_max.into_iter().fold(0.0, f64::max),
+                jerk: j_max.into_iter().fold(0.0, f64::max),
+            };
         }
-        worst
+        Use::of(use_at)
+    }
+}
+
+/// A dilation being fitted to a [`LimitGrid`], one round at a time.
+struct Fitting<'g> {
+    grid: &'g LimitGrid,
+    base: f64,
+    balanced: bool,
+    ctrl: Vec<f64>,
+    /// The clock of the current control values, and its largest use over the target.
+    clock: Clock,
+    worst: f64,
+    use_at: Vec<Use>,
+    rounds: usize,
+}
+
+impl<'g> Fitting<'g> {
+    fn new(grid: &'g LimitGrid, base: f64, balanced: bool) -> Self {
+        let ctrl = vec![1.0; WARP_CONTROL_POINTS];
+        let clock = Clock::build(base, ctrl.clone());
+        let mut use_at = vec![Use::default(); GRID + 1];
+        let worst = grid.measure(&clock, &mut use_at);
+        Fitting {
+            grid,
+            base,
+            balanced,
+            ctrl,
+            clock,
+            worst,
+            use_at,
+            rounds: 0,
+        }
     }
 
-    fn fit_with(&self, base: f64, balanced: bool) -> Clock {
-        let mut use_at = vec![0.0; GRID + 1];
-        let mut ctrl = vec![1.0; WARP_CONTROL_POINTS];
-        let spans = WARP_CONTROL_POINTS - 3;
-        let mut clock = Clock::build(base, ctrl.clone());
-        let measure = |clock: &Clock, use_at: &mut [f64]| self.measure(clock, use_at);
-        let mut worst = measure(&clock, &mut use_at);
-        let mut rounds = 0;
-        while (worst > 1.0 || balanced) && rounds < WARP_ROUNDS {
-            rounds += 1;
-            for (i, c) in ctrl.iter_mut().enumerate() {
-                // control value i acts on τ ∈ [knot_i, knot_{i+4}] of the clamped uniform knots
-                let a = (i.saturating_sub(3)) as f64 / spans as f64;
-                let b = ((i + 1).min(spans)) as f64 / spans as f64;
-                let (ga, gb) = (
-                    (a * GRID as f64).floor() as usize,
-                    ((b * GRID as f64).ceil() as usize).min(GRID),
-                );
-                // (the most used grid point of the stretch decides: a stretch is hurried only as
-                // much as its busiest point allows, and by at most half per round)
-                let floor: f64 = if balanced { 0.5 } else { 1.0 };
-                let f = use_at[ga..=gb].iter().fold(floor, |m, &u| m.max(u));
-                *c *= f;
-            }
-            clock = Clock::build(base, ctrl.clone());
-            worst = measure(&clock, &mut use_at);
+    fn done(&self) -> bool {
+        !((self.worst > 1.0 || self.balanced) && self.rounds < WARP_ROUNDS)
+    }
+
+    fn round(&mut self) {
+        self.rounds += 1;
+        const SPANS: usize = WARP_CONTROL_POINTS - 3;
+        // The largest use on each knot span's grid points (both ends included), so that a
+        // control value's stretch, up to four spans, takes the largest of four.
+        let mut span_use = [Use::default(); SPANS];
+        for (s, u) in span_use.iter_mut().enumerate() {
+            let (a, b) = (s as f64 / SPANS as f64, (s + 1) as f64 / SPANS as f64);
+            let (ga, gb) = (
+                (a * GRID as f64).floor() as usize,
+                ((b * GRID as f64).ceil() as usize).min(GRID),
+            );
+            *u = self.use_at[ga..=gb]
+                .iter()
+                .fold(Use::default(), |m, &p| m.max(p));
         }
-        let uniform = worst.max(1.0);
-        if uniform > 1.0 {
+        // (the most used grid point of a stretch decides: a stretch is hurried only as much as
+        // its busiest point allows, and by at most half per round)
+        let floor: f64 = if self.balanced { 0.5 } else { 1.0 };
+        for (i, c) in self.ctrl.iter_mut().enumerate() {
+            // control value i acts on τ ∈ [knot_i, knot_{i+4}] of the clamped uniform knots
+            let (first, last) = (i.saturating_sub(3), (i + 1).min(SPANS) - 1);
+            let stretch = span_use[first..=last]
+                .iter()
+                .fold(Use::default(), |m, &u| m.max(u));
+            *c *= stretch.over_target().max(floor);
+        }
+        self.clock = Clock::build(self.base, self.ctrl.clone());
+        self.worst = self.grid.measure(&self.clock, &mut self.use_at);
+    }
+
+    fn run(mut self) -> Clock {
+        while !self.done() {
+            self.round();
+        }
+        self.finish()
+    }
+
+    fn finish(self) -> Clock {
+        let uniform = self.worst.max(1.0);
+        let mut clock = if uniform > 1.0 {
             // slowing every instant by `uniform` divides velocity, acceleration and jerk by
             // `uniform`, its square and cube: the grid's use falls to at most 1
-            clock = Clock::build(base * uniform, ctrl);
-        }
-        clock.rounds = rounds;
+            Clock::build(self.base * uniform, self.ctrl)
+        } else {
+            self.clock
+        };
+        clock.rounds = self.rounds;
         clock.uniform = uniform;
         clock
     }
@@ -627,29 +828,69 @@ pub fn time_optimal_duration(path: &Path, limits: &RateLimits<'_>, stages: usize
         (lo, hi)
     };
     // backward: the largest x at stage s from which stage s+1's controllable set [0, K] is
-    // reachable; the set of such x is an interval containing 0 (rest is always admissible)
+    // reachable; the set of such x is an interval containing 0 (rest is always admissible).
+    // At squared speed x the admissible u lie between lines in x, lower `α + βx` and upper
+    // `γ + βx` (per joint `∓ā/|q'| − (q''/q') x`; controllability `−x/2h` and `(K − x)/2h`), so
+    // F(x) = max lower − min upper is convex and piecewise linear, and x is admissible where
+    // F(x) ≤ 0. Newton's method from the right of F's largest root stays right of it (the
+    // tangent of a convex function lies below it) and reaches it in one step per linear piece
+    // crossed: a few evaluations, where bisection took 60 (and stays the fallback).
     let mut k = vec![0.0; stages + 1];
+    let mut lines = Vec::with_capacity(n + 1);
     for s in (0..stages).rev() {
-        let feasible = |x: f64| {
-            let (lo, hi) = interval(s, x);
-            let (a, b) = (lo.max(-x / (2.0 * h)), hi.min((k[s + 1] - x) / (2.0 * h)));
-            a <= b
+        let mut top = xmax[s].min(1e6);
+        lines.clear();
+        lines.push((0.0, -1.0 / (2.0 * h), k[s + 1] / (2.0 * h)));
+        for i in 0..n {
+            let (a, b) = (d1[s * n + i], d2[s * n + i]);
+            let lim = limits.acceleration[i];
+            if a.abs() > 1e-12 {
+                lines.push((-lim / a.abs(), -b / a, lim / a.abs()));
+            } else if b != 0.0 {
+                top = top.min(lim / b.abs());
+            }
+        }
+        // F(x), and its slope right of x (at a kink, of the piece that follows)
+        let excess = |x: f64| {
+            let (mut lower, mut ls) = (f64::NEG_INFINITY, 0.0);
+            let (mut upper, mut us) = (f64::INFINITY, 0.0);
+            for &(alpha, beta, gamma) in &lines {
+                let (lv, uv) = (alpha + beta * x, gamma + beta * x);
+                if lv > lower || (lv == lower && beta > ls) {
+                    (lower, ls) = (lv, beta);
+                }
+                if uv < upper || (uv == upper && beta < us) {
+                    (upper, us) = (uv, beta);
+                }
+            }
+            (lower - upper, ls - us)
         };
-        let top = xmax[s].min(1e6);
-        let x = if feasible(top) {
-            top
-        } else {
-            let (mut lo, mut hi) = (0.0, top);
+        let mut x = top;
+        let (mut over, mut slope) = excess(x);
+        for _ in 0..4 * (n + 1) {
+            if over <= 0.0 || slope <= 0.0 {
+                break;
+            }
+            let next = (x - over / slope).max(0.0);
+            if next >= x {
+                break;
+            }
+            x = next;
+            (over, slope) = excess(x);
+        }
+        if over > 1e-12 * (1.0 + x) {
+            // not converged (or nothing admissible but rest): bisection on [0, x]
+            let (mut lo, mut hi) = (0.0, x);
             for _ in 0..60 {
                 let mid = 0.5 * (lo + hi);
-                if feasible(mid) {
+                if excess(mid).0 <= 0.0 {
                     lo = mid;
                 } else {
                     hi = mid;
                 }
             }
-            lo
-        };
+            x = lo;
+        }
         k[s] = x;
     }
     // forward: the largest admissible acceleration that stays controllable
@@ -704,6 +945,107 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The B-spline basis by its recursive definition (Cox–de Boor), the reference for
+    /// [`BSpline::basis`]: `N_{i,0}` is the indicator of `[t_i, t_{i+1})` (closed at 1 for the
+    /// last non-empty span), `N_{i,p} = ω_{i,p} N_{i,p-1} + (1 − ω_{i+1,p}) N_{i+1,p-1}`.
+    fn cox_de_boor(knots: &[f64], i: usize, p: usize, x: f64) -> f64 {
+        if p == 0 {
+            let last = knots.iter().rposition(|&t| t < 1.0).unwrap();
+            let inside = knots[i] <= x && x < knots[i + 1];
+            return if inside || (i == last && x == 1.0) {
+                1.0
+            } else {
+                0.0
+            };
+        }
+        let omega = |i: usize| {
+            let den = knots[i + p] - knots[i];
+            if den > 0.0 { (x - knots[i]) / den } else { 0.0 }
+        };
+        omega(i) * cox_de_boor(knots, i, p - 1, x)
+            + (1.0 - omega(i + 1)) * cox_de_boor(knots, i + 1, p - 1, x)
+    }
+
+    #[test]
+    fn the_basis_is_the_recursive_definitions_and_a_partition_of_unity() {
+        let mut xs: Vec<f64> = (0..=200).map(|k| k as f64 / 200.0).collect();
+        xs.extend([1e-12, 0.3333, 1.0 - 1e-12]);
+        for degree in 0..=4 {
+            let count = 9;
+            let spline = BSpline::clamped_uniform(degree, vec![0.0; count], 1);
+            for &x in &xs {
+                let (first, w) = spline.basis(x);
+                let mut sum = 0.0;
+                for i in 0..count {
+                    let weight = if (first..=first + degree).contains(&i) {
+                        w[i - first]
+                    } else {
+                        0.0
+                    };
+                    let reference = cox_de_boor(&spline.knots, i, degree, x);
+                    assert!(
+                        (weight - reference).abs() <= 1e-14,
+                        "degree {degree}, x {x}, function {i}: {weight} vs {reference}"
+                    );
+                    sum += weight;
+                }
+                assert!((sum - 1.0).abs() <= 1e-14, "degree {degree}, x {x}: {sum}");
+            }
+        }
+    }
+
+    /// The clock [`LimitGrid::time`] returns is the one the three fits it prunes would choose,
+    /// run in full: the humanlike fit, the fit from the time-optimal duration if it is shorter,
+    /// the balanced clock (slowed to the requested duration) if shorter still.
+    #[test]
+    fn pruned_timing_chooses_the_clock_the_full_fits_choose() {
+        let xs = greville(PATH_CONTROL_POINTS);
+        let wavy: Vec<f64> = xs
+            .iter()
+            .flat_map(|&x| [1.2 * x, 0.3 * x + 0.2 * (9.0 * x).sin(), -0.8 * x * x])
+            .collect();
+        let (v, a, j) = ([2.0, 1.5, 2.5], [5.0, 4.0, 6.0], [60.0, 40.0, 90.0]);
+        let limits = RateLimits {
+            velocity: &v,
+            acceleration: &a,
+            jerk: &j,
+        };
+        let path = Path::new(wavy, 3);
+        let grid = LimitGrid::new(&path, &limits);
+        let optimal = time_optimal_duration(&path, &limits, 400);
+        let (mut stretched, mut kept) = (0, 0);
+        for requested in [0.3, 0.8, optimal, 1.4, 2.0, 3.0, 6.0, 10.0] {
+            let mut reference = grid.fit(requested);
+            if reference.duration() > requested * (1.0 + 1e-12) {
+                stretched += 1;
+                let fast = grid.fit(optimal.min(requested));
+                if fast.duration() < reference.duration() {
+                    reference = fast;
+                }
+                let mut balanced = grid.fit_balanced(requested);
+                if balanced.duration() < requested {
+                    balanced = balanced.slowed(requested / balanced.duration());
+                }
+                if balanced.duration() < reference.duration() {
+                    reference = balanced;
+                }
+            } else {
+                kept += 1;
+            }
+            let clock = grid.time(requested, optimal);
+            assert_eq!(clock.duration(), reference.duration(), "{requested} s");
+            assert_eq!(clock.w.ctrl, reference.w.ctrl, "{requested} s");
+            assert_eq!(
+                (clock.rounds, clock.uniform),
+                (reference.rounds, reference.uniform)
+            );
+        }
+        assert!(
+            stretched >= 3 && kept >= 2,
+            "{stretched} stretched, {kept} kept"
+        );
     }
 
     #[test]
