@@ -497,12 +497,14 @@ impl Use {
             / TARGET_USE
     }
 
+    /// The largest of `uses`, limit by limit.
+    fn largest(uses: &[Use]) -> Use {
+        uses.iter().fold(Use::default(), |m, &u| m.max(u))
+    }
+
     /// The largest use over `points`, over [`TARGET_USE`].
     fn of(points: &[Use]) -> f64 {
-        points
-            .iter()
-            .fold(Use::default(), |m, &u| m.max(u))
-            .over_target()
+        Use::largest(points).over_target()
     }
 }
 
@@ -548,7 +550,8 @@ pub struct LimitGrid {
     scaled: Vec<f64>,
 }
 
-/// Joints evaluated side by side in [`LimitGrid::measure`] (one AVX register of `f64`).
+/// Joints evaluated side by side in [`LimitGrid::measure`] (two SSE2 registers of `f64` on the
+/// x86-64 baseline, one where AVX is enabled at build time).
 const LANES: usize = 4;
 
 impl LimitGrid {
@@ -581,15 +584,15 @@ impl LimitGrid {
     }
 
     /// The clock for a path wanted in `requested` seconds: the humanlike clock slowed where the
-    /// limits bind ([`Self::fit`]). If that cannot keep the requested duration, the shortest of
+    /// limits bind (`fit`). If that cannot keep the requested duration, the shortest of
     /// it; the same fitted from the time-optimal duration `time_optimal` (dilating from a base
     /// the limits refuse everywhere fits the dilation to where they bind instead of spreading
     /// it from the humanlike profile, and is often shorter); and the balanced clock
-    /// ([`Self::fit_balanced`]: no clock of the humanlike shape reaches the requested duration,
+    /// (`fit_balanced`: no clock of the humanlike shape reaches the requested duration,
     /// and one balanced to the limits along the whole path gets nearest; slowed uniformly to
     /// the requested duration if faster). Ties go to the humanlike clock.
     ///
-    /// Exactly that choice, with less work: the dilation of [`Self::fit`] only grows, round after
+    /// Exactly that choice, with less work: the dilation of `fit` only grows, round after
     /// round, so its duration so far is a lower bound of its final one, and a fit already longer
     /// than the balanced clock is abandoned (and the requested duration is known to be refused as
     /// soon as the humanlike fit passes it).
@@ -647,7 +650,7 @@ impl LimitGrid {
         Fitting::new(self, base, false).run()
     }
 
-    /// As [`Self::fit`], but the dilation also falls below 1 where the limits are slack: every
+    /// As `fit`, but the dilation also falls below 1 where the limits are slack: every
     /// control value moves towards the use that brings its stretch of the path to the target,
     /// so the limits bind nearly everywhere, as in a time-optimal profile, while the clock stays
     /// a smooth (C², jerk-bounded) warp of the minimum-jerk law. For when the limits refuse the
@@ -749,9 +752,7 @@ impl<'g> Fitting<'g> {
                 (a * GRID as f64).floor() as usize,
                 ((b * GRID as f64).ceil() as usize).min(GRID),
             );
-            *u = self.use_at[ga..=gb]
-                .iter()
-                .fold(Use::default(), |m, &p| m.max(p));
+            *u = Use::largest(&self.use_at[ga..=gb]);
         }
         // (the most used grid point of a stretch decides: a stretch is hurried only as much as
         // its busiest point allows, and by at most half per round)
@@ -759,10 +760,7 @@ impl<'g> Fitting<'g> {
         for (i, c) in self.ctrl.iter_mut().enumerate() {
             // control value i acts on τ ∈ [knot_i, knot_{i+4}] of the clamped uniform knots
             let (first, last) = (i.saturating_sub(3), (i + 1).min(SPANS) - 1);
-            let stretch = span_use[first..=last]
-                .iter()
-                .fold(Use::default(), |m, &u| m.max(u));
-            *c *= stretch.over_target().max(floor);
+            *c *= Use::of(&span_use[first..=last]).max(floor);
         }
         self.clock = Clock::build(self.base, self.ctrl.clone());
         self.worst = self.grid.measure(&self.clock, &mut self.use_at);
