@@ -293,6 +293,7 @@ pub struct RateLimits<'a> {
 }
 
 /// The fitted clock.
+#[derive(Clone)]
 pub struct Clock {
     base: f64,
     w: BSpline,
@@ -602,36 +603,21 @@ impl LimitGrid {
         while !humanlike.done() && humanlike.clock.duration() <= limit {
             humanlike.round();
         }
-        let humanlike = if humanlike.done() {
+        if humanlike.done() {
             let clock = humanlike.finish();
             if clock.duration() <= limit {
                 return clock;
             }
-            Ok(clock)
-        } else {
-            Err(humanlike)
-        };
+        }
         let mut balanced = Fitting::new(self, requested, true).run();
         if balanced.duration() < requested {
             balanced = balanced.slowed(requested / balanced.duration());
         }
         let bound = balanced.duration();
-        let within = |fit: Result<Clock, Fitting<'_>>| match fit {
-            Ok(clock) => Some(clock),
-            Err(mut fit) => {
-                while !fit.done() {
-                    if fit.clock.duration() > bound {
-                        return None;
-                    }
-                    fit.round();
-                }
-                Some(fit.finish())
-            }
-        };
-        let mut best = within(humanlike);
+        let mut best = humanlike.finish_within(bound);
         // (from the requested duration itself this fit is the humanlike one again)
         if time_optimal < requested
-            && let Some(fast) = within(Err(Fitting::new(self, time_optimal, false)))
+            && let Some(fast) = Fitting::new(self, time_optimal, false).finish_within(bound)
             && best.as_ref().is_none_or(|b| fast.duration() < b.duration())
         {
             best = Some(fast);
@@ -773,14 +759,29 @@ impl<'g> Fitting<'g> {
         self.finish()
     }
 
-    fn finish(self) -> Clock {
+    /// [`Self::run`], abandoned (`None`) once longer than `bound`: for a dilation that only
+    /// grows, whose duration so far bounds its final one from below.
+    fn finish_within(mut self, bound: f64) -> Option<Clock> {
+        debug_assert!(!self.balanced);
+        while !self.done() {
+            if self.clock.duration() > bound {
+                return None;
+            }
+            self.round();
+        }
+        Some(self.finish())
+    }
+
+    /// The clock of the fit as it stands, slowed uniformly to the grid's limits if they are
+    /// still exceeded.
+    fn finish(&self) -> Clock {
         let uniform = self.worst.max(1.0);
         let mut clock = if uniform > 1.0 {
             // slowing every instant by `uniform` divides velocity, acceleration and jerk by
             // `uniform`, its square and cube: the grid's use falls to at most 1
-            Clock::build(self.base * uniform, self.ctrl)
+            Clock::build(self.base * uniform, self.ctrl.clone())
         } else {
-            self.clock
+            self.clock.clone()
         };
         clock.rounds = self.rounds;
         clock.uniform = uniform;
