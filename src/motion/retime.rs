@@ -175,15 +175,17 @@ impl BSpline {
 /// `Σ_r w[r] · ctrl[first + r]` (at most four control points act at any `x`).
 pub fn cubic_basis(count: usize, xs: &[f64]) -> Vec<(f64, usize, [f64; 4])> {
     assert!(count >= 4);
-    let spline = BSpline::cubic_identity(count);
-    let mut row = vec![0.0; count];
+    let spline = BSpline::clamped_uniform(3, vec![0.0; count], 1);
     xs.iter()
         .map(|&x| {
-            spline.eval(x, &mut row);
-            let first = first_active(&row);
-            let mut w = [0.0; 4];
-            w.copy_from_slice(&row[first..first + 4]);
-            (x, first, w)
+            let (first, n) = spline.basis(x);
+            // (the window starts at the first function not zero at `x`, within the last four:
+            // on a knot the span's first is zero there, and the clearance code reads which
+            // configurations make a point from the window)
+            let lead = n[..4].iter().position(|&w| w != 0.0).unwrap_or(0);
+            let shift = (first + lead).min(count - 4) - first;
+            let w = std::array::from_fn(|r| n.get(shift + r).copied().unwrap_or(0.0));
+            (x, first + shift, w)
         })
         .collect()
 }
