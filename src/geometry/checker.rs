@@ -595,6 +595,44 @@ impl CollisionChecker {
         }
     }
 
+    /// [`Self::for_each_within_current`] with a cutoff per category (indexed by `Category as
+    /// usize`) and a lower bound per pair that the caller carries from one call to the next:
+    /// on entry `lower[i]` is a lower bound of pair `i`'s signed distance at the configuration
+    /// of the last update (`f64::NEG_INFINITY` where none is known), on return the best one
+    /// this call found (the exact distance where it ran the exact query). A pair whose bound
+    /// already reaches its cutoff is skipped before the broad phase, so the pairs passed to `f`
+    /// (in pair order) are those the uncached scan finds.
+    pub fn for_each_within_bounded(
+        &self,
+        data: &mut CheckData,
+        cutoff: &[f64; 4],
+        lower: &mut [f64],
+        mut f: impl FnMut(usize, &SignedDistance),
+    ) {
+        assert_eq!(lower.len(), self.pairs.len(), "a bound per pair");
+        for i in 0..self.pairs.len() {
+            let c = cutoff[self.pairs[i].category as usize];
+            if self.allowed[i] || lower[i] >= c {
+                continue;
+            }
+            let b = self.sphere_bound(data, i);
+            if b >= c {
+                lower[i] = lower[i].max(b);
+                continue;
+            }
+            let b = self.capsule_bound(data, i);
+            if b >= c {
+                lower[i] = lower[i].max(b);
+                continue;
+            }
+            let d = self.pair_distance(data, i);
+            lower[i] = d.distance;
+            if d.distance < c {
+                f(i, &d);
+            }
+        }
+    }
+
     /// [`Self::for_each_within`] over the listed pairs (from [`Self::pairs_in`]) at the FK
     /// placements already in `data` ([`CheckData::swap_kinematics`]: a caller that has just run
     /// forward kinematics at `q` lends them instead of running it again). The same exact

@@ -205,7 +205,7 @@ impl CollisionChecker {
 
     /// The suffix sums for the rates in `data.rates`, then every pair's motion bound
     /// (`data.pair_rates`, 0 for an allowed pair).
-    fn fill_suffix(&self, data: &mut CheckData) {
+    pub(crate) fn fill_suffix(&self, data: &mut CheckData) {
         for (i, s) in self.robot().shapes().iter().enumerate() {
             let off = self.suffix_offset[i];
             let n = s.chain.len();
