@@ -196,6 +196,8 @@ pub struct CheckData {
     /// Path checks: per pair its relative motion bound over the current step (0 where
     /// allowed), computed once per step rather than at every scan for the limiting pair.
     pub(crate) pair_rates: Vec<f64>,
+    /// Path checks: per pair the step it allows (see `check_path`).
+    pub(crate) keys: Vec<f64>,
     pub(crate) q: Vec<f64>,
     pub(crate) exact_queries: usize,
 }
@@ -358,6 +360,7 @@ impl CollisionChecker {
             suffix: vec![0.0; *self.suffix_offset.last().unwrap_or(&0)],
             rates: vec![0.0; model.nq()],
             pair_rates: vec![0.0; self.pairs.len()],
+            keys: vec![0.0; self.pairs.len()],
             q: vec![0.0; model.nq()],
             exact_queries: 0,
         }

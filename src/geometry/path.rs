@@ -299,19 +299,28 @@ impl CollisionChecker {
             path.rate_bound(s, try_end, &mut rates);
             data.rates = rates;
             self.fill_suffix(data);
-            // Evaluate limiting pairs until the limiting pair is exact.
+            // Evaluate limiting pairs until the limiting pair is exact. Each pair's step limit is
+            // computed once per step and again only when its inputs change: its own bound, or
+            // its category's running minimum (the scans for the limiting pair were most of this
+            // loop's time, a division per pair per scan).
+            let level = |t: &Tracker, c: usize| t.m[c].min(floor[c]);
+            let limit_of = |data: &CheckData, t: &Tracker, i: usize| {
+                let c = self.pairs()[i].category as usize;
+                (data.bound[i] - level(t, c) + tol) / data.pair_rates[i]
+            };
+            for i in 0..n_pairs {
+                // (0 for an allowed pair)
+                data.keys[i] = if data.pair_rates[i] <= 0.0 {
+                    f64::INFINITY
+                } else {
+                    limit_of(data, &t, i)
+                };
+            }
             let mut limit;
             loop {
                 limit = f64::INFINITY;
                 let mut arg = usize::MAX;
-                for i in 0..n_pairs {
-                    // (0 for an allowed pair)
-                    let l = data.pair_rates[i];
-                    if l <= 0.0 {
-                        continue;
-                    }
-                    let c = self.pairs()[i].category as usize;
-                    let key = (data.bound[i] - t.m[c].min(floor[c]) + tol) / l;
+                for (i, &key) in data.keys.iter().enumerate() {
                     if key < limit {
                         limit = key;
                         arg = i;
@@ -327,13 +336,24 @@ impl CollisionChecker {
                     let b = self.capsule_bound(data, arg);
                     if b > data.bound[arg] {
                         data.bound[arg] = b;
+                        data.keys[arg] = limit_of(data, &t, arg);
                         continue;
                     }
                 }
                 let d = self.pair_distance(data, arg);
                 data.bound[arg] = d.distance;
                 data.exact[arg] = true;
-                t.record(self.pairs()[arg].category, s, arg, d);
+                let c = self.pairs()[arg].category;
+                let was = level(&t, c as usize);
+                t.record(c, s, arg, d);
+                data.keys[arg] = limit_of(data, &t, arg);
+                if level(&t, c as usize) != was {
+                    for i in 0..n_pairs {
+                        if data.pair_rates[i] > 0.0 && self.pairs()[i].category == c {
+                            data.keys[i] = limit_of(data, &t, i);
+                        }
+                    }
+                }
             }
             let delta = if limit < try_end - s {
                 // Shorter than tried: rates over the shorter interval are no larger, so the
