@@ -233,6 +233,11 @@ pub struct CollisionChecker {
     acm: AllowedContacts,
     /// Per shape: offset of its chain in `CheckData::suffix` (chain length + 1 entries).
     pub(crate) suffix_offset: Vec<usize>,
+    /// The chains' joints (`q` index) and gains in the layout of `CheckData::suffix`, and per
+    /// pair the suffix entries whose sum is its motion bound (`u32::MAX`: no second shape).
+    pub(crate) chain_q: Vec<u32>,
+    pub(crate) chain_gain: Vec<f64>,
+    pub(crate) pair_suffix: Vec<[u32; 2]>,
     /// Per shape: its bounding sphere's centre in its link frame, so the broad phase of
     /// [`Self::for_each_within_posed`] places one point per shape instead of a whole pose.
     local_centers: Vec<Point3<f64>>,
@@ -290,6 +295,21 @@ impl CollisionChecker {
             off += s.chain.len() + 1;
         }
         suffix_offset.push(off);
+        let (mut chain_q, mut chain_gain) = (Vec::with_capacity(off), Vec::with_capacity(off));
+        for s in shapes {
+            chain_q.extend(s.chain.iter().map(|c| c.q as u32).chain([u32::MAX]));
+            chain_gain.extend(s.chain.iter().map(|c| c.gain).chain([0.0]));
+        }
+        let pair_suffix = pairs
+            .iter()
+            .map(|p| {
+                let a = (suffix_offset[p.shape] + p.a_from) as u32;
+                match p.other {
+                    Target::Shape(j) => [a, (suffix_offset[j] + p.b_from) as u32],
+                    _ => [a, u32::MAX],
+                }
+            })
+            .collect();
         let allowed = vec![false; pairs.len()];
         let local_centers = shapes.iter().map(|s| s.origin * s.solid.center).collect();
         CollisionChecker {
@@ -299,6 +319,9 @@ impl CollisionChecker {
             allowed,
             acm: AllowedContacts::none(),
             suffix_offset,
+            chain_q,
+            chain_gain,
+            pair_suffix,
             local_centers,
         }
     }

@@ -18,7 +18,7 @@
 //! collision deeper than `tol` cannot be missed, and before the reported first collision no pair
 //! is more than `tol` inside.
 
-use super::checker::{Category, CheckData, CollisionChecker, Target};
+use super::checker::{Category, CheckData, CollisionChecker};
 use super::solid::SignedDistance;
 
 /// A joint-space path `q(s)`, `s ∈ [0, end]`.
@@ -192,34 +192,28 @@ impl Tracker {
 }
 
 impl CollisionChecker {
-    /// Relative motion bound of every pair for the rates in `data.rates` (m per unit `s`).
-    fn pair_rate(&self, data: &CheckData, pair: usize) -> f64 {
-        let p = &self.pairs()[pair];
-        let oa = self.suffix_offset[p.shape];
-        let la = data.suffix[oa + p.a_from];
-        match p.other {
-            Target::Shape(j) => la + data.suffix[self.suffix_offset[j] + p.b_from],
-            _ => la,
-        }
-    }
-
-    /// The suffix sums for the rates in `data.rates`, then every pair's motion bound
-    /// (`data.pair_rates`, 0 for an allowed pair).
+    /// The suffix sums for the rates in `data.rates` (made non-negative), then every pair's
+    /// motion bound (`data.pair_rates`, 0 for an allowed pair). Runs once or twice per step of
+    /// a path check and once per point check of the avoidance, so it reads flat copies of the
+    /// chains and the pairs' suffix indices rather than the shapes and pairs themselves.
     pub(crate) fn fill_suffix(&self, data: &mut CheckData) {
-        for (i, s) in self.robot().shapes().iter().enumerate() {
-            let off = self.suffix_offset[i];
-            let n = s.chain.len();
-            data.suffix[off + n] = 0.0;
-            for k in (0..n).rev() {
-                let c = &s.chain[k];
-                data.suffix[off + k] = data.suffix[off + k + 1] + c.gain * data.rates[c.q].abs();
+        data.rates.iter_mut().for_each(|r| *r = r.abs());
+        let (q, gain) = (&self.chain_q, &self.chain_gain);
+        for w in self.suffix_offset.windows(2) {
+            // a shape's chain at [w[0], w[1] - 1), its empty suffix at w[1] - 1
+            let last = w[1] - 1;
+            data.suffix[last] = 0.0;
+            for k in (w[0]..last).rev() {
+                data.suffix[k] = data.suffix[k + 1] + gain[k] * data.rates[q[k] as usize];
             }
         }
-        for i in 0..self.pairs().len() {
+        for (i, &[a, b]) in self.pair_suffix.iter().enumerate() {
             data.pair_rates[i] = if self.is_allowed(i) {
                 0.0
+            } else if b == u32::MAX {
+                data.suffix[a as usize]
             } else {
-                self.pair_rate(data, i)
+                data.suffix[a as usize] + data.suffix[b as usize]
             };
         }
     }
