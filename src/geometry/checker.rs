@@ -414,6 +414,18 @@ impl CollisionChecker {
     /// Forward kinematics at `q` and the world pose of every shape.
     pub fn update(&self, data: &mut CheckData, q: &[f64]) {
         forward_kinematics(self.robot.model(), &mut data.kin, q);
+        self.pose(data);
+    }
+
+    /// [`Self::update`] from FK placements `kin` computed elsewhere (for this checker's model):
+    /// a caller that has just run forward kinematics does not run it twice.
+    pub fn update_from(&self, data: &mut CheckData, kin: &Data) {
+        data.kin.copy_from(kin);
+        self.pose(data);
+    }
+
+    /// The world pose of every shape from the placements in `data`.
+    fn pose(&self, data: &mut CheckData) {
         self.robot.pose_shapes(&data.kin, &mut data.poses);
         for ((c, p), s) in data
             .centers

@@ -894,7 +894,10 @@ impl<'a> Eval<'a> {
     /// FK, Jacobians and surface queries at `u` (skipped when `u` is unchanged).
     fn update(&mut self, u: &[f64]) {
         if self.kin.update(self.sys, self.req, &self.layout, u) {
-            self.exact.checker.update(&mut self.exact.cd, &self.kin.q);
+            // (the placements `kin.update` has just computed at `kin.q`)
+            self.exact
+                .checker
+                .update_from(&mut self.exact.cd, &self.kin.data);
         }
     }
 

@@ -28,6 +28,10 @@ impl Data {
     pub fn frames(&self) -> &[Isometry3<f64>] {
         &self.placements
     }
+    /// The placements of `other` (built for the same model), without allocating.
+    pub fn copy_from(&mut self, other: &Data) {
+        self.placements.copy_from_slice(&other.placements);
+    }
 }
 
 /// Places every frame in the world (the root frame is the world origin).
