@@ -130,6 +130,27 @@ class Law:
 CLOCK_TOLERANCE = 0.02
 
 
+class TimedPoints:
+    """A trajectory's timed points (`t`, `positions`, `velocities`) as the reference the
+    open-loop servo and the path follower both run: linear between points, the last position at
+    rest from the last point's time on."""
+
+    def __init__(self, points):
+        self.t = np.array([p["t"] for p in points], float)
+        self.q = np.array([p["positions"] for p in points], float)
+        self.v = np.array([p["velocities"] for p in points], float)
+
+    def at(self, tau: float):
+        """Position and velocity at time `tau`."""
+        if tau >= self.t[-1] or len(self.t) == 1:
+            return self.q[-1], np.zeros_like(self.q[-1])
+        k = int(np.searchsorted(self.t, tau, side="right") - 1)
+        k = max(0, min(k, len(self.t) - 2))
+        s = min(max((tau - self.t[k]) / (self.t[k + 1] - self.t[k]), 0.0), 1.0)
+        return (self.q[k] + s * (self.q[k + 1] - self.q[k]),
+                self.v[k] + s * (self.v[k + 1] - self.v[k]))
+
+
 class PathFollower:
     """`motion::PathFollower`: a closed-loop law that runs the payload's `path` (the open-loop
     humanlike motion) with a governed clock. Per period, with `p`, `v` the path at the clock
@@ -138,23 +159,14 @@ class PathFollower:
     the motion resumes where it left the path."""
 
     def __init__(self, points, gain: float, tolerance: float = CLOCK_TOLERANCE):
-        self.t = np.array([p["t"] for p in points], float)
-        self.q = np.array([p["positions"] for p in points], float)
-        self.v = np.array([p["velocities"] for p in points], float)
+        self.path = TimedPoints(points)
         self.gain = float(gain)
         self.tolerance = float(tolerance)
-        self.span = float(self.t[-1] - self.t[0])
+        self.span = float(self.path.t[-1] - self.path.t[0])
         self.clock = 0.0
 
     def reference(self):
-        tau = min(self.t[0] + self.clock, self.t[-1])
-        if tau >= self.t[-1] or len(self.t) == 1:
-            return self.q[-1], np.zeros_like(self.q[-1])
-        k = int(np.searchsorted(self.t, tau, side="right") - 1)
-        k = max(0, min(k, len(self.t) - 2))
-        s = min(max((tau - self.t[k]) / (self.t[k + 1] - self.t[k]), 0.0), 1.0)
-        return (self.q[k] + s * (self.q[k + 1] - self.q[k]),
-                self.v[k] + s * (self.v[k + 1] - self.v[k]))
+        return self.path.at(self.path.t[0] + self.clock)
 
     def step(self, q, dt: float):
         """The command for the measured `q` and the reference; advances the clock."""

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from .build import Built
+from .law import TimedPoints
 from .safety import STAGE_TOLERANCE
 
 CONTROL_DT = 0.01  # s (100 Hz control, as the reference worker)
@@ -403,25 +404,15 @@ class OpenLoop:
     def __init__(self, sim: Sim, points, opts: RunOptions):
         self.sim = sim
         self.o = opts
-        self.t_pts = np.array([p["t"] for p in points], float)
-        self.q_pts = np.array([p["positions"] for p in points], float)
-        self.v_pts = np.array([p["velocities"] for p in points], float)
+        self.path = TimedPoints(points)
         self.t0 = sim.t
-        self.t_end = float(self.t_pts[-1])
-        self.goal = self.q_pts[-1]
+        self.t_end = float(self.path.t[-1])
+        self.goal = self.path.q[-1]
         self.tracking_error = 0.0
         self.progress = 0.0
 
     def reference(self, t):
-        if t >= self.t_end:
-            return self.goal, np.zeros_like(self.goal)
-        k = int(np.searchsorted(self.t_pts, t, side="right") - 1)
-        k = max(0, min(k, len(self.t_pts) - 2))
-        s = (t - self.t_pts[k]) / (self.t_pts[k + 1] - self.t_pts[k])
-        s = min(max(s, 0.0), 1.0)
-        q = self.q_pts[k] + s * (self.q_pts[k + 1] - self.q_pts[k])
-        v = self.v_pts[k] + s * (self.v_pts[k + 1] - self.v_pts[k])
-        return q, v
+        return self.path.at(t)
 
     def tick(self):
         sim = self.sim
