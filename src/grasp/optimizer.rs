@@ -581,6 +581,9 @@ struct KinState {
     data: Data,
     last_u: Vec<f64>,
     fresh: bool,
+    /// `dj` and `tip_hn` are current: they serve the gradient alone, so the evaluations of a
+    /// line search and the constraint residuals, which read neither, do not compute them.
+    derivatives: bool,
     palm_j: Matrix6xX<f64>,
     jv_arm: Matrix3xX<f64>,
     dj: Vec<Matrix3xX<f64>>,
@@ -667,10 +670,6 @@ impl KinState {
             self.tip_p[i] = f.contact_point(&self.data);
             self.tip_z[i] = self.data.frame(f.tip).rotation * f.pad_normal;
             self.tip_q[i] = req.object.query(&self.tip_p[i]);
-            let h = 1e-5;
-            let np = req.object.query(&(self.tip_p[i] + self.tip_z[i] * h));
-            let nm = req.object.query(&(self.tip_p[i] - self.tip_z[i] * h));
-            self.tip_hn[i] = (np.normal - nm.normal) / (2.0 * h);
             frame_jacobian(model, &self.data, f.tip, &f.tip_offset, &mut self.tip_j[i]);
         }
         // Link-sphere Jacobians are not formed here: their constraints enter the solver only
@@ -688,14 +687,30 @@ impl KinState {
         if let Some(e) = sys.elbow {
             self.elbow_p = Point3::from(self.data.frame(e).translation.vector);
         }
-        // Arm translational Jacobian at the grasp frame and its partial derivatives. For a
-        // serial chain of revolute joints with world axes z and columns J_j = z_j × (p − p_j):
-        // ∂J_j/∂q_i = z_i × J_j when joint i precedes j (or i = j), z_j × J_i otherwise.
         for (a, &qa) in sys.arm_joints.iter().enumerate() {
             for r in 0..3 {
                 self.jv_arm[(r, a)] = self.palm_j[(r, qa)];
             }
         }
+        self.derivatives = false;
+        true
+    }
+
+    /// `dj` and `tip_hn` at the last [`Self::update`] (once per point).
+    fn derivatives(&mut self, sys: &HandArm, req: &GraspRequest, layout: &Layout) {
+        if self.derivatives {
+            return;
+        }
+        self.derivatives = true;
+        for i in 0..sys.fingers.len() {
+            let h = 1e-5;
+            let np = req.object.query(&(self.tip_p[i] + self.tip_z[i] * h));
+            let nm = req.object.query(&(self.tip_p[i] - self.tip_z[i] * h));
+            self.tip_hn[i] = (np.normal - nm.normal) / (2.0 * h);
+        }
+        // Arm translational Jacobian at the grasp frame and its partial derivatives. For a
+        // serial chain of revolute joints with world axes z and columns J_j = z_j × (p − p_j):
+        // ∂J_j/∂q_i = z_i × J_j when joint i precedes j (or i = j), z_j × J_i otherwise.
         for i in 0..layout.na {
             let zi = self
                 .palm_j
@@ -714,7 +729,6 @@ impl KinState {
                 self.dj[i].set_column(j, &col);
             }
         }
-        true
     }
 
     /// Pad-cone excess of finger `i`: `cos(PAD_CONE_OPT_DEG) + n_pad · n_out` (> 0: the pad
@@ -790,6 +804,7 @@ impl<'a> Eval<'a> {
                 data: Data::new(model),
                 last_u: Vec::new(),
                 fresh: false,
+                derivatives: false,
                 palm_j: Matrix6xX::zeros(nq),
                 jv_arm: Matrix3xX::zeros(na),
                 dj: vec![Matrix3xX::zeros(na); na],
@@ -956,6 +971,7 @@ impl<'a> Eval<'a> {
 
     fn gradient(&mut self, u: &[f64], g: &mut [f64]) {
         self.update(u);
+        self.kin.derivatives(self.sys, self.req, &self.layout);
         let w = self.req.weights;
         self.scratch.grad_q.iter_mut().for_each(|x| *x = 0.0);
         if w.q > 0.0 {
