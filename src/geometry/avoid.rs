@@ -180,10 +180,6 @@ impl AvoidScratch {
     }
 }
 
-/// Added to a carried pair bound's motion allowance (m): the bound and the exact distance it
-/// stands for come from GJK, which is exact only to rounding.
-const CARRY_SLACK: f64 = 1e-9;
-
 /// The step of curve sample `m` (into `s.step`, after the trust region) and what it adds to the
 /// round's figures: every pair below its category's target within the first-order
 /// minimum-norm step that lifts it there.
@@ -219,13 +215,7 @@ fn sample_step(
     let lower = &mut s.lower[m * np..(m + 1) * np];
     let q_ref = &mut s.q_ref[m * nq..(m + 1) * nq];
     if s.known[m] {
-        for ((r, q), q0) in data.rates.iter_mut().zip(&s.q).zip(q_ref.iter()) {
-            *r = (q - q0).abs();
-        }
-        checker.fill_suffix(data);
-        for (l, moved) in lower.iter_mut().zip(&data.pair_rates) {
-            *l -= moved + CARRY_SLACK;
-        }
+        checker.carry_bounds(data, q_ref, &s.q, lower);
     } else {
         lower.fill(f64::NEG_INFINITY);
         s.known[m] = true;

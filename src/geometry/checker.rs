@@ -17,6 +17,10 @@ use super::robot::RobotGeometry;
 use super::scene::{Scene, SceneShape};
 use super::solid::{QueryScratch, SignedDistance, half_space_distance, signed_distance};
 
+/// Added to a carried pair bound's motion allowance (m): the bound and the exact distance it
+/// stands for come from GJK, which is exact only to rounding.
+const CARRY_SLACK: f64 = 1e-9;
+
 /// The second member of a pair (the first is always a robot shape).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Target {
@@ -630,6 +634,26 @@ impl CollisionChecker {
             if d.distance < cutoff {
                 f(i, &d);
             }
+        }
+    }
+
+    /// Carries per-pair lower bounds (`lower`, see [`Self::for_each_within_bounded`]) from
+    /// configuration `from` to `to`: every point of a shape moves at most the gain-weighted sum
+    /// of the joint changes ([`super::robot`]), so each bound falls by its pair's relative
+    /// motion bound, and by [`CARRY_SLACK`].
+    pub(crate) fn carry_bounds(
+        &self,
+        data: &mut CheckData,
+        from: &[f64],
+        to: &[f64],
+        lower: &mut [f64],
+    ) {
+        for ((r, a), b) in data.rates.iter_mut().zip(from).zip(to) {
+            *r = b - a;
+        }
+        self.fill_suffix(data);
+        for (l, moved) in lower.iter_mut().zip(&data.pair_rates) {
+            *l -= moved + CARRY_SLACK;
         }
     }
 

@@ -953,13 +953,7 @@ fn carried_pair_bounds_find_the_pairs_an_uncached_scan_finds() {
         for j in 0..nq {
             q[j] = (q[j] + rng.random_range(-size..size)).clamp(lo[j], hi[j]);
         }
-        for j in 0..nq {
-            data.rates[j] = (q[j] - prev[j]).abs();
-        }
-        checker.fill_suffix(&mut data);
-        for (l, m) in lower.iter_mut().zip(&data.pair_rates) {
-            *l -= m;
-        }
+        checker.carry_bounds(&mut data, &prev, &q, &mut lower);
         prev.copy_from_slice(&q);
         checker.update(&mut data, &q);
         let before = data.exact_queries();
