@@ -90,6 +90,34 @@ impl PathClearance {
             .map(|h| (h, true));
         inside.or(pressed)
     }
+
+    /// The collision in words (which link, how deep in what, when, and what is allowed), or
+    /// `None` where [`Self::collision`] finds none.
+    pub fn collision_words(&self) -> Option<String> {
+        self.collision().map(|(h, pressed)| {
+            if pressed {
+                format!(
+                    "link '{}' presses {:.2} mm into '{}' at t = {:.2} s while the hand closes \
+                     (up to {:.2} mm is allowed)",
+                    h.link,
+                    -1e3 * h.distance_m,
+                    h.other,
+                    h.time_s,
+                    1e3 * self.closing_press_m
+                )
+            } else {
+                format!(
+                    "link '{}' is {:.1} mm inside '{}' at t = {:.2} s (contact up to {:.1} mm is \
+                     allowed)",
+                    h.link,
+                    -1e3 * h.distance_m,
+                    h.other,
+                    h.time_s,
+                    1e3 * self.contact_tolerance_m
+                )
+            }
+        })
+    }
 }
 
 /// Steps of the conservative advancement (deterministic budget; `complete` says if it ran out).

@@ -8,6 +8,7 @@ use crate::bridge::protocol::{Capability, Feedback};
 use crate::bridge::{
     ExecutionPayload, Mode, PayloadIssue, PayloadPart, TrackingSummary, WorkerName,
 };
+use crate::grasp::PathClearance;
 use crate::motion::{ControlParams, TrajectoryPoint};
 use crate::store::executions as repo;
 use crate::store::{feedback, models, trajectories};
@@ -335,6 +336,19 @@ async fn stored_trajectory(
             ),
         ));
     }
+    // A trajectory the service itself found colliding in its scene is not sent to a robot
+    // (a plan with such a motion is infeasible and queues nothing; this is the same rule for
+    // a trajectory run on its own). Its points can still be run inline, on the caller's word.
+    if let Some(words) = stored_collision(&t.summary) {
+        return Err(Error::invalid(
+            "$.trajectory_id",
+            format!(
+                "trajectory '{id}' is not collision-free in its own scene ({words}), so it is \
+                 not run; generate it again (another start, obstacles, an approach_standoff), \
+                 or send its points inline as `trajectory` to run them unchecked"
+            ),
+        ));
+    }
     let paths = PayloadPaths::all("$.trajectory_id", "$.trajectory_id", "$.trajectory_id");
     match mode {
         Mode::OpenLoop => Ok((
@@ -393,6 +407,24 @@ async fn stored_trajectory(
             ))
         }
     }
+}
+
+/// Why a stored trajectory's own exact clearance check (its report's `clearance`) found it
+/// colliding, or `None` (collision-free, or checked in no scene).
+fn stored_collision(summary: &str) -> Option<String> {
+    #[derive(serde::Deserialize)]
+    struct Report {
+        #[serde(default)]
+        clearance: Option<PathClearance>,
+    }
+    let c = serde_json::from_str::<Report>(summary).ok()?.clearance?;
+    if c.collision_free {
+        return None;
+    }
+    Some(c.collision_words().unwrap_or_else(|| {
+        "its clearance could not be checked along the whole path within the check's step budget"
+            .to_owned()
+    }))
 }
 
 /// The closed-loop parameters of a trained model of `robot`; errors name `path`.

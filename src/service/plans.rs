@@ -556,25 +556,9 @@ fn collision_reason(c: &PathClearance) -> Option<String> {
     if c.collision_free {
         return None;
     }
-    Some(match c.collision() {
-        Some((h, true)) if c.complete => format!(
-            "no collision-free motion to the grasp: link '{}' presses {:.2} mm into '{}' at t = \
-             {:.2} s while the hand closes (up to {:.2} mm is allowed); the trajectory is kept \
-             for inspection",
-            h.link,
-            -1e3 * h.distance_m,
-            h.other,
-            h.time_s,
-            1e3 * c.closing_press_m
-        ),
-        Some((h, false)) if c.complete => format!(
-            "no collision-free motion to the grasp: link '{}' is {:.1} mm inside '{}' at t = \
-             {:.2} s (contact up to {:.1} mm is allowed); the trajectory is kept for inspection",
-            h.link,
-            -1e3 * h.distance_m,
-            h.other,
-            h.time_s,
-            1e3 * c.contact_tolerance_m
+    Some(match c.collision_words() {
+        Some(words) if c.complete => format!(
+            "no collision-free motion to the grasp: {words}; the trajectory is kept for inspection"
         ),
         _ => "the motion's clearance could not be checked along the whole path within the \
               check's step budget"

@@ -120,6 +120,35 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
         reason.contains(&format!("link '{link}'")) && reason.contains("'crate'"),
         "{reason}"
     );
+    // Its stored trajectory is not run on its own either (422 at the id, naming the same pair,
+    // nothing queued), while a collision-free one of the same robot is queued.
+    let count = || async {
+        let v: Value = app
+            .get("/v1/executions?limit=100")
+            .await
+            .json()
+            .await
+            .unwrap();
+        v["items"].as_array().unwrap().len()
+    };
+    let executions = count().await;
+    let run = |v: &Value| json!({"robot": ROBOT, "mode": "open_loop", "trajectory_id": v["trajectory"]["id"]});
+    let problem = assert_problem(
+        app.post_json("/v1/executions", &run(&over)).await,
+        422,
+        "validation",
+    )
+    .await;
+    assert_eq!(problem["errors"][0]["path"], "$.trajectory_id", "{problem}");
+    let message = problem["errors"][0]["message"].as_str().unwrap();
+    assert!(
+        message.contains(&format!("link '{link}'")) && message.contains("'crate'"),
+        "{message}"
+    );
+    assert_eq!(count().await, executions);
+    let res = app.post_json("/v1/executions", &run(&far)).await;
+    assert_eq!(res.status(), 202);
+    assert_eq!(count().await, executions + 1);
 
     // A 4 cm ball centred on the thumb's path halfway, between the start (the arm stretched
     // up, all joints zero) and the object: the motion goes around it, its exact continuous
