@@ -18,6 +18,7 @@
 pub mod avoid;
 pub mod barrier;
 mod checker;
+mod epa;
 mod path;
 mod robot;
 mod scene;

@@ -158,14 +158,17 @@ pub struct SignedDistance {
 /// Reusable buffers of the GJK/EPA queries (EPA keeps its polytope between calls).
 pub struct QueryScratch {
     simplex: gjk::VoronoiSimplex,
-    epa: EPA,
+    epa: super::epa::Epa,
+    /// parry's, for what [`super::epa::Epa`] leaves.
+    fallback: EPA,
 }
 
 impl Default for QueryScratch {
     fn default() -> Self {
         QueryScratch {
             simplex: gjk::VoronoiSimplex::new(),
-            epa: EPA::new(),
+            epa: super::epa::Epa::default(),
+            fallback: EPA::new(),
         }
     }
 }
@@ -412,7 +415,15 @@ fn gjk_epa(
     let (p1, p2, n) = match res {
         gjk::GJKResult::ClosestPoints(p1, p2, n) => (p1, p2, n),
         gjk::GJKResult::Intersection => {
-            match scratch.epa.closest_points(&pos12, g1, g2, &scratch.simplex) {
+            let found = scratch
+                .epa
+                .closest_points(&pos12, g1, g2, &scratch.simplex, super::epa::TOLERANCE)
+                .or_else(|| {
+                    scratch
+                        .fallback
+                        .closest_points(&pos12, g1, g2, &scratch.simplex)
+                });
+            match found {
                 Some(r) => r,
                 // EPA fails only on degenerate (flat) overlaps: call it touching.
                 None => {
