@@ -8,10 +8,13 @@ use crate::bridge::protocol::{Capability, Feedback};
 use crate::bridge::{
     ExecutionPayload, Mode, PayloadIssue, PayloadPart, TrackingSummary, WorkerName,
 };
+use crate::geometry::ObstacleSpec;
+use crate::grasp::ObjectSpec;
 use crate::grasp::PathClearance;
 use crate::motion::{ControlParams, TrajectoryPoint};
 use crate::store::executions as repo;
-use crate::store::{feedback, models, trajectories};
+use crate::store::payload::SafetySpec;
+use crate::store::{feedback, grasps, models, plans, trajectories};
 
 pub use crate::store::executions::{ExecutionRow, ExecutionState};
 pub use crate::store::feedback::{History, MAX_RATE_HZ, MAX_SAMPLES};
@@ -395,18 +398,53 @@ async fn stored_trajectory(
                     "the trajectory's joints differ from its model's",
                 )
             })?;
+            // The law gets the filter a closed-loop plan gives it, around the same scene.
+            let safety = stored_safety(ctx, &t.id, &t.request).await?;
             Ok((
                 ExecutionPayload::Model {
                     model_id,
                     params,
                     goal,
-                    safety: None,
+                    safety: safety.map(Box::new),
                     path: Some(t.points),
                 },
                 paths,
             ))
         }
     }
+}
+
+/// The safety filter's scene for the closed-loop law of stored trajectory `id` (its request
+/// JSON `request`), as a closed-loop plan sends it: the object of the stored grasp its goal
+/// names or of the plan that made it, and its obstacles. `None` where it has neither (a
+/// trajectory to a configuration in no scene), which runs the law as before.
+async fn stored_safety(
+    ctx: &Context,
+    id: &str,
+    request: &str,
+) -> Result<Option<SafetySpec>, Error> {
+    let request: serde_json::Value = serde_json::from_str(request).unwrap_or_default();
+    let obstacles: Vec<ObstacleSpec> = request
+        .get("obstacles")
+        .and_then(|o| serde_json::from_value(o.clone()).ok())
+        .unwrap_or_default();
+    let grasp_id = match request["goal"]["grasp"].as_str() {
+        Some(g) => Some(g.to_owned()),
+        None => plans::of_trajectory(&ctx.db, id).await?.map(|p| p.grasp_id),
+    };
+    let object = match grasp_id {
+        Some(g) => match grasps::get_grasp(&ctx.db, &g).await? {
+            Some(row) => {
+                Some(serde_json::from_str::<ObjectSpec>(&row.object).map_err(Error::internal)?)
+            }
+            None => None,
+        },
+        None => None,
+    };
+    if object.is_none() && obstacles.is_empty() {
+        return Ok(None);
+    }
+    Ok(Some(SafetySpec::new(object, obstacles)))
 }
 
 /// Why a stored trajectory's own exact clearance check (its report's `clearance`) found it

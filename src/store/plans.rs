@@ -106,6 +106,21 @@ pub async fn get_many(pool: &SqlitePool, ids: &[&str]) -> Result<Vec<PlanRow>, s
     .await
 }
 
+/// The plan whose motion is trajectory `trajectory_id`, if a plan made it.
+pub async fn of_trajectory(
+    pool: &SqlitePool,
+    trajectory_id: &str,
+) -> Result<Option<PlanRow>, sqlx::Error> {
+    sqlx::query_as(concat!(
+        "SELECT ",
+        columns!(),
+        " FROM plans WHERE trajectory_id = ? LIMIT 1"
+    ))
+    .bind(trajectory_id)
+    .fetch_optional(pool)
+    .await
+}
+
 /// The plan that queued execution `execution_id`, if a plan did (a plan queues at most one
 /// execution, and an execution belongs to at most one plan).
 pub async fn of_execution(

@@ -1771,6 +1771,58 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
             && page.contains(report["link"].as_str().unwrap()),
         "the execution page does not show the safety filter's account ({shown})"
     );
+
+    // The plan's stored trajectory, run again by id in closed loop, gets the same filter scene
+    // (its object from the plan's grasp), so it goes only to a worker with the filter: one
+    // without it never receives it, one with it receives the scene.
+    let trajectory = plan["trajectory"]["id"].as_str().unwrap();
+    let mut unfiltered = connected(
+        &app,
+        "no-filter",
+        json!(["open_loop", "closed_loop", "path_following"]),
+    )
+    .await;
+    let waiting = app
+        .execute(
+            &json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": trajectory,
+                         "worker": "no-filter"}),
+        )
+        .await;
+    let nothing =
+        tokio::time::timeout(Duration::from_millis(300), next_execute(&mut unfiltered)).await;
+    assert!(
+        nothing.is_err(),
+        "the worker without the filter received {nothing:?}"
+    );
+    let res = app
+        .post(&format!("/v1/executions/{waiting}/cancel"), &json!({}))
+        .await;
+    assert!(res.status().is_success(), "{}", res.status());
+    let mut filtered = connected(
+        &app,
+        "filter",
+        json!([
+            "open_loop",
+            "closed_loop",
+            "path_following",
+            "safety_filter"
+        ]),
+    )
+    .await;
+    app.execute(
+        &json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": trajectory,
+                        "worker": "filter"}),
+    )
+    .await;
+    let sent = tokio::time::timeout(Duration::from_secs(10), next_execute(&mut filtered))
+        .await
+        .expect("the worker with the filter receives it");
+    let scene = sent.payload.safety().expect("the plan's filter scene");
+    let object = scene.object.as_ref().expect("the plan's object");
+    // the seeded ball, where it is seeded
+    let object = serde_json::to_value(object).unwrap();
+    assert_eq!(object["name"], "ball", "{object}");
+    assert_eq!(object["shape"]["radius"], 0.033, "{object}");
 }
 
 // ------------------------------------------------------------------ teleoperation (issue 22)
