@@ -9,8 +9,7 @@ use crate::bridge::{
     ExecutionPayload, Mode, PayloadIssue, PayloadPart, TrackingSummary, WorkerName,
 };
 use crate::geometry::ObstacleSpec;
-use crate::grasp::ObjectSpec;
-use crate::grasp::PathClearance;
+use crate::grasp::{ObjectSpec, PathClearance};
 use crate::motion::{ControlParams, TrajectoryPoint};
 use crate::store::executions as repo;
 use crate::store::payload::SafetySpec;
@@ -424,9 +423,13 @@ async fn stored_safety(
     request: &str,
 ) -> Result<Option<SafetySpec>, Error> {
     let request: serde_json::Value = serde_json::from_str(request).unwrap_or_default();
+    // (validated when the trajectory was made: what does not parse now is our fault, not the
+    // caller's, and is not dropped silently)
     let obstacles: Vec<ObstacleSpec> = request
         .get("obstacles")
-        .and_then(|o| serde_json::from_value(o.clone()).ok())
+        .map(|o| serde_json::from_value(o.clone()))
+        .transpose()
+        .map_err(Error::internal)?
         .unwrap_or_default();
     let grasp_id = match request["goal"]["grasp"].as_str() {
         Some(g) => Some(g.to_owned()),
