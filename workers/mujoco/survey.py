@@ -10,6 +10,11 @@
                                    closed loop with pushes on the arm, then the trial
   survey.py rtf    --http URL --token T
                                    real-time factor of a 5 s plan with its grasp trial
+  survey.py clearance --http URL  120 plans (six systems x seeded objects x default tasks x the
+                                   zero and a bent-elbow start), not executed: feasibility, each
+                                   trajectory replayed kinematically in MuJoCo as a second,
+                                   independent clearance check (reachgrasp_mujoco/replay.py), and
+                                   durations against the learned human duration
 
 Default tasks: the README's two examples, force along z and velocity along y (maximised).
 Mass and friction of the seeded objects: the worker's table (`--object-defaults`), since the
@@ -30,7 +35,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from reachgrasp_mujoco.offline import grasp_trial  # noqa: E402
+from reachgrasp_mujoco.offline import grasp_trial, robot as robot_info  # noqa: E402
+from reachgrasp_mujoco.replay import Replayer  # noqa: E402
 from reachgrasp_mujoco.sim import TrialOptions  # noqa: E402
 from reachgrasp_mujoco.service import Service, ServiceError  # noqa: E402
 
@@ -306,9 +312,95 @@ def cmd_rtf(a):
     print(json.dumps({"uptime": subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()}))
 
 
+# A bent-elbow ready pose (the arm's first seven joints; the hand open at zero), 0.2 m or more
+# from every seeded object on all six systems (MuJoCo distances). The pose the service's push
+# test starts the WAM from, [0, 0.5, 0, 2.0, 0, 0.3, 0], puts the PA10 hands 13-35 mm inside the
+# bottle: a start the service refuses (422), not a ready pose.
+BENT_ELBOW = [0.0, 0.4, 0.0, 1.6, 0.0, 0.5, 0.0]
+
+
+def starts(svc, robot):
+    names = svc.get_json(f"/v1/robots/{robot}")["joint_names"]
+    bent = [0.0] * len(names)
+    bent[:7] = BENT_ELBOW
+    return {"zero": {"joint_names": names, "positions": [0.0] * len(names)},
+            "bent_elbow": {"joint_names": names, "positions": bent}}
+
+
+def median(xs):
+    xs = sorted(xs)
+    return None if not xs else (xs[len(xs) // 2] if len(xs) % 2 else 0.5 * (xs[len(xs) // 2 - 1] + xs[len(xs) // 2]))
+
+
+def cmd_clearance(a):
+    """Plans the matrix without executing; replays every returned trajectory kinematically in
+    MuJoCo (an independent collision check) and tabulates feasibility, the deepest forbidden
+    overlap and durations."""
+    svc = Service(a.http, timeout=120.0)
+    objs = {n: o for n, o in seeded(svc).items() if n in a.objects.split(",")}
+    rows = []
+    for robot in a.systems.split(","):
+        info, urdf_text = robot_info(svc, robot)
+        meshes = svc.meshes(robot, urdf_text).get
+        replayers = {}
+        for sname, start in starts(svc, robot).items():
+            for oname, o in objs.items():
+                for tname, task in TASKS.items():
+                    body = {"robot": robot, "object_id": o["id"], "task_directions": task, "start": start}
+                    row = {"robot": robot, "object": oname, "task": tname, "start": sname}
+                    try:
+                        p = svc.post_json("/v1/plans", body)
+                    except ServiceError as e:
+                        row.update(feasible=False, refused=True, reason=str(e)[:300])
+                        rows.append(row)
+                        print(json.dumps(row), flush=True)
+                        continue
+                    row.update(feasible=p["feasible"], reason=p.get("reason"))
+                    tr = p.get("trajectory")
+                    if tr is not None:
+                        rep = tr["report"]
+                        cl = rep.get("clearance") or {}
+                        row["service_collision_free"] = cl.get("collision_free")
+                        row["duration_s"] = rep["duration"]
+                        row["learned_s"] = rep["learned_duration"]
+                        row["time_optimal_s"] = rep.get("time_optimal_duration")
+                        if oname not in replayers:
+                            replayers[oname] = Replayer(info, urdf_text, p["grasp"]["object"], None, meshes)
+                        r = replayers[oname].replay(tr["joint_names"], tr["points"], cl.get("closing_from_s"))
+                        row["replay"] = r.json()
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
+    feas = [r for r in rows if r["feasible"]]
+    traj = [r for r in feas if "replay" in r]
+    over = [r for r in traj if r["replay"]["counted_max_m"] > 1e-3]
+    ratio = [r["duration_s"] / r["learned_s"] for r in traj]
+    opt = [r["time_optimal_s"] / r["learned_s"] for r in traj if r.get("time_optimal_s")]
+    permit = [r for r in traj if r.get("time_optimal_s") and r["time_optimal_s"] <= 1.5 * r["learned_s"]]
+    summary = {
+        "feasible": table(rows, "robot", "object", lambda r: r["feasible"]),
+        "feasible_by_start": table(rows, "start", "task", lambda r: r["feasible"]),
+        "refused_at_request": [f"{r['robot']} {r['object']} {r['task']} {r['start']}: {r['reason']}"
+                               for r in rows if r.get("refused")],
+        "feasible_trajectories_over_1mm_in_replay": f"{len(over)}/{len(traj)}",
+        "deepest_forbidden_overlap_m": max((r["replay"]["counted_max_m"] for r in traj), default=None),
+        "over_1mm": [{k: r[k] for k in ("robot", "object", "task", "start")} | {"replay": r["replay"]} for r in over],
+        "service_and_replay_disagree": [
+            {k: r[k] for k in ("robot", "object", "task", "start")}
+            for r in rows if "replay" in r
+            and r.get("service_collision_free") is not None
+            and r["service_collision_free"] != (r["replay"]["counted_max_m"] <= 1e-3)],
+        "duration_over_learned_median": median(ratio),
+        "within_1_5x_learned": f"{sum(x <= 1.5 for x in ratio)}/{len(ratio)}",
+        "velocity_acceleration_optimum_over_learned_median": median(opt),
+        "optimum_within_1_5x": len(permit),
+        "within_1_5x_where_the_optimum_is": f"{sum(r['duration_s'] <= 1.5 * r['learned_s'] for r in permit)}/{len(permit)}",
+    }
+    print(json.dumps({"summary": summary}, indent=1))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("cmd", choices=["grasps", "plans", "fig5", "pushes", "rtf"])
+    ap.add_argument("cmd", choices=["grasps", "plans", "fig5", "pushes", "rtf", "clearance"])
     ap.add_argument("--http", default="http://127.0.0.1:8080")
     ap.add_argument("--token", default=os.environ.get("REACHGRASP_BRIDGE_TOKEN"))
     ap.add_argument("--systems", default=",".join(SYSTEMS))
@@ -334,7 +426,8 @@ def main():
                     help="plans: the pre-grasp standoff (m) to ask for (default: the service's)")
     a = ap.parse_args()
     a.ws = a.http.replace("http://", "ws://").replace("https://", "wss://") + "/v1/bridges/connect"
-    {"grasps": cmd_grasps, "plans": cmd_plans, "fig5": cmd_fig5, "pushes": cmd_pushes, "rtf": cmd_rtf}[a.cmd](a)
+    {"grasps": cmd_grasps, "plans": cmd_plans, "fig5": cmd_fig5, "pushes": cmd_pushes, "rtf": cmd_rtf,
+     "clearance": cmd_clearance}[a.cmd](a)
 
 
 if __name__ == "__main__":
