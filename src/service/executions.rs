@@ -399,16 +399,33 @@ async fn stored_trajectory(
             })?;
             // The law gets the filter a closed-loop plan gives it, around the same scene.
             let safety = stored_safety(ctx, &t.id, &t.request).await?;
-            Ok((
-                ExecutionPayload::Model {
-                    model_id,
-                    params,
-                    goal,
-                    safety: safety.map(Box::new),
-                    path: Some(t.points),
-                },
-                paths,
-            ))
+            let filtered = safety.is_some();
+            // (the law's joint order, the trajectory's: checked equal above)
+            let names = params.joint_names.clone();
+            let payload = ExecutionPayload::Model {
+                model_id,
+                params,
+                goal,
+                safety: safety.map(Box::new),
+                path: Some(t.points),
+            };
+            // And the same rule: the law is run once here, as a closed-loop plan runs it
+            // before it queues it, and one that stops short is not sent to a robot.
+            if filtered {
+                let sys = super::grasps::robot_view(ctx, robot).await?;
+                if let Some(why) =
+                    super::plans::law_short(sys, names, t.start, payload.clone()).await?
+                {
+                    return Err(Error::invalid(
+                        "$.trajectory_id",
+                        format!(
+                            "trajectory '{id}' in closed loop: {why}; run it in open_loop, or \
+                             plan from another start"
+                        ),
+                    ));
+                }
+            }
+            Ok((payload, paths))
         }
     }
 }

@@ -443,14 +443,11 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
     ) = (&execution, &trajectory, &law_system)
     {
         let payload = law_payload((model, params), &t.goal, &t.points, Some(spec.clone()));
-        let (sys, names, start) = (sys.clone(), t.joint_names.clone(), t.start.clone());
-        let short =
-            tokio::task::spawn_blocking(move || simulate_law(&sys, &names, &start, payload))
-                .await
-                .map_err(Error::internal)?
-                .map_err(|e| Error::internal(anyhow::anyhow!("simulating the law: {e}")))?;
-        if let Some(why) = short {
-            reason = Some(why);
+        let (names, start) = (t.joint_names.clone(), t.start.clone());
+        if let Some(why) = law_short(sys.clone(), names, start, payload).await? {
+            reason = Some(format!(
+                "closed loop: {why}; plan it open loop, or from another start"
+            ));
             execution = None;
         }
     }
@@ -924,9 +921,23 @@ pub enum Write {
     Execution,
 }
 
+/// Runs a closed-loop payload on the reference worker's simulated robot from `start`, off the
+/// async runtime: `None` when it arrives, else why not. The one rule for a plan's law and for a
+/// stored trajectory's law run by id (`executions`): a law that stops short is not queued.
+pub(super) async fn law_short(
+    sys: Arc<HandArm>,
+    joint_names: Vec<String>,
+    start: Vec<f64>,
+    payload: ExecutionPayload,
+) -> Result<Option<String>, Error> {
+    tokio::task::spawn_blocking(move || simulate_law(&sys, &joint_names, &start, payload))
+        .await
+        .map_err(Error::internal)?
+        .map_err(|e| Error::internal(anyhow::anyhow!("simulating the law: {e}")))
+}
+
 /// Runs a closed-loop payload on the reference worker's simulated robot from `start` (at its
-/// default acceleration limit, no pushes): `None` when it arrives, else why not, in a plan's
-/// terms.
+/// default acceleration limit, no pushes): `None` when it arrives, else why not.
 fn simulate_law(
     sys: &crate::grasp::HandArm,
     joint_names: &[String],
@@ -973,9 +984,9 @@ fn simulate_law(
         })
         .unwrap_or_default();
     Ok(Some(format!(
-        "closed loop: the model's law, run from the start through its safety filter as the \
-         reference worker runs it ({DEFAULT_ACCELERATION_LIMIT} rad/s², no pushes), does not \
-         arrive: {}{closest}; plan it open loop, or from another start",
+        "the model's law, run from the start through its safety filter as the reference \
+         worker runs it ({DEFAULT_ACCELERATION_LIMIT} rad/s², no pushes), does not arrive: \
+         {}{closest}",
         why.unwrap_or_else(|| "it stopped".into())
     )))
 }

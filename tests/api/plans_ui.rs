@@ -240,6 +240,51 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
         let (_, html) = page(&app, &format!("/ui/view/executions/{e}")).await;
         assert!(!html.contains("no scene"), "{e}");
     }
+    // A plan's trajectory run again by id in closed loop is held to the plan's rule: its law
+    // is first run by the service, as a closed-loop plan's is, and one that stops short is not
+    // queued. The sunglasses for a force along z from the demonstrated start: the plan is
+    // feasible open loop, and in closed loop the thumb settles on the frame short of the grasp
+    // (measured: 0.029 rad after the worker's 30 s). By id: a 422 at the trajectory saying so,
+    // nothing queued (before, it was queued and a worker ran a law that stops short); open
+    // loop it still runs.
+    let sunglasses = "00000000-0000-4000-8000-000000000005";
+    let res = app
+        .post_json(
+            "/v1/plans",
+            &json!({"robot": ROBOT, "object_id": sunglasses, "start": start,
+                    "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let open: Value = res.json().await.unwrap();
+    assert_eq!(open["feasible"], true, "{}", open["reason"]);
+    let executions = || async {
+        let v: Value = app
+            .get("/v1/executions?limit=100")
+            .await
+            .json()
+            .await
+            .unwrap();
+        v["items"].as_array().unwrap().len()
+    };
+    let before = executions().await;
+    let by_id = |mode: &str| json!({"robot": ROBOT, "mode": mode, "trajectory_id": open["trajectory"]["id"]});
+    let res = app.post_json("/v1/executions", &by_id("closed_loop")).await;
+    assert_eq!(res.status(), 422);
+    let problem: Value = res.json().await.unwrap();
+    assert_eq!(problem["errors"][0]["path"], "$.trajectory_id", "{problem}");
+    let message = problem["errors"][0]["message"].as_str().unwrap();
+    assert!(
+        message.contains("in closed loop")
+            && message.contains("does not arrive")
+            && message.contains("'sunglasses'"),
+        "{message}"
+    );
+    assert_eq!(executions().await, before);
+    let res = app.post_json("/v1/executions", &by_id("open_loop")).await;
+    assert_eq!(res.status(), 202, "{}", res.text().await.unwrap());
+    assert_eq!(executions().await, before + 1);
+
     // A bare model execution posted to /v1/executions has no plan and so no object: the page
     // says so instead of drawing an empty scene.
     let res = app
@@ -338,6 +383,6 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     assert_eq!(status, 200, "the empty comparison is its form");
 
     let (_, home) = page(&app, "/").await;
-    // The two compared, the one from "zero" and the closed-loop one.
-    assert!(home.contains("href=\"/ui/plans\"><span class=\"count\">4</span> plans"));
+    // The two compared, the one from "zero", the closed-loop one and the sunglasses.
+    assert!(home.contains("href=\"/ui/plans\"><span class=\"count\">5</span> plans"));
 }
