@@ -80,6 +80,18 @@ impl TestApp {
         v["total"].as_i64().expect("total")
     }
 
+    /// How many items a list without a `total` answers (`GET path?limit=100`: one page, which
+    /// is all there is in a test).
+    pub async fn items(&self, path: &str) -> usize {
+        let v: Value = self
+            .get(&format!("{path}?limit=100"))
+            .await
+            .json()
+            .await
+            .expect("list");
+        v["items"].as_array().expect("items").len()
+    }
+
     pub async fn post_json(&self, path: &str, body: &Value) -> reqwest::Response {
         self.client
             .post(self.url(path))

@@ -122,16 +122,7 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
     );
     // Its stored trajectory is not run on its own either (422 at the id, naming the same pair,
     // nothing queued), while a collision-free one of the same robot is queued.
-    let count = || async {
-        let v: Value = app
-            .get("/v1/executions?limit=100")
-            .await
-            .json()
-            .await
-            .unwrap();
-        v["items"].as_array().unwrap().len()
-    };
-    let executions = count().await;
+    let executions = app.items("/v1/executions").await;
     let run = |v: &Value| json!({"robot": ROBOT, "mode": "open_loop", "trajectory_id": v["trajectory"]["id"]});
     let problem = assert_problem(
         app.post_json("/v1/executions", &run(&over)).await,
@@ -145,10 +136,10 @@ async fn plans_report_their_clearance_to_obstacles_and_refuse_bad_ones() {
         message.contains(&format!("link '{link}'")) && message.contains("'crate'"),
         "{message}"
     );
-    assert_eq!(count().await, executions);
+    assert_eq!(app.items("/v1/executions").await, executions);
     let res = app.post_json("/v1/executions", &run(&far)).await;
     assert_eq!(res.status(), 202);
-    assert_eq!(count().await, executions + 1);
+    assert_eq!(app.items("/v1/executions").await, executions + 1);
 
     // A 4 cm ball centred on the thumb's path halfway, between the start (the arm stretched
     // up, all joints zero) and the object: the motion goes around it, its exact continuous

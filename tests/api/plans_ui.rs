@@ -258,16 +258,7 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     assert_eq!(res.status(), 201);
     let open: Value = res.json().await.unwrap();
     assert_eq!(open["feasible"], true, "{}", open["reason"]);
-    let executions = || async {
-        let v: Value = app
-            .get("/v1/executions?limit=100")
-            .await
-            .json()
-            .await
-            .unwrap();
-        v["items"].as_array().unwrap().len()
-    };
-    let before = executions().await;
+    let before = app.items("/v1/executions").await;
     let by_id = |mode: &str| json!({"robot": ROBOT, "mode": mode, "trajectory_id": open["trajectory"]["id"]});
     let res = app.post_json("/v1/executions", &by_id("closed_loop")).await;
     assert_eq!(res.status(), 422);
@@ -280,10 +271,10 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
             && message.contains("'sunglasses'"),
         "{message}"
     );
-    assert_eq!(executions().await, before);
+    assert_eq!(app.items("/v1/executions").await, before);
     let res = app.post_json("/v1/executions", &by_id("open_loop")).await;
     assert_eq!(res.status(), 202, "{}", res.text().await.unwrap());
-    assert_eq!(executions().await, before + 1);
+    assert_eq!(app.items("/v1/executions").await, before + 1);
 
     // A bare model execution posted to /v1/executions has no plan and so no object: the page
     // says so instead of drawing an empty scene.
