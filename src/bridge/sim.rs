@@ -200,7 +200,8 @@ pub struct RunOptions {
     pub tracking_gain: f64,
     /// Open loop: time allowed after the trajectory's end to settle (s).
     pub settle_time: f64,
-    /// Closed loop: time allowed to converge (s).
+    /// Closed loop: time allowed to converge (s), after the end of the law's path where it
+    /// follows one (a path is as long as it was planned: a 35 s motion is not cut off at 30).
     pub closed_loop_timeout: f64,
 }
 
@@ -905,19 +906,19 @@ impl Run {
                 ..
             } => {
                 let err = max_abs_diff(&robot.q, goal);
-                let ended = match follow {
+                let (ended, path_end) = match follow {
                     Some((path, clock)) => {
                         self.progress = clock.progress(path);
-                        clock.at_end(path)
+                        (clock.at_end(path), path.last().map_or(0.0, |p| p.t))
                     }
                     None => {
                         self.progress = (1.0 - err / initial_error).clamp(0.0, 1.0);
-                        true
+                        (true, 0.0)
                     }
                 };
                 if ended && err <= self.opts.goal_tolerance && speed <= self.opts.stop_velocity {
                     Some((Outcome::Succeeded, None))
-                } else if self.t >= self.opts.closed_loop_timeout {
+                } else if self.t >= path_end + self.opts.closed_loop_timeout {
                     Some((
                         Outcome::Failed,
                         Some(format!(

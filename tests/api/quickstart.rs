@@ -270,6 +270,23 @@ async fn first_start_seeds_and_the_readme_quickstart_plans_and_executes() {
         "the plan page does not list the dropped grasp"
     );
 
+    // A slow motion in closed loop: the wam_t42 ball plan asked for 35 s. The worker allows its
+    // 30 s to converge after the path's end; counted from the start, the plan's own run of the
+    // law was cut off 0.19 rad short at 30 s and the plan was infeasible.
+    let slow = zero_start_plan(
+        &app,
+        "wam_t42",
+        "00000000-0000-4000-8000-000000000001",
+        [0, 0, 1],
+        "force",
+        serde_json::json!({"duration": 35, "execute": true, "mode": "closed_loop"}),
+    )
+    .await;
+    assert_eq!(slow["feasible"], true, "{}", slow["reason"]);
+    let duration = slow["trajectory"]["report"]["duration"].as_f64().unwrap();
+    assert!(duration > 34.9, "{duration}");
+    assert!(slow["execution_id"].is_string(), "{slow}");
+
     // The README's worker, as the built binary.
     let mut worker = Command::new(env!("CARGO_BIN_EXE_reachgrasp"))
         .args(["bridge", "--sim", "--robot", "wam_ihy", "--token", TOKEN])

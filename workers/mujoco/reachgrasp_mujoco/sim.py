@@ -510,7 +510,9 @@ class ClosedLoop:
         pushing = self.pushes is not None and sim.t < self.pushes.active_until
         if pushing or self.follower is not None and not self.follower.at_end():
             return None
-        return arrival(sim, self.goal, self.o, t, self.o.closed_loop_timeout)
+        # (the time to converge counts from the end of the path: a long motion is not cut off)
+        span = self.follower.span if self.follower is not None else 0.0
+        return arrival(sim, self.goal, self.o, t, span + self.o.closed_loop_timeout)
 
 
 class Follow:
