@@ -244,7 +244,7 @@ async fn plan_pages_link_grasp_trajectory_and_execution_and_compare_side_by_side
     // is first run by the service, as a closed-loop plan's is, and one that stops short is not
     // queued. The sunglasses for a force along z from the demonstrated start: the plan is
     // feasible open loop, and in closed loop the thumb settles on the frame short of the grasp
-    // (measured: 0.029 rad after the worker's 30 s). By id: a 422 at the trajectory saying so,
+    // (measured: 0.029 rad, the worker's 30 s after the path over). By id: a 422 saying so,
     // nothing queued (before, it was queued and a worker ran a law that stops short); open
     // loop it still runs.
     let sunglasses = "00000000-0000-4000-8000-000000000005";
