@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -77,8 +78,7 @@ def table(rows, key_a, key_b, ok):
 
 
 def zeros_start(svc, robot):
-    names = svc.get_json(f"/v1/robots/{robot}")["joint_names"]
-    return {"joint_names": names, "positions": [0.0] * len(names)}
+    return starts(svc.get_json(f"/v1/robots/{robot}")["joint_names"])["zero"]
 
 
 def cmd_grasps(a):
@@ -319,17 +319,12 @@ def cmd_rtf(a):
 BENT_ELBOW = [0.0, 0.4, 0.0, 1.6, 0.0, 0.5, 0.0]
 
 
-def starts(svc, robot):
-    names = svc.get_json(f"/v1/robots/{robot}")["joint_names"]
+def starts(names):
+    """The survey's starts for a robot with joints `names`: the zero posture and the bent elbow."""
     bent = [0.0] * len(names)
     bent[:7] = BENT_ELBOW
     return {"zero": {"joint_names": names, "positions": [0.0] * len(names)},
             "bent_elbow": {"joint_names": names, "positions": bent}}
-
-
-def median(xs):
-    xs = sorted(xs)
-    return None if not xs else (xs[len(xs) // 2] if len(xs) % 2 else 0.5 * (xs[len(xs) // 2 - 1] + xs[len(xs) // 2]))
 
 
 def cmd_clearance(a):
@@ -343,7 +338,7 @@ def cmd_clearance(a):
         info, urdf_text = robot_info(svc, robot)
         meshes = svc.meshes(robot, urdf_text).get
         replayers = {}
-        for sname, start in starts(svc, robot).items():
+        for sname, start in starts(info.joint_names).items():
             for oname, o in objs.items():
                 for tname, task in TASKS.items():
                     body = {"robot": robot, "object_id": o["id"], "task_directions": task, "start": start}
@@ -389,9 +384,9 @@ def cmd_clearance(a):
             for r in rows if "replay" in r
             and r.get("service_collision_free") is not None
             and r["service_collision_free"] != (r["replay"]["counted_max_m"] <= 1e-3)],
-        "duration_over_learned_median": median(ratio),
+        "duration_over_learned_median": statistics.median(ratio) if ratio else None,
         "within_1_5x_learned": f"{sum(x <= 1.5 for x in ratio)}/{len(ratio)}",
-        "velocity_acceleration_optimum_over_learned_median": median(opt),
+        "velocity_acceleration_optimum_over_learned_median": statistics.median(opt) if opt else None,
         "optimum_within_1_5x": len(permit),
         "within_1_5x_where_the_optimum_is": f"{sum(r['duration_s'] <= 1.5 * r['learned_s'] for r in permit)}/{len(permit)}",
     }

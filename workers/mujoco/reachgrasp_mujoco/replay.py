@@ -89,7 +89,6 @@ class Replayer:
         m.geom_gap[:] = 0.0
         self.built = built
         self.names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}" for g in range(m.ngeom)]
-        self.body_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(m.nbody)]
         robot = set(int(g) for g in built.robot_geoms) | set(int(g) for g in built.hand_geoms)
         self.robot = robot
         self.pads = set()

@@ -24,12 +24,17 @@ def plan(svc, robot, obj, direction, kind, start=None, **extra):
     return p
 
 
-def replay(svc, p):
+def replayer(svc, robot, object_spec, obstacles=None):
     client = Client(svc.http)
-    detail, urdf_text = client.robot(p["trajectory"]["robot"])
+    detail, urdf_text = client.robot(robot)
     info = B.SystemInfo.from_detail(detail)
-    r = Replayer(info, urdf_text, p["grasp"]["object"], None, client.meshes(p["trajectory"]["robot"], urdf_text).get)
+    return Replayer(info, urdf_text, object_spec, obstacles, client.meshes(robot, urdf_text).get)
+
+
+def replay(svc, p, r=None):
+    """Plan `p`'s trajectory replayed in its own scene (or on replayer `r`)."""
     tr = p["trajectory"]
+    r = r or replayer(svc, tr["robot"], p["grasp"]["object"])
     return r.replay(tr["joint_names"], tr["points"], tr["report"]["clearance"].get("closing_from_s"))
 
 
@@ -81,15 +86,7 @@ def test_a_plan_around_an_obstacle_on_the_motion_clears_it_in_mujoco_too(seeded_
     assert around["feasible"] is True, around["reason"]
     assert around["trajectory"]["report"]["clearance"]["obstacle"]["other"] == "post"
 
-    client = Client(seeded_service.http)
-    detail, urdf_text = client.robot("wam_t42")
-    r = Replayer(B.SystemInfo.from_detail(detail), urdf_text, bare["grasp"]["object"], post,
-                 client.meshes("wam_t42", urdf_text).get)
-
-    def run(p):
-        tr = p["trajectory"]
-        return r.replay(tr["joint_names"], tr["points"], tr["report"]["clearance"].get("closing_from_s"))
-
-    assert run(bare).obstacle.depth_m > 0.02
-    cleared = run(around)
+    with_post = replayer(seeded_service, "wam_t42", bare["grasp"]["object"], post)
+    assert replay(seeded_service, bare, with_post).obstacle.depth_m > 0.02
+    cleared = replay(seeded_service, around, with_post)
     assert cleared.obstacle.depth_m == 0.0 and cleared.counted() <= 1e-3, cleared.json()
