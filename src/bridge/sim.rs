@@ -789,7 +789,10 @@ impl Run {
                     self.reference.clone_from(target);
                 }
                 if let Some(f) = filter {
-                    let step = f.filter(&robot.q, &mut self.command);
+                    let step = match follow {
+                        Some(_) => f.filter_along(&robot.q, &self.reference, dt, &mut self.command),
+                        None => f.filter(&robot.q, &mut self.command),
+                    };
                     let track = self.safety.get_or_insert(SafetyTrack {
                         barrier: f64::INFINITY,
                         min_barrier: f64::INFINITY,

@@ -1825,6 +1825,96 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     assert_eq!(object["shape"]["radius"], 0.033, "{object}");
 }
 
+/// A closed-loop law that follows its plan's path is filtered against deviations from that
+/// path, not against the path itself (`SafetyFilter::filter_along`: each pair may approach as
+/// fast as it does on the path at the follower's clock). The sunglasses for a force along z
+/// from the demonstrated start: with the static barrier alone, the thumb and a fingertip that
+/// the path brings to their closest at the grasp (the frame, the table 1 mm below) were braked
+/// exponentially as they neared it, the follower fell behind its clock, and the law stopped
+/// 0.029 rad short with the thumb on the frame, so the service refused the trajectory in closed
+/// loop (422). Now the law runs the path: it arrives, the filter never changes its command, the
+/// executed motion stays within a few mrad of the path, and its exact clearance is the path's
+/// (nothing but the pads within 1 mm of the frame, the table or another link; the pads no
+/// deeper than the plan's check allows). The service agrees: by id, in closed loop, queued.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_loop_law_on_its_path_is_filtered_against_deviations_only() {
+    use reachgrasp::bridge::protocol::Outcome;
+    use reachgrasp::geometry::{Category, PathOptions, Polyline};
+    use reachgrasp::grasp::{
+        CLOSING_PRESS, HandArm, Object, ObjectSpec, closing_contacts, scene_checker,
+    };
+    use reachgrasp::motion::{ControlParams, TrajectoryPoint};
+    use reachgrasp::store::payload::SafetySpec;
+
+    let (app, _api, model, start) = trained_app().await;
+    let res = app
+        .post(
+            "/v1/plans",
+            &json!({"robot": ROBOT, "object_id": "00000000-0000-4000-8000-000000000005",
+                    "start": start, "task_directions": [{"direction": [0, 0, 1],
+                    "kind": "force", "goal": "maximize"}]}),
+        )
+        .await;
+    assert_eq!(res.status(), 201);
+    let plan: Value = res.json().await.unwrap();
+    assert_eq!(plan["feasible"], true, "{}", plan["reason"]);
+    let t = &plan["trajectory"];
+    let params: ControlParams =
+        serde_json::from_value(app.get(&format!("/v1/models/{model}/params")).await).unwrap();
+    let path: Vec<TrajectoryPoint> = serde_json::from_value(t["points"].clone()).unwrap();
+    let goal = floats(&t["goal"]);
+    let spec: ObjectSpec = serde_json::from_value(plan["grasp"]["object"].clone()).unwrap();
+    let object = Object::new(spec.clone()).unwrap();
+    let sys = HandArm::from_system(&system()).unwrap();
+    let n = sys.model.nq();
+    let payload = ExecutionPayload::Model {
+        model_id: model.clone(),
+        params,
+        goal: goal.clone(),
+        safety: Some(Box::new(SafetySpec::new(Some(spec), vec![]))),
+        path: Some(path.clone()),
+    };
+    let (outcome, executed, report) = run_law(&payload, &path[0].positions, None, &sys);
+    let report = report.unwrap();
+    let short = max_abs_diff(&executed[executed.len() - n..], &goal);
+    // how far the executed states are from the path (the nearest of its points)
+    let off_path = executed
+        .chunks_exact(n)
+        .map(|q| {
+            path.iter()
+                .map(|p| max_abs_diff(q, &p.positions))
+                .fold(f64::INFINITY, f64::min)
+        })
+        .fold(0.0, f64::max);
+    let opts = PathOptions {
+        tolerance: 2e-4,
+        max_steps: 2_000_000,
+    };
+    let mut checker = scene_checker(&sys, Some(&object), &[]);
+    let mut data = checker.data();
+    let all = checker.check_path(&mut data, &Polyline::new(&executed, n), &opts);
+    checker.set_allowed(&closing_contacts(&sys));
+    let rest = checker.check_path(&mut data, &Polyline::new(&executed, n), &opts);
+    assert!(all.complete && rest.complete);
+    let (rest, pads) = (rest.distance(), all.category_distance(Category::Object));
+    println!(
+        "{outcome:?}, {short:.4} rad from the grasp, at most {off_path:.4} rad off the path; \
+         clear {rest:.4} m, pads {pads:.4} m; {report:?}"
+    );
+    assert_eq!(outcome, Outcome::Succeeded, "{short} rad short");
+    assert!(off_path < 0.01, "{off_path} rad off the path");
+    assert!(rest > -1e-3, "{rest} m");
+    assert!(pads > -CLOSING_PRESS, "the pads {pads} m into the frame");
+
+    let res = app
+        .post(
+            "/v1/executions",
+            &json!({"robot": ROBOT, "mode": "closed_loop", "trajectory_id": t["id"]}),
+        )
+        .await;
+    assert_eq!(res.status(), 202, "{}", res.text().await.unwrap());
+}
+
 // ------------------------------------------------------------------ teleoperation (issue 22)
 
 /// Registers the FF16 hand on a fixed base; its id and system.

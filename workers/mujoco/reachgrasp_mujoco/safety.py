@@ -132,6 +132,12 @@ class SafetyFilter:
         nq = sim.n
         self.rows = np.zeros((n, nq))
         self.rhs = np.zeros(n)
+        self.row_pair = np.zeros(n, int)
+        self.row_d = np.zeros(n)
+        # along a path: per pair, the period of its last distance at the reference and that
+        # distance (`filter`'s `reference`)
+        self.ref_at = np.full(n, -2, int)
+        self.ref_distance = np.zeros(n)
         self.periods = 0
         self.filtered = 0
         self.min_distance = math.inf
@@ -139,8 +145,13 @@ class SafetyFilter:
         self.closest = None
         self.time = None
 
-    def filter(self, q_full, u, t):
-        """The nearest safe command to `u` (independent joints) at the measured `qpos`."""
+    def filter(self, q_full, u, t, reference=None, dt=0.0):
+        """The nearest safe command to `u` (independent joints) at the measured `qpos`. With
+        the `reference` of a law that follows a path (the path at the follower's clock, `dt` s
+        after the last period), each near pair may also approach as fast as it does on the path
+        there (`barrier.rs`' `filter_along`): the path is checked exactly, and the static
+        barrier alone braked a pair the path brings to its closest at the grasp, so that the
+        follower fell behind its clock and came into the grasp another way."""
         p = self.p
         p.pose(q_full)
         u = np.asarray(u, float).copy()
@@ -161,10 +172,21 @@ class SafetyFilter:
             if not p.gradient(i, d, p1, p2, self.rows[rows]) or np.abs(self.rows[rows]).max() <= 1e-12:
                 continue  # a pair no joint moves apart (a base link on the table)
             self.rhs[rows] = -approach_bound(self.rate, self.braking, h)
+            self.row_pair[rows] = i
+            self.row_d[rows] = d
             rows += 1
+        self.periods += 1
+        if reference is not None and rows:
+            p.pose_joints(reference)
+            for k in range(rows):
+                i = self.row_pair[k]
+                d_ref, _, _ = p.distance(i, 4.0 * reach)
+                # (not for a pair already closer than the path has it: a deviation towards it)
+                if self.ref_at[i] + 1 == self.periods and dt > 0 and self.row_d[k] >= d_ref - CONTACT_SLACK:
+                    self.rhs[k] += min(0.0, (d_ref - self.ref_distance[i]) / dt)
+                self.ref_at[i], self.ref_distance[i] = self.periods, d_ref
         # the nominal command inside the velocity bounds, its direction kept
         u /= max(1.0, float(np.max(np.abs(u) / self.velocity)))
-        self.periods += 1
         if rows and project(self.rows[:rows], self.rhs[:rows], self.velocity, u, SWEEPS):
             self.filtered += 1
         return u

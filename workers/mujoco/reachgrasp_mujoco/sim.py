@@ -485,13 +485,14 @@ class ClosedLoop:
         q = sim.q()
         while self.stage < len(self.stages) and np.max(np.abs(q - self.stages[self.stage])) <= STAGE_TOLERANCE:
             self.stage += 1
+        reference = None
         if self.follower is not None:
-            u, _ = self.follower.step(q, CONTROL_DT)
+            u, reference = self.follower.step(q, CONTROL_DT)
         else:
             target = self.stages[self.stage] if self.stage < len(self.stages) else self.goal
             u = self.law.control(q, target)
         if self.safety is not None:
-            u = self.safety.filter(sim.d.qpos, u, sim.t - self.t0)
+            u = self.safety.filter(sim.d.qpos, u, sim.t - self.t0, reference, CONTROL_DT)
         u = np.clip(u, -sim.vlimit, sim.vlimit)
         band = self.o.reference_band
         self.q_ref = q + np.clip(self.q_ref + u * CONTROL_DT - q, -band, band)

@@ -1,6 +1,7 @@
 """The worker's safety filter against independent references: its distance gradients against
 central finite differences of MuJoCo's exact distances, its projection against closed forms,
-and the barrier it keeps when the plain law would drive a finger into the table."""
+the barrier it keeps when the plain law would drive a finger into the table, and a path it
+admits left alone when the path's reference is given."""
 
 import math
 
@@ -148,3 +149,57 @@ def test_the_filter_stops_a_command_into_the_table_at_its_margin(ihy):
     # kept at the 2 cm margin, less the discretisation of a 10 ms control period
     assert 0.019 < lowest < 0.025, lowest
     assert f.filtered > 0
+
+
+def test_a_path_the_filter_admits_is_left_alone_when_its_reference_is_given(ihy):
+    """The hand brought down to within the margin of the table along a path (joint line,
+    minimum-jerk clock over 1 s), its goal admitted (the pair may come as close as it is
+    there): run exactly on the path, the plain barrier still brakes the command as the path
+    nears its goal (`dh/dt >= -alpha h` while the path's approach rate over h grows without
+    bound), while with the path's reference the command is the path's own velocity (the
+    pair may approach as fast as it does on the path)."""
+    sim = ihy
+    q = hand_above_ball(sim)
+    sim.set_posture(q)
+    q0, err = sim.hand_pose_ik(q, np.array([0.5, 0.2, 0.30]), np.diag([1.0, -1.0, -1.0]))
+    assert err < 1e-6
+    spec = {"margin_m": 0.02, "self_margin_m": 0.002, "rate": 4.0, "braking_m_s2": 1.0}
+    probe = S.Pairs(sim)
+    support = [i for i, (_, s) in enumerate(probe.pairs) if s == sim.b.support_geom]
+
+    def lowest(qj):
+        probe.pose_joints(qj)
+        return min(probe.distance(i, 0.5)[0] for i in support)
+
+    # the first palm height whose closest link is 3-15 mm above the table
+    q1 = None
+    for z in np.arange(0.29, 0.0, -0.005):
+        cand, err = sim.hand_pose_ik(q0, np.array([0.5, 0.2, z]), np.diag([1.0, -1.0, -1.0]))
+        if err < 1e-6 and 0.003 < lowest(cand) < 0.015:
+            q1 = cand
+            break
+    assert q1 is not None
+
+    dt, steps = 0.01, 100
+
+    def at(k):
+        s = k / steps
+        x = 10 * s**3 - 15 * s**4 + 6 * s**5
+        dx = (30 * s**2 - 60 * s**3 + 30 * s**4) / (steps * dt)
+        return q0 + x * (q1 - q0), dx * (q1 - q0)
+
+    def worst_change(with_reference):
+        f = S.SafetyFilter(sim, spec, [q1], sim.vlimit)
+        qpos = sim.d.qpos.copy()
+        worst = 0.0
+        for k in range(steps):
+            qk, vk = at(k)
+            sim.couple(qpos, qk)
+            u = f.filter(qpos, vk, k * dt, qk if with_reference else None, dt)
+            worst = max(worst, float(np.max(np.abs(u - vk))))
+        return worst, f.filtered
+
+    plain, plain_filtered = worst_change(False)
+    along, _ = worst_change(True)
+    assert plain_filtered > 0 and plain > 0.05, (plain, plain_filtered)
+    assert along < 1e-6, along
