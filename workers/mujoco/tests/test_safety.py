@@ -33,6 +33,19 @@ def hand_above_ball(sim):
     return sim.hand_pointing_down([0.5, 0.0, 0.17])
 
 
+def hand_beside_ball(sim):
+    """The hand pointing down, its palm 30 cm above the table and 20 cm beside the ball (so the
+    table is what a downward motion meets)."""
+    q = hand_above_ball(sim)
+    sim.set_posture(q)
+    q, err = sim.hand_pose_ik(q, np.array([0.5, 0.2, 0.30]), np.diag([1.0, -1.0, -1.0]))
+    assert err < 1e-6
+    return q
+
+
+SPEC = {"margin_m": 0.02, "self_margin_m": 0.002, "rate": 4.0, "braking_m_s2": 1.0}
+
+
 def test_distance_gradients_match_finite_differences(ihy):
     sim = ihy
     pairs = S.Pairs(sim)
@@ -112,13 +125,8 @@ def test_the_filter_stops_a_command_into_the_table_at_its_margin(ihy):
     pair never comes closer than the margin less the braking overshoot of one control period,
     and the unfiltered command would have gone through the table."""
     sim = ihy
-    q = hand_above_ball(sim)
-    # move sideways off the ball so the table is what the hand meets
-    sim.set_posture(q)
-    q, err = sim.hand_pose_ik(q, np.array([0.5, 0.2, 0.30]), np.diag([1.0, -1.0, -1.0]))
-    assert err < 1e-6
-    spec = {"margin_m": 0.02, "self_margin_m": 0.002, "rate": 4.0, "braking_m_s2": 1.0}
-    f = S.SafetyFilter(sim, spec, [q], sim.vlimit)
+    q = hand_beside_ball(sim)
+    f = S.SafetyFilter(sim, SPEC, [q], sim.vlimit)
     # the joint velocity that moves the palm down at 0.3 m/s (arm Jacobian, least squares),
     # integrated for 3 s with and without the filter
     kd = mujoco.MjData(sim.m)
@@ -159,11 +167,7 @@ def test_a_path_the_filter_admits_is_left_alone_when_its_reference_is_given(ihy)
     bound), while with the path's reference the command is the path's own velocity (the
     pair may approach as fast as it does on the path)."""
     sim = ihy
-    q = hand_above_ball(sim)
-    sim.set_posture(q)
-    q0, err = sim.hand_pose_ik(q, np.array([0.5, 0.2, 0.30]), np.diag([1.0, -1.0, -1.0]))
-    assert err < 1e-6
-    spec = {"margin_m": 0.02, "self_margin_m": 0.002, "rate": 4.0, "braking_m_s2": 1.0}
+    q0 = hand_beside_ball(sim)
     probe = S.Pairs(sim)
     support = [i for i, (_, s) in enumerate(probe.pairs) if s == sim.b.support_geom]
 
@@ -189,7 +193,7 @@ def test_a_path_the_filter_admits_is_left_alone_when_its_reference_is_given(ihy)
         return q0 + x * (q1 - q0), dx * (q1 - q0)
 
     def worst_change(with_reference):
-        f = S.SafetyFilter(sim, spec, [q1], sim.vlimit)
+        f = S.SafetyFilter(sim, SPEC, [q1], sim.vlimit)
         qpos = sim.d.qpos.copy()
         worst = 0.0
         for k in range(steps):
