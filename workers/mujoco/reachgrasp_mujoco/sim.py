@@ -487,7 +487,7 @@ class ClosedLoop:
             self.stage += 1
         reference = None
         if self.follower is not None:
-            u, reference = self.follower.step(q, CONTROL_DT)
+            u, reference = self.follower.step(q, CONTROL_DT, self.q_ref)
         else:
             target = self.stages[self.stage] if self.stage < len(self.stages) else self.goal
             u = self.law.control(q, target)
