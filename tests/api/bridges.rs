@@ -1594,10 +1594,8 @@ fn run_law(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_scene() {
     use reachgrasp::bridge::protocol::Outcome;
-    use reachgrasp::geometry::{Category, PathOptions, Polyline};
     use reachgrasp::grasp::{
-        ApproachOptions, CLOSING_PRESS, HandArm, Object, ObjectSpec, closing_contacts, pre_grasp,
-        scene_checker,
+        ApproachOptions, CLOSING_PRESS, HandArm, Object, ObjectSpec, pre_grasp,
     };
     use reachgrasp::motion::ControlParams;
     use reachgrasp::store::payload::SafetySpec;
@@ -1631,19 +1629,7 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
         path: None,
     };
     // (closest of everything with the pads on the ball allowed, the pads on the ball)
-    let check = |path: &[f64]| {
-        let opts = PathOptions {
-            tolerance: 2e-4,
-            max_steps: 2_000_000,
-        };
-        let mut checker = scene_checker(&sys, Some(&object), &[]);
-        let mut data = checker.data();
-        let pads = checker.check_path(&mut data, &Polyline::new(path, n), &opts);
-        checker.set_allowed(&closing_contacts(&sys));
-        let r = checker.check_path(&mut data, &Polyline::new(path, n), &opts);
-        assert!(r.complete && pads.complete);
-        (r.distance(), pads.category_distance(Category::Object))
-    };
+    let check = |path: &[f64]| executed_clearance(&sys, &object, path);
     let (outcome, plain, _) = run_law(&payload(None), &q0, None, &sys);
     assert_eq!(outcome, Outcome::Succeeded);
     let (rest_plain, _) = check(&plain);
@@ -1825,6 +1811,30 @@ async fn a_closed_loop_plan_runs_its_law_through_the_safety_filter_clear_of_its_
     assert_eq!(object["shape"]["radius"], 0.033, "{object}");
 }
 
+/// The exact continuous check of executed states (rows of joint values in model order): the
+/// closest approach of everything with the fingertip pads on `object` allowed, and of the pads
+/// to `object`.
+fn executed_clearance(
+    sys: &reachgrasp::grasp::HandArm,
+    object: &reachgrasp::grasp::Object,
+    executed: &[f64],
+) -> (f64, f64) {
+    use reachgrasp::geometry::{Category, PathOptions, Polyline};
+    use reachgrasp::grasp::{closing_contacts, scene_checker};
+    let n = sys.model.nq();
+    let opts = PathOptions {
+        tolerance: 2e-4,
+        max_steps: 2_000_000,
+    };
+    let mut checker = scene_checker(sys, Some(object), &[]);
+    let mut data = checker.data();
+    let all = checker.check_path(&mut data, &Polyline::new(executed, n), &opts);
+    checker.set_allowed(&closing_contacts(sys));
+    let rest = checker.check_path(&mut data, &Polyline::new(executed, n), &opts);
+    assert!(all.complete && rest.complete);
+    (rest.distance(), all.category_distance(Category::Object))
+}
+
 /// The wam_ihy sunglasses plan for a force along z from `start` (feasible), as planned.
 async fn sunglasses_plan(app: &BridgeApp, start: &Value) -> Value {
     let res = app
@@ -1857,10 +1867,7 @@ async fn sunglasses_plan(app: &BridgeApp, start: &Value) -> Value {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_closed_loop_law_on_its_path_is_filtered_against_deviations_only() {
     use reachgrasp::bridge::protocol::Outcome;
-    use reachgrasp::geometry::{Category, PathOptions, Polyline};
-    use reachgrasp::grasp::{
-        CLOSING_PRESS, HandArm, Object, ObjectSpec, closing_contacts, scene_checker,
-    };
+    use reachgrasp::grasp::{CLOSING_PRESS, HandArm, Object, ObjectSpec};
     use reachgrasp::motion::{ControlParams, TrajectoryPoint};
     use reachgrasp::store::payload::SafetySpec;
 
@@ -1895,28 +1902,13 @@ async fn a_closed_loop_law_on_its_path_is_filtered_against_deviations_only() {
             })
             .fold(0.0, f64::max)
     };
-    // the executed states' closest approach of everything with the pads on the object allowed,
-    // and of the pads to the object, by the exact continuous check
-    let check = |executed: &[f64], object: &Object| {
-        let opts = PathOptions {
-            tolerance: 2e-4,
-            max_steps: 2_000_000,
-        };
-        let mut checker = scene_checker(&sys, Some(object), &[]);
-        let mut data = checker.data();
-        let all = checker.check_path(&mut data, &Polyline::new(executed, n), &opts);
-        checker.set_allowed(&closing_contacts(&sys));
-        let rest = checker.check_path(&mut data, &Polyline::new(executed, n), &opts);
-        assert!(all.complete && rest.complete);
-        (rest.distance(), all.category_distance(Category::Object))
-    };
 
     let plan = sunglasses_plan(&app, &start).await;
     let (path, goal, object, payload) = law(&plan);
     let (outcome, executed, report) = run_law(&payload, &path[0].positions, None, &sys);
     let short = max_abs_diff(&executed[executed.len() - n..], &goal);
     let off_path = off(&executed, &path);
-    let (rest, pads) = check(&executed, &object);
+    let (rest, pads) = executed_clearance(&sys, &object, &executed);
     println!(
         "{outcome:?}, {short:.4} rad from the grasp, at most {off_path:.4} rad off the path; \
          clear {rest:.4} m, pads {pads:.4} m; {:?}",
@@ -1956,7 +1948,7 @@ async fn a_closed_loop_law_on_its_path_is_filtered_against_deviations_only() {
         };
         let (outcome, executed, _) = run_law(&payload, &path[0].positions, Some(perturb), &sys);
         assert_eq!(outcome, Outcome::Succeeded, "seed {seed}");
-        let (rest, pads) = check(&executed, &object);
+        let (rest, pads) = executed_clearance(&sys, &object, &executed);
         assert!(
             rest > -1e-3 && pads > -CLOSING_PRESS,
             "seed {seed}: {rest} m, pads {pads} m"

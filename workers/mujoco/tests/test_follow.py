@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from reachgrasp_mujoco import build as B
-from reachgrasp_mujoco import safety as S
 from reachgrasp_mujoco.law import PathFollower
 from reachgrasp_mujoco.scene import parse_scene
 from reachgrasp_mujoco.sim import ClosedLoop, OpenLoop, RunOptions, Sim
 
 from test_model import load
+from test_safety import lowered
 
 
 @pytest.fixture(scope="module")
@@ -82,23 +82,10 @@ def pressed(sim, follower_cls, pts):
 
 def test_feedback_on_the_servo_reference_does_not_wind_up_against_a_contact(ihy):
     sim = ihy
-    rot = np.diag([1.0, -1.0, -1.0])
     q0 = sim.hand_pointing_down([0.5, 0.2, 0.20])
-    probe = S.Pairs(sim)
-    support = [i for i, (_, g) in enumerate(probe.pairs) if g == sim.b.support_geom]
-
-    def lowest(q):
-        probe.pose_joints(q)
-        return min(probe.distance(i, 0.5)[0] for i in support)
-
     # the first palm height (1 mm steps down) that puts a link 2-4 mm into the table
-    q1 = None
-    for z in np.arange(0.20, -0.1, -0.001):
-        q, err = sim.hand_pose_ik(q0, np.array([0.5, 0.2, z]), rot)
-        if err < 1e-6 and lowest(q) < -0.002:
-            q1 = q
-            break
-    assert q1 is not None and lowest(q1) > -0.004
+    q1 = lowered(sim, q0, np.arange(0.20, -0.1, -0.001), -0.004, -0.002)
+    assert q1 is not None
     pts = joint_line(q0, q1, 1.5)
     ref_excursion, ref_force = pressed(sim, PathFollower, pts)
     q_excursion, q_force = pressed(sim, OnMeasured, pts)

@@ -46,6 +46,23 @@ def hand_beside_ball(sim):
 SPEC = {"margin_m": 0.02, "self_margin_m": 0.002, "rate": 4.0, "braking_m_s2": 1.0}
 
 
+def lowered(sim, q0, zs, near, far):
+    """From `q0` (the hand pointing down), the first palm height of `zs` (metres, going down,
+    over (0.5, 0.2)) at which the robot's closest link to the table is between `near` and `far`
+    from it (negative: inside); None where none is."""
+    probe = S.Pairs(sim)
+    support = [i for i, (_, g) in enumerate(probe.pairs) if g == sim.b.support_geom]
+    for z in zs:
+        q, err = sim.hand_pose_ik(q0, np.array([0.5, 0.2, z]), np.diag([1.0, -1.0, -1.0]))
+        if err >= 1e-6:
+            continue
+        probe.pose_joints(q)
+        lowest = min(probe.distance(i, 0.5)[0] for i in support)
+        if near < lowest < far:
+            return q
+    return None
+
+
 def test_distance_gradients_match_finite_differences(ihy):
     sim = ihy
     pairs = S.Pairs(sim)
@@ -168,20 +185,8 @@ def test_a_path_the_filter_admits_is_left_alone_when_its_reference_is_given(ihy)
     pair may approach as fast as it does on the path)."""
     sim = ihy
     q0 = hand_beside_ball(sim)
-    probe = S.Pairs(sim)
-    support = [i for i, (_, s) in enumerate(probe.pairs) if s == sim.b.support_geom]
-
-    def lowest(qj):
-        probe.pose_joints(qj)
-        return min(probe.distance(i, 0.5)[0] for i in support)
-
     # the first palm height whose closest link is 3-15 mm above the table
-    q1 = None
-    for z in np.arange(0.29, 0.0, -0.005):
-        cand, err = sim.hand_pose_ik(q0, np.array([0.5, 0.2, z]), np.diag([1.0, -1.0, -1.0]))
-        if err < 1e-6 and 0.003 < lowest(cand) < 0.015:
-            q1 = cand
-            break
+    q1 = lowered(sim, q0, np.arange(0.29, 0.0, -0.005), 0.003, 0.015)
     assert q1 is not None
 
     dt, steps = 0.01, 100
