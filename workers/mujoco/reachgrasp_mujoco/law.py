@@ -154,7 +154,8 @@ class TimedPoints:
 class PathFollower:
     """`motion::PathFollower`: a closed-loop law that runs the payload's `path` (the open-loop
     humanlike motion) with a governed clock. Per period, with `p`, `v` the path at the clock
-    `tau`, `e = max|p - q|` and `g = 1/(1 + (e/e0)^2)`: `u = g v + K (p - q)`, `tau += g dt`.
+    `tau`, `e = max|p - q|` and `g = 1/(1 + (e/e0)^2)`: `u = g v + K (p - q)`, `tau += g dt`
+    (the feedback `K (p - q_ref)` on the servo reference where the worker gives it: `step`).
     The clock waits while the robot is off the path (a push, a safety filter holding it), so
     the motion resumes where it left the path."""
 
