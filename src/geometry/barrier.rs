@@ -40,9 +40,10 @@
 //! (`ḋ_i(p(τ))` from the pair's distance at this and the last period's reference; only while
 //! the pair is no closer than it is at the reference), so the path itself, checked exactly
 //! with the plan, is always admissible. Where the robot is pushed off the path the clock
-//! waits, the reference stands still and the barrier is the plain one. What this gives up: a robot behind the path whose route meets a pair the path approaches
-//! may come closer than the static target by at most what the path still approaches there; it
-//! is driven back at rate `α` once it is closer than the path or the path stops approaching.
+//! waits, the reference stands still and the barrier is the plain one. What this gives up: a
+//! robot behind the path whose route meets a pair the path approaches may come closer than the
+//! static target by at most what the path still approaches there; it is driven back at rate `α`
+//! once it is closer than the path or the path stops approaching.
 //!
 //! What this does not give: the certified convergence of the unfiltered flow. Where the law
 //! points into a barrier the filter slides along it or, against a wall the flow meets head-on,
@@ -133,9 +134,10 @@ pub struct SafetyFilter {
     norms: Vec<f64>,
     duals: Vec<f64>,
     /// Following a path ([`SafetyFilter::filter_along`]): the checker posed at the reference,
-    /// per pair the period of its last distance there and that distance, and the period.
+    /// per pair the period of its last distance there and that distance (`None`: never), and
+    /// the period.
     reference: CheckData,
-    reference_distance: Vec<(u64, f64)>,
+    reference_distance: Vec<Option<(u64, f64)>>,
     period: u64,
 }
 
@@ -190,7 +192,7 @@ impl SafetyFilter {
             norms: vec![0.0; pairs],
             duals: vec![0.0; pairs],
             reference: checker.data(),
-            reference_distance: vec![(0, 0.0); pairs],
+            reference_distance: vec![None; pairs],
             period: 0,
             checker,
         }
@@ -245,9 +247,8 @@ impl SafetyFilter {
             ..BarrierStep::default()
         };
         let mut rows = 0;
-        if let Some((reference, _)) = along {
-            self.checker.update(&mut self.reference, reference);
-        }
+        // (the checker is posed at the reference once, for the first pair that needs it)
+        let mut posed = false;
         self.period += 1;
         for k in 0..self.near.len() {
             let (i, d) = self.near[k];
@@ -278,16 +279,24 @@ impl SafetyFilter {
             // (along a path: as fast as the pair approaches there, from its distance at this
             // and the last period's reference; nothing the first period it is near)
             let path_rate = match along {
-                Some((_, dt)) => {
+                Some((reference, dt)) => {
+                    if !posed {
+                        self.checker.update(&mut self.reference, reference);
+                        posed = true;
+                    }
                     let d_ref = self.checker.pair_distance(&mut self.reference, i).distance;
-                    let (at, before) = self.reference_distance[i];
-                    self.reference_distance[i] = (self.period, d_ref);
-                    // (not for a pair already closer than the path has it: that is a
-                    // deviation towards it, which the plain barrier brakes)
-                    if at + 1 == self.period && dt > 0.0 && d.distance >= d_ref - CONTACT_SLACK {
-                        ((d_ref - before) / dt).min(0.0)
-                    } else {
-                        0.0
+                    let last = self.reference_distance[i].replace((self.period, d_ref));
+                    match last {
+                        // (not for a pair already closer than the path has it: that is a
+                        // deviation towards it, which the plain barrier brakes)
+                        Some((at, before))
+                            if at + 1 == self.period
+                                && dt > 0.0
+                                && d.distance >= d_ref - CONTACT_SLACK =>
+                        {
+                            ((d_ref - before) / dt).min(0.0)
+                        }
+                        _ => 0.0,
                     }
                 }
                 None => 0.0,
