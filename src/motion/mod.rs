@@ -54,6 +54,7 @@ mod error;
 mod fit;
 mod flow;
 mod follow;
+mod lp;
 pub mod mapped;
 mod model;
 mod nf;

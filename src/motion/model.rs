@@ -578,8 +578,8 @@ pub struct Trajectory {
     /// The requested (or learned) duration before stretching.
     pub requested_duration: f64,
     pub learned_duration: f64,
-    /// The duration was lengthened to respect velocity/acceleration/jerk limits (locally: the
-    /// clock is slowed only where a limit would be exceeded).
+    /// The duration was lengthened to respect velocity/acceleration/jerk limits (the clock is
+    /// then the jerk-bounded time-optimal one, `retime::LimitGrid::time`).
     pub stretched: bool,
     /// The shortest duration along this path under the velocity and acceleration limits alone (a
     /// time-optimal bang-bang profile, jerk unbounded): what the limits force, for comparison.
@@ -1781,7 +1781,7 @@ impl MotionModel {
         };
         let time_optimal = retime::time_optimal_duration(&path, &rate_limits, 400);
         let grid = retime::LimitGrid::new(&path, &rate_limits);
-        let mut clock = grid.time(requested, time_optimal);
+        let mut clock = grid.time(requested);
         let (mut p, mut v, mut a, mut jk) =
             (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         let mut points = Vec::new();

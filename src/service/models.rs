@@ -135,8 +135,8 @@ pub struct CreateModel {
     /// Joint acceleration limit, rad/s², positive (default 5; URDF has none).
     #[schema(exclusive_minimum = 0)]
     pub acceleration_limit: Option<f64>,
-    /// Joint jerk limit, rad/s³, positive (default 50; URDF has none). Trajectories are slowed
-    /// locally where they would exceed it.
+    /// Joint jerk limit, rad/s³, positive (default 150; URDF has none). Trajectories keep it:
+    /// the humanlike clock where it can, else the jerk-bounded time-optimal time law.
     #[schema(exclusive_minimum = 0)]
     pub jerk_limit: Option<f64>,
     pub control: Option<ControlGains>,

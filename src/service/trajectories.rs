@@ -89,9 +89,11 @@ pub struct CreateTrajectory {
     pub model: String,
     pub start: JointValues,
     pub goal: GoalIn,
-    /// `"auto"` (learned from the demonstrations, default) or seconds. Where that would exceed a
-    /// joint velocity, acceleration or jerk limit the motion is slowed there (`stretched`,
-    /// `note`).
+    /// `"auto"` (learned from the demonstrations, default) or seconds. Where the humanlike clock
+    /// would exceed a joint velocity, acceleration or jerk limit at that duration, the motion
+    /// takes the jerk-bounded time-optimal time law along its path, or a blend of it and the
+    /// humanlike clock at that duration if the optimum is shorter (`stretched` and `note` when
+    /// the optimum is longer).
     pub duration: Option<AutoOr>,
     /// Output rate, Hz, in (0, 1000] (default 100).
     #[schema(exclusive_minimum = 0, maximum = 1000)]
@@ -231,8 +233,8 @@ pub struct TrajectoryReportDto {
     pub requested_duration: Option<f64>,
     /// The duration learned from the demonstrations for this distance.
     pub learned_duration: f64,
-    /// The duration was lengthened to respect the velocity/acceleration/jerk limits: the
-    /// humanlike (minimum-jerk) clock is slowed only where a limit would be exceeded.
+    /// The duration was lengthened to respect the velocity/acceleration/jerk limits: the motion
+    /// takes the jerk-bounded time-optimal time law along its path (every use at most 0.97).
     pub stretched: bool,
     /// The shortest duration along this path under the velocity and acceleration limits alone
     /// (time-optimal bang-bang profile, jerk unbounded): the part of `duration` the limits force.
@@ -590,11 +592,11 @@ fn trajectory_report(
     let (fingertip_paths, elbow_paths) = cartesian_paths(system, &t.points);
     let note = t.stretched.then(|| match requested {
         Some(r) => format!(
-            "the requested duration {r} s would exceed the joint velocity/acceleration/jerk limits; the motion was slowed where they bind, to {:.4} s (velocity and acceleration alone allow at best {:.4} s)",
+            "the requested duration {r} s would exceed the joint velocity/acceleration/jerk limits; the motion takes the jerk-bounded time-optimal {:.4} s (velocity and acceleration alone allow at best {:.4} s)",
             t.duration, t.time_optimal_duration
         ),
         None => format!(
-            "the learned duration {:.4} s was lengthened to {:.4} s where the joint velocity/acceleration/jerk limits bind (velocity and acceleration alone allow at best {:.4} s)",
+            "the learned duration {:.4} s would exceed the joint velocity/acceleration/jerk limits; the motion takes the jerk-bounded time-optimal {:.4} s (velocity and acceleration alone allow at best {:.4} s)",
             t.learned_duration, t.duration, t.time_optimal_duration
         ),
     });

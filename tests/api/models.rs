@@ -532,7 +532,7 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
         .unwrap();
     assert_eq!(back, t);
 
-    // a too-short duration is slowed where the limits bind, and says so
+    // a too-short duration takes the jerk-bounded optimum, and says so
     let res = app
         .post_json(
             "/v1/trajectories",
@@ -549,7 +549,7 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
         short["report"]["note"]
             .as_str()
             .unwrap()
-            .contains("slowed where they bind")
+            .contains("jerk-bounded time-optimal")
     );
     assert!(short["report"]["max_velocity_ratio"].as_f64().unwrap() <= 1.0);
     assert!(short["report"]["max_acceleration_ratio"].as_f64().unwrap() <= 1.0);
