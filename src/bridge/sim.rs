@@ -1472,8 +1472,13 @@ mod one_motion {
                 let (a, b) = (&demos[i], &demos[j]);
                 let start = a.frame(0, n).to_vec();
                 let goal = b.frame(b.frames() - 1, n).to_vec();
-                let Ok(open) = model.trajectory(&start, &goal, &TrajectoryOptions::default())
-                else {
+                // (3 s: long enough to measure between pushes; the learned 1.2 s take the
+                // jerk-bounded optimal clock, over before the push's quiet second)
+                let slow = TrajectoryOptions {
+                    duration: Some(3.0),
+                    ..TrajectoryOptions::default()
+                };
+                let Ok(open) = model.trajectory(&start, &goal, &slow) else {
                     continue;
                 };
                 runs += 1;

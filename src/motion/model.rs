@@ -1784,6 +1784,31 @@ impl MotionModel {
         let mut clock = grid.time(requested);
         let (mut p, mut v, mut a, mut jk) =
             (vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        // The clock was fitted on a grid; checked again on one ten times finer, whatever the
+        // output rate, so that the duration does not depend on the rate (the optimal clock's
+        // uses can peak between the grid's points), and slowed uniformly to FINE_USE there,
+        // leaving the output samples (at any rate) the last per cent.
+        const FINE_USE: f64 = 0.99;
+        let fine = 10 * retime::GRID;
+        let mut over = 0.0f64;
+        for g in 0..=fine {
+            let s = retime::Sample {
+                p: &mut p,
+                v: &mut v,
+                a: &mut a,
+                j: &mut jk,
+            };
+            retime::sample(&path, &clock, g as f64 / fine as f64, s, &mut scratch);
+            for j in 0..n {
+                over = over
+                    .max(v[j].abs() / self.limits.velocity[j])
+                    .max((a[j].abs() / self.limits.acceleration[j]).sqrt())
+                    .max((jk[j].abs() / jerk[j]).cbrt());
+            }
+        }
+        if over > FINE_USE {
+            clock = clock.slowed(over / FINE_USE);
+        }
         let mut points = Vec::new();
         let (mut max_v, mut max_a, mut max_j) = (0.0f64, 0.0f64, 0.0f64);
         // The clock is fitted on a grid; the output samples are checked again, and in the rare

@@ -47,7 +47,7 @@ const WARP_CONTROL_POINTS: usize = 40;
 /// 100 reach 3.86 s where 40 reach 4.20 s, against a velocity-acceleration bound of 3.32 s).
 const OPTIMAL_CONTROL_POINTS: usize = 100;
 /// Grid on `τ` where limit use is evaluated while the dilation is fitted.
-const GRID: usize = 1200;
+pub const GRID: usize = 1200;
 /// Local dilation rounds before the uniform fallback.
 const WARP_ROUNDS: usize = 40;
 /// Limit use the dilation aims at; the margin keeps the returned samples (and finite
