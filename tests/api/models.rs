@@ -480,7 +480,7 @@ async fn a_model_trains_from_mappings_and_generates_controls_and_trajectories() 
     );
     assert!(duration >= report["time_optimal_duration"].as_f64().unwrap());
     assert!(duration <= 1.5 * learned, "{report}");
-    assert_eq!(report["stretched"], duration > learned);
+    assert_eq!(report["stretched"], duration > learned * (1.0 + 1e-12));
     for ratio in [
         "max_velocity_ratio",
         "max_acceleration_ratio",
@@ -725,13 +725,15 @@ async fn the_default_model_shapes_paths_with_its_residual_profile() {
     assert_eq!(res.status(), 201);
     let auto: Value = res.json().await.unwrap();
     let r = &auto["report"];
-    assert_eq!(r["stretched"], true, "{}", r["note"]);
-    assert!(
-        r["note"].as_str().unwrap().contains("was lengthened"),
-        "{}",
-        r["note"]
+    // the learned duration is kept: where the humanlike clock would pass a limit there, the
+    // jerk-bounded optimum (shorter) is blended back to it
+    let (duration, learned) = (
+        r["duration"].as_f64().unwrap(),
+        r["learned_duration"].as_f64().unwrap(),
     );
-    assert!(r["duration"].as_f64().unwrap() > r["learned_duration"].as_f64().unwrap());
+    assert_eq!(r["stretched"], false, "{}", r["note"]);
+    assert!(r["note"].is_null(), "{}", r["note"]);
+    assert!((duration - learned).abs() <= 1e-9 * learned, "{duration} vs {learned}");
     assert!(r["max_acceleration_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
     assert!(r["max_velocity_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
 
