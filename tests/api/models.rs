@@ -733,7 +733,10 @@ async fn the_default_model_shapes_paths_with_its_residual_profile() {
     );
     assert_eq!(r["stretched"], false, "{}", r["note"]);
     assert!(r["note"].is_null(), "{}", r["note"]);
-    assert!((duration - learned).abs() <= 1e-9 * learned, "{duration} vs {learned}");
+    assert!(
+        (duration - learned).abs() <= 1e-9 * learned,
+        "{duration} vs {learned}"
+    );
     assert!(r["max_acceleration_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
     assert!(r["max_velocity_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
 
