@@ -22,7 +22,7 @@ pub struct Row {
 const MAX_ITERATIONS: usize = 80;
 /// Relative residuals and duality gap at which a program counts as solved (the time law judges
 /// each result on its own grid, so more digits buy nothing).
-const TOLERANCE: f64 = 1e-7;
+const TOLERANCE: f64 = 1e-6;
 /// Fraction of the way to the boundary a step may go.
 const STEP_FRACTION: f64 = 0.995;
 
@@ -30,28 +30,48 @@ const STEP_FRACTION: f64 = 0.995;
 #[derive(Default)]
 pub struct Workspace {
     rows: Vec<Row>,
+    /// Per row: slack, dual, primal residual `Ax + s − b`, `D = z/s`, `1/s`, the predictor's
+    /// `Δs∘Δz/s` (the corrector's second-order term) and the step.
     s: Vec<f64>,
     z: Vec<f64>,
+    rp: Vec<f64>,
+    d: Vec<f64>,
+    inv_s: Vec<f64>,
+    second: Vec<f64>,
     ds: Vec<f64>,
     dz: Vec<f64>,
-    ds_aff: Vec<f64>,
-    dz_aff: Vec<f64>,
-    rp: Vec<f64>,
-    rc: Vec<f64>,
     /// `AᵀDA`, a band: `band[4k + d]` is entry `(k, k − d)`; factorised in place.
     band: Vec<f64>,
-    rhs: Vec<f64>,
-    dx: Vec<f64>,
+    /// Per variable: the dual residual `c + Aᵀz`, the parts of the right-hand sides (see
+    /// [`solve_scaled`]) and the step.
     rd: Vec<f64>,
+    rhs_pred: Vec<f64>,
+    rhs_corr: Vec<f64>,
+    rhs_centre: Vec<f64>,
+    dx: Vec<f64>,
+}
+
+/// The four variables a row touches.
+#[inline]
+fn local(r: &Row, x: &[f64]) -> [f64; 4] {
+    let v = &x[r.first..r.first + 4];
+    [v[0], v[1], v[2], v[3]]
 }
 
 /// `row · x`.
 #[inline]
 fn dot(r: &Row, x: &[f64]) -> f64 {
-    r.coef[0] * x[r.first]
-        + r.coef[1] * x[r.first + 1]
-        + r.coef[2] * x[r.first + 2]
-        + r.coef[3] * x[r.first + 3]
+    let v = local(r, x);
+    r.coef[0] * v[0] + r.coef[1] * v[1] + r.coef[2] * v[2] + r.coef[3] * v[3]
+}
+
+/// `x[first..first + 4] += scale · coef`.
+#[inline]
+fn add_scaled(r: &Row, scale: f64, x: &mut [f64]) {
+    let v = &mut x[r.first..r.first + 4];
+    for k in 0..4 {
+        v[k] += r.coef[k] * scale;
+    }
 }
 
 /// `min c·x` subject to `rows`, from `x` (which need not be feasible). The optimum in `x`, or
@@ -63,7 +83,7 @@ pub fn solve(c: &[f64], rows: &[Row], x: &mut [f64], ws: &mut Workspace) -> bool
     let mut scaled = std::mem::take(&mut ws.rows);
     scaled.clear();
     scaled.extend(rows.iter().map(|r| {
-        debug_assert!(r.first + 4 <= n);
+        assert!(r.first + 4 <= n);
         let largest = r.coef.iter().fold(0.0f64, |a, c| a.max(c.abs()));
         let scale = if largest > 0.0 { 1.0 / largest } else { 1.0 };
         Row {
@@ -78,22 +98,36 @@ pub fn solve(c: &[f64], rows: &[Row], x: &mut [f64], ws: &mut Workspace) -> bool
 }
 
 /// [`solve`] on rows already scaled.
+///
+/// Each iteration is three passes over the rows. With `D = z/s`, the Newton direction for a
+/// complementarity target `r_c` is `AᵀDA Δx = −r_d − Aᵀ(D r_p − r_c/s)`,
+/// `Δs = −(AΔx + r_p)`, `Δz = −DΔs − r_c/s`. The predictor's target is `s∘z` (so `r_c/s = z`);
+/// Mehrotra's corrector's is `s∘z + Δs_a∘Δz_a − σμ`, whose right-hand side is linear in `σ`:
+/// its two parts are summed while the predictor's step is taken, and `σ` (from the predictor's
+/// complementarity, itself a polynomial in the step lengths whose four sums are taken there
+/// too) combines them.
 fn solve_scaled(c: &[f64], rows: &[Row], x: &mut [f64], ws: &mut Workspace) -> bool {
     let (n, m) = (c.len(), rows.len());
     for v in [
         &mut ws.s,
         &mut ws.z,
+        &mut ws.rp,
+        &mut ws.d,
+        &mut ws.inv_s,
+        &mut ws.second,
         &mut ws.ds,
         &mut ws.dz,
-        &mut ws.ds_aff,
-        &mut ws.dz_aff,
-        &mut ws.rp,
-        &mut ws.rc,
     ] {
         v.clear();
         v.resize(m, 0.0);
     }
-    for v in [&mut ws.rhs, &mut ws.dx, &mut ws.rd] {
+    for v in [
+        &mut ws.rd,
+        &mut ws.rhs_pred,
+        &mut ws.rhs_corr,
+        &mut ws.rhs_centre,
+        &mut ws.dx,
+    ] {
         v.clear();
         v.resize(n, 0.0);
     }
@@ -107,33 +141,40 @@ fn solve_scaled(c: &[f64], rows: &[Row], x: &mut [f64], ws: &mut Workspace) -> b
         ws.z[i] = (1.0 + c_norm) / (1.0 + b_norm).sqrt();
     }
     for _ in 0..MAX_ITERATIONS {
-        // residuals: dual c + Aᵀz, primal Ax + s − b
+        // pass 1: residuals, D, the normal matrix, the predictor's right-hand side and the
+        // corrector's centring part
         ws.rd.copy_from_slice(c);
+        ws.band.iter_mut().for_each(|v| *v = 0.0);
+        ws.rhs_pred.iter_mut().for_each(|v| *v = 0.0);
+        ws.rhs_centre.iter_mut().for_each(|v| *v = 0.0);
+        let (mut gap, mut rp_norm) = (0.0, 0.0f64);
         for (i, r) in rows.iter().enumerate() {
-            for k in 0..4 {
-                ws.rd[r.first + k] += r.coef[k] * ws.z[i];
+            let (s, z) = (ws.s[i], ws.z[i]);
+            let rp = dot(r, x) + s - r.bound;
+            let inv_s = 1.0 / s;
+            let d = z * inv_s;
+            (ws.rp[i], ws.d[i], ws.inv_s[i]) = (rp, d, inv_s);
+            rp_norm = rp_norm.max(rp.abs());
+            gap += s * z;
+            add_scaled(r, z, &mut ws.rd);
+            add_scaled(r, z - d * rp, &mut ws.rhs_pred);
+            add_scaled(r, inv_s, &mut ws.rhs_centre);
+            let block = &mut ws.band[4 * r.first..4 * r.first + 16];
+            for a in 0..4 {
+                let da = d * r.coef[a];
+                for b in 0..=a {
+                    block[4 * a + (a - b)] += da * r.coef[b];
+                }
             }
-            ws.rp[i] = dot(r, x) + ws.s[i] - r.bound;
         }
-        let mu = ws.s.iter().zip(&ws.z).map(|(s, z)| s * z).sum::<f64>() / m as f64;
-        let rp_norm = ws.rp.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        let mu = gap / m as f64;
         let rd_norm = ws.rd.iter().fold(0.0f64, |a, v| a.max(v.abs()));
         let objective = c.iter().zip(x.iter()).map(|(c, x)| c * x).sum::<f64>();
         if rp_norm <= TOLERANCE * (1.0 + b_norm)
             && rd_norm <= TOLERANCE * (1.0 + c_norm)
-            && mu * m as f64 <= TOLERANCE * (1.0 + objective.abs())
+            && gap <= TOLERANCE * (1.0 + objective.abs())
         {
             return true;
-        }
-        // normal matrix AᵀDA, D = z/s: a band (each row adds a 4 × 4 block on the diagonal)
-        ws.band.iter_mut().for_each(|v| *v = 0.0);
-        for (i, r) in rows.iter().enumerate() {
-            let d = ws.z[i] / ws.s[i];
-            for a in 0..4 {
-                for b in 0..=a {
-                    ws.band[(r.first + a) * 4 + (a - b)] += d * r.coef[a] * r.coef[b];
-                }
-            }
         }
         let trace = (0..n).map(|j| ws.band[4 * j]).fold(0.0, f64::max);
         for j in 0..n {
@@ -142,28 +183,56 @@ fn solve_scaled(c: &[f64], rows: &[Row], x: &mut [f64], ws: &mut Workspace) -> b
         if !band_cholesky(&mut ws.band, n) {
             return false;
         }
-        // predictor (affine scaling: r_c = s∘z), then Mehrotra's corrector
-        ws.rc
-            .iter_mut()
-            .zip(ws.s.iter().zip(&ws.z))
-            .for_each(|(rc, (s, z))| *rc = s * z);
-        direction(rows, ws, n);
-        let (ap, ad) = step_lengths(&ws.s, &ws.ds, &ws.z, &ws.dz, 1.0);
-        let mu_aff =
-            ws.s.iter()
-                .zip(&ws.ds)
-                .zip(ws.z.iter().zip(&ws.dz))
-                .map(|((s, ds), (z, dz))| (s + ap * ds) * (z + ad * dz))
-                .sum::<f64>()
-                / m as f64;
-        let sigma = (mu_aff / mu).powi(3).min(1.0);
-        ws.ds_aff.copy_from_slice(&ws.ds);
-        ws.dz_aff.copy_from_slice(&ws.dz);
-        for i in 0..m {
-            ws.rc[i] = ws.s[i] * ws.z[i] + ws.ds_aff[i] * ws.dz_aff[i] - sigma * mu;
+        // pass 2: the predictor's step, its step lengths, the sums its complementarity after
+        // the step is made of, and the corrector's second-order part
+        for k in 0..n {
+            ws.dx[k] = ws.rhs_pred[k] - ws.rd[k];
         }
-        direction(rows, ws, n);
-        let (ap, ad) = step_lengths(&ws.s, &ws.ds, &ws.z, &ws.dz, STEP_FRACTION);
+        band_solve(&ws.band, n, &mut ws.dx);
+        ws.rhs_corr.copy_from_slice(&ws.rhs_pred);
+        let (mut sp, mut dp) = (f64::INFINITY, f64::INFINITY);
+        let (mut ds_z, mut s_dz, mut ds_dz) = (0.0, 0.0, 0.0);
+        for (i, r) in rows.iter().enumerate() {
+            let (s, z) = (ws.s[i], ws.z[i]);
+            let ds = -(dot(r, &ws.dx) + ws.rp[i]);
+            let dz = -ws.d[i] * ds - z;
+            // (a division only where the ratio is a new smallest: s/(−Δs) < sp ⇔ s < sp·(−Δs))
+            if ds < 0.0 && s < -sp * ds {
+                sp = -s / ds;
+            }
+            if dz < 0.0 && z < -dp * dz {
+                dp = -z / dz;
+            }
+            ds_z += ds * z;
+            s_dz += s * dz;
+            ds_dz += ds * dz;
+            let second = ds * dz * ws.inv_s[i];
+            ws.second[i] = second;
+            add_scaled(r, second, &mut ws.rhs_corr);
+        }
+        let (ap, ad) = (sp.min(1.0), dp.min(1.0));
+        let mu_aff = (gap + ap * ds_z + ad * s_dz + ap * ad * ds_dz) / m as f64;
+        let sigma = (mu_aff.max(0.0) / mu).powi(3).min(1.0);
+        // pass 3: the corrector's step and its step lengths
+        let centre = sigma * mu;
+        for k in 0..n {
+            ws.dx[k] = ws.rhs_corr[k] - centre * ws.rhs_centre[k] - ws.rd[k];
+        }
+        band_solve(&ws.band, n, &mut ws.dx);
+        let (mut sp, mut dp) = (f64::INFINITY, f64::INFINITY);
+        for (i, r) in rows.iter().enumerate() {
+            let (s, z) = (ws.s[i], ws.z[i]);
+            let ds = -(dot(r, &ws.dx) + ws.rp[i]);
+            let dz = -ws.d[i] * ds - z - ws.second[i] + centre * ws.inv_s[i];
+            if ds < 0.0 && s < -sp * ds {
+                sp = -s / ds;
+            }
+            if dz < 0.0 && z < -dp * dz {
+                dp = -z / dz;
+            }
+            (ws.ds[i], ws.dz[i]) = (ds, dz);
+        }
+        let (ap, ad) = ((STEP_FRACTION * sp).min(1.0), (STEP_FRACTION * dp).min(1.0));
         for k in 0..n {
             x[k] += ap * ws.dx[k];
         }
@@ -173,42 +242,6 @@ fn solve_scaled(c: &[f64], rows: &[Row], x: &mut [f64], ws: &mut Workspace) -> b
         }
     }
     false
-}
-
-/// The Newton direction for the residuals in `ws` (`rd`, `rp`) and complementarity target
-/// `rc`, with the normal matrix factorised in `ws.normal`:
-/// `AᵀDA Δx = −r_d − Aᵀ(D r_p − r_c/s)`, `Δz = D(AΔx + r_p) − r_c/s`, `Δs = −(AΔx + r_p)`.
-fn direction(rows: &[Row], ws: &mut Workspace, n: usize) {
-    for k in 0..n {
-        ws.rhs[k] = -ws.rd[k];
-    }
-    for (i, r) in rows.iter().enumerate() {
-        let v = (ws.z[i] * ws.rp[i] - ws.rc[i]) / ws.s[i];
-        for k in 0..4 {
-            ws.rhs[r.first + k] -= r.coef[k] * v;
-        }
-    }
-    ws.dx.copy_from_slice(&ws.rhs);
-    band_solve(&ws.band, n, &mut ws.dx);
-    for (i, r) in rows.iter().enumerate() {
-        let adx = dot(r, &ws.dx);
-        ws.ds[i] = -(adx + ws.rp[i]);
-        ws.dz[i] = (ws.z[i] * (adx + ws.rp[i]) - ws.rc[i]) / ws.s[i];
-    }
-}
-
-/// The largest steps, up to 1 and times `fraction`, that keep `s` and `z` positive.
-fn step_lengths(s: &[f64], ds: &[f64], z: &[f64], dz: &[f64], fraction: f64) -> (f64, f64) {
-    let limit = |v: &[f64], dv: &[f64]| {
-        v.iter().zip(dv).fold(1.0f64, |a, (v, dv)| {
-            if *dv < 0.0 {
-                a.min(-v / dv * fraction)
-            } else {
-                a
-            }
-        })
-    };
-    (limit(s, ds), limit(z, dz))
 }
 
 /// In-place Cholesky factor of a symmetric band of half-width 3 (`band[4k + d]` = entry

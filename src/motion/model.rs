@@ -1790,7 +1790,8 @@ impl MotionModel {
         // leaving the output samples (at any rate) the last per cent.
         const FINE_USE: f64 = 0.99;
         let fine = 10 * retime::GRID;
-        let mut over = 0.0f64;
+        // (the largest ratios, whose roots are the uses: one root each, not one per sample)
+        let (mut over_v, mut over_a, mut over_j) = (0.0f64, 0.0f64, 0.0f64);
         for g in 0..=fine {
             let s = retime::Sample {
                 p: &mut p,
@@ -1800,12 +1801,12 @@ impl MotionModel {
             };
             retime::sample(&path, &clock, g as f64 / fine as f64, s, &mut scratch);
             for j in 0..n {
-                over = over
-                    .max(v[j].abs() / self.limits.velocity[j])
-                    .max((a[j].abs() / self.limits.acceleration[j]).sqrt())
-                    .max((jk[j].abs() / jerk[j]).cbrt());
+                over_v = over_v.max(v[j].abs() / self.limits.velocity[j]);
+                over_a = over_a.max(a[j].abs() / self.limits.acceleration[j]);
+                over_j = over_j.max(jk[j].abs() / jerk[j]);
             }
         }
+        let over = over_v.max(over_a.sqrt()).max(over_j.cbrt());
         if over > FINE_USE {
             clock = clock.slowed(over / FINE_USE);
         }

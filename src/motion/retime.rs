@@ -898,7 +898,8 @@ impl LimitGrid {
             }
             let t = PointTerms::new(at, ctrl);
             let (a_cap, j_cap) = (a_lim * t.w.powi(3), j_lim * t.w.powi(5));
-            // uses over the target (roots, as `Use::over_target` compares them)
+            // the powers of the uses over the target (whose roots `Use::over_target` compares:
+            // the roots are taken only for the largest)
             let (mut top_a, mut top_j) = ((0.0, 0), (0.0, 0));
             let slots = &mut watch.limits[g * p..(g + 1) * p];
             let before: u32 = slots.iter().map(|&b| b.count_ones()).sum();
@@ -906,25 +907,25 @@ impl LimitGrid {
                 let ([a, b], [al, be, ga, de]) = numerator_terms(self.joint_scaled(g, i), at.m);
                 let num_a = a * t.w + b * t.dw;
                 let num_j = al * t.w * t.w - be * t.w * t.dw + ga * t.dw * t.dw - de * t.w * t.ddw;
-                let (ua, uj) = ((num_a.abs() / a_cap).sqrt(), (num_j.abs() / j_cap).cbrt());
-                if ua > top_a.0 {
-                    top_a = (ua, i);
+                let (pa, pj) = (num_a.abs() / a_cap, num_j.abs() / j_cap);
+                if pa > top_a.0 {
+                    top_a = (pa, i);
                 }
-                if uj > top_j.0 {
-                    top_j = (uj, i);
+                if pj > top_j.0 {
+                    top_j = (pj, i);
                 }
                 // a use past the target joins whichever joint it is
-                if ua > 1.0 {
+                if pa > 1.0 {
                     *slot |= WATCH_ACCELERATION;
                 }
-                if uj > 1.0 {
+                if pj > 1.0 {
                     *slot |= WATCH_JERK;
                 }
             }
-            if top_a.0 >= near {
+            if top_a.0 >= near * near {
                 slots[top_a.1] |= WATCH_ACCELERATION;
             }
-            if top_j.0 >= near {
+            if top_j.0 >= near * near * near {
                 slots[top_j.1] |= WATCH_JERK;
             }
             let after: u32 = slots.iter().map(|&b| b.count_ones()).sum();
@@ -948,8 +949,17 @@ impl LimitGrid {
         let (u1, u2, u3) = (TARGET_USE, TARGET_USE.powi(2), TARGET_USE.powi(3));
         let (rows, workspace) = lp;
         rows.clear();
-        let mut push =
-            |coef: [f64; 4], first: usize, bound: f64| rows.push(lp::Row { first, coef, bound });
+        // A row that no point of the trust region can violate cannot bind: left out (the same
+        // program, fewer rows; the control values are positive, so the region is the box
+        // `c(1 ± trust)`).
+        let mut push = |coef: [f64; 4], first: usize, bound: f64| {
+            let most: f64 = (0..4)
+                .map(|k| coef[k] * ctrl[first + k] * (1.0 + trust.copysign(coef[k])))
+                .sum();
+            if most >= bound {
+                rows.push(lp::Row { first, coef, bound });
+            }
+        };
         for (g, at) in self.optimal_points.iter().enumerate() {
             if !watch.held[g] {
                 continue;
@@ -1002,8 +1012,16 @@ impl LimitGrid {
             let first = k.min(count - 4);
             let mut unit = [0.0; 4];
             unit[k - first] = 1.0;
-            push(unit, first, c * (1.0 + trust));
-            push(unit.map(|v| -v), first, -c * (1.0 - trust));
+            rows.push(lp::Row {
+                first,
+                coef: unit,
+                bound: c * (1.0 + trust),
+            });
+            rows.push(lp::Row {
+                first,
+                coef: unit.map(|v| -v),
+                bound: -c * (1.0 - trust),
+            });
         }
         let cost: Vec<f64> = warp_areas(count).iter().map(|a| a * base).collect();
         let mut x = ctrl.to_vec();
