@@ -22,7 +22,7 @@ pub struct Row {
 const MAX_ITERATIONS: usize = 80;
 /// Relative residuals and duality gap at which a program counts as solved (the time law judges
 /// each result on its own grid, so more digits buy nothing).
-const TOLERANCE: f64 = 1e-6;
+const TOLERANCE: f64 = 1e-5;
 /// Fraction of the way to the boundary a step may go.
 const STEP_FRACTION: f64 = 0.995;
 
@@ -366,7 +366,7 @@ mod tests {
             assert!(solve(&c, &rows, &mut x, &mut ws), "case {case}");
             let value: f64 = c.iter().zip(&x).map(|(c, x)| c * x).sum();
             assert!(
-                (value - optimum).abs() <= 1e-6 * (1.0 + optimum.abs()),
+                (value - optimum).abs() <= 1e-5 * (1.0 + optimum.abs()),
                 "case {case}: {value} vs {optimum}"
             );
             for r in &rows {

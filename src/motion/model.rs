@@ -1793,13 +1793,8 @@ impl MotionModel {
         // (the largest ratios, whose roots are the uses: one root each, not one per sample)
         let (mut over_v, mut over_a, mut over_j) = (0.0f64, 0.0f64, 0.0f64);
         for g in 0..=fine {
-            let s = retime::Sample {
-                p: &mut p,
-                v: &mut v,
-                a: &mut a,
-                j: &mut jk,
-            };
-            retime::sample(&path, &clock, g as f64 / fine as f64, s, &mut scratch);
+            let tau = g as f64 / fine as f64;
+            retime::sample_rates(&path, &clock, tau, &mut v, &mut a, &mut jk, &mut scratch);
             for j in 0..n {
                 over_v = over_v.max(v[j].abs() / self.limits.velocity[j]);
                 over_a = over_a.max(a[j].abs() / self.limits.acceleration[j]);

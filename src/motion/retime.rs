@@ -538,20 +538,35 @@ pub struct Sample<'a> {
 
 /// `q, q̇, q̈, q⃛` at clock parameter `tau`.
 pub fn sample(path: &Path, clock: &Clock, tau: f64, s: Sample<'_>, scratch: &mut [f64]) {
+    let x = sample_rates(path, clock, tau, s.v, s.a, s.j, scratch);
+    path.q.eval(x, s.p);
+}
+
+/// [`sample`] without the positions (a check of the limits needs the rates only); the path's
+/// progress at `tau`.
+pub fn sample_rates(
+    path: &Path,
+    clock: &Clock,
+    tau: f64,
+    v: &mut [f64],
+    a: &mut [f64],
+    j: &mut [f64],
+    scratch: &mut [f64],
+) -> f64 {
     let n = path.n;
     let (x, xd, xdd, xddd) = clock.progress(tau);
     let (d1, rest) = scratch.split_at_mut(n);
     let (d2, rest) = rest.split_at_mut(n);
     let d3 = &mut rest[..n];
-    path.q.eval(x, s.p);
     path.d1.eval(x, d1);
     path.d2.eval(x, d2);
     path.d3.eval(x, d3);
     for i in 0..n {
-        s.v[i] = d1[i] * xd;
-        s.a[i] = d2[i] * xd * xd + d1[i] * xdd;
-        s.j[i] = d3[i] * xd * xd * xd + 3.0 * d2[i] * xd * xdd + d1[i] * xddd;
+        v[i] = d1[i] * xd;
+        a[i] = d2[i] * xd * xd + d1[i] * xdd;
+        j[i] = d3[i] * xd * xd * xd + 3.0 * d2[i] * xd * xdd + d1[i] * xddd;
     }
+    x
 }
 
 /// A path's limit use on the fitting grid, prepared once for every clock fitted to it: at each
