@@ -826,6 +826,10 @@ const SLP_TRUST_MAX: f64 = 0.6;
 /// than this share, or the trust region has shrunk below [`SLP_TRUST_MIN`] without a shorter
 /// clock.
 const SLP_STALL: f64 = 3e-3;
+/// The relative duality gap at which a round's program counts as solved: the round's duration
+/// within this share of its program's optimum, well below [`SLP_STALL`] (each result is judged
+/// and slowed on the grid, so feasibility does not depend on it).
+const SLP_GAP: f64 = 1e-4;
 const SLP_TRUST_MIN: f64 = 0.05;
 /// How far past the target a round's result may take a use before its program is solved again
 /// with the limits it passed.
@@ -1040,7 +1044,7 @@ impl LimitGrid {
         }
         let cost: Vec<f64> = warp_areas(count).iter().map(|a| a * base).collect();
         let mut x = ctrl.to_vec();
-        lp::solve(&cost, rows, &mut x, workspace).then_some(x)
+        lp::solve(&cost, rows, &mut x, SLP_GAP, workspace).then_some(x)
     }
 
     /// The shortest clock of the family (the minimum-jerk progress warped by a dilation of
