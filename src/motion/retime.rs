@@ -647,9 +647,9 @@ impl LimitGrid {
             return optimal;
         }
         // Blends `(1 − λ)·1 + λ·w*` of the humanlike dilation and the optimum's, both at the
-        // requested duration, keep that duration (linear in the control values); λ = 1 keeps the limits (a uniform slowing
-        // of the optimum), λ = 0 does not (the humanlike clock was refused). Bisection for the
-        // smallest λ that keeps them.
+        // requested duration, keep that duration (linear in the control values); λ = 1 keeps
+        // the limits (a uniform slowing of the optimum), λ = 0 does not (the humanlike clock was
+        // refused). Bisection for the smallest λ that keeps them.
         let rounds = optimal.rounds;
         let optimal = optimal.slowed(requested / optimal.duration());
         let blend = |lambda: f64| {
@@ -826,11 +826,11 @@ const SLP_TRUST_MAX: f64 = 0.6;
 /// than this share, or the trust region has shrunk below [`SLP_TRUST_MIN`] without a shorter
 /// clock.
 const SLP_STALL: f64 = 3e-3;
+const SLP_TRUST_MIN: f64 = 0.05;
 /// The relative duality gap at which a round's program counts as solved: the round's duration
 /// within this share of its program's optimum, well below [`SLP_STALL`] (each result is judged
 /// and slowed on the grid, so feasibility does not depend on it).
 const SLP_GAP: f64 = 1e-4;
-const SLP_TRUST_MIN: f64 = 0.05;
 /// How far past the target a round's result may take a use before its program is solved again
 /// with the limits it passed.
 const RESOLVE_OVER: f64 = 0.01;
@@ -962,6 +962,7 @@ impl LimitGrid {
         ctrl: &[f64],
         trust: f64,
         watch: &Watch,
+        cost: &[f64],
         lp: &mut (Vec<lp::Row>, lp::Workspace),
     ) -> Option<Vec<f64>> {
         let p = self.padded;
@@ -1042,9 +1043,8 @@ impl LimitGrid {
                 bound: -c * (1.0 - trust),
             });
         }
-        let cost: Vec<f64> = warp_areas(count).iter().map(|a| a * base).collect();
         let mut x = ctrl.to_vec();
-        lp::solve(&cost, rows, &mut x, SLP_GAP, workspace).then_some(x)
+        lp::solve(cost, rows, &mut x, SLP_GAP, workspace).then_some(x)
     }
 
     /// The shortest clock of the family (the minimum-jerk progress warped by a dilation of
@@ -1068,6 +1068,8 @@ impl LimitGrid {
         let base = start.base;
         let areas = warp_areas(OPTIMAL_CONTROL_POINTS);
         let duration = |c: &[f64]| base * c.iter().zip(&areas).map(|(c, a)| c * a).sum::<f64>();
+        // (the programs' cost: the duration per control value)
+        let cost: Vec<f64> = areas.iter().map(|a| a * base).collect();
         let mut use_at = vec![Use::default(); GRID + 1];
         // the start, on the finer basis (its dilation's values where the new control values act
         // most), scaled uniformly until a limit binds: feasible, the first linearisation
@@ -1099,7 +1101,8 @@ impl LimitGrid {
             // (solved again, once, when limits it did not hold bind at its result by more than
             // RESOLVE_OVER; below that the uniform slowing costs less than another program)
             for attempt in 0..2 {
-                let Some(mut next) = self.optimal_step(base, &ctrl, trust, &watch, &mut lp) else {
+                let Some(mut next) = self.optimal_step(base, &ctrl, trust, &watch, &cost, &mut lp)
+                else {
                     break;
                 };
                 let worst = self.measure(&Clock::build(base, next.clone()), &mut use_at);
