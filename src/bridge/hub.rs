@@ -490,7 +490,10 @@ impl Hub {
             } else {
                 None
             };
-            let (scene, trial) = trial.map(|t| (Box::new(t.scene), t.trial)).unzip();
+            let (scene, trial) = trial
+                .map(|t| (Box::new(t.scene), (t.trial, t.idle_fingers)))
+                .unzip();
+            let (trial, idle_fingers) = trial.unzip();
             if !repo::mark_running(&self.0.db, &row.id, &name).await? {
                 release(self); // cancelled meanwhile
                 continue;
@@ -517,6 +520,7 @@ impl Hub {
                 payload,
                 scene,
                 trial,
+                idle_fingers: idle_fingers.unwrap_or_default(),
             });
             if tx.try_send(msg).is_err() {
                 // The connection is closing or not reading: put the execution back.
@@ -589,6 +593,7 @@ impl Hub {
             payload,
             scene: None,
             trial: None,
+            idle_fingers: Vec::new(),
         });
         if tx.try_send(msg).is_err() {
             release(self);

@@ -238,6 +238,10 @@ pub struct Execute {
     /// The grasp trial to run after the motion in `scene`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub trial: Option<TrialSpec>,
+    /// Fingers the trial leaves as they are instead of closing them: the grasp's idle fingers,
+    /// kept off the object (absent: every finger closes).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub idle_fingers: Vec<String>,
 }
 
 /// The next joint setpoint of a streaming execution (sent as fast as the stream produces
@@ -388,6 +392,7 @@ mod tests {
             mode: Mode::OpenLoop,
             scene: None,
             trial: None,
+            idle_fingers: Vec::new(),
             payload: ExecutionPayload::Trajectory {
                 trajectory_id: "inline".into(),
                 joint_names: vec!["a".into()],

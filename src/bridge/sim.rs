@@ -1015,6 +1015,7 @@ mod tests {
             mode: Mode::Streaming,
             scene: None,
             trial: None,
+            idle_fingers: Vec::new(),
             payload: ExecutionPayload::Stream {
                 source: "test".into(),
                 joint_names: names.clone(),
@@ -1123,6 +1124,7 @@ mod tests {
             mode: Mode::OpenLoop,
             scene: None,
             trial: None,
+            idle_fingers: Vec::new(),
             payload: ExecutionPayload::Trajectory {
                 trajectory_id: "inline".into(),
                 joint_names: names.clone(),
@@ -1153,6 +1155,7 @@ mod tests {
             mode: Mode::OpenLoop,
             scene: None,
             trial: None,
+            idle_fingers: Vec::new(),
             payload: ExecutionPayload::Trajectory {
                 trajectory_id: "inline".into(),
                 joint_names: names.clone(),
@@ -1402,6 +1405,7 @@ mod one_motion {
             payload,
             scene: None,
             trial: None,
+            idle_fingers: Vec::new(),
         };
         let perturb = Perturbation {
             seed,

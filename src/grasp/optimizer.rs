@@ -50,6 +50,13 @@
 //! grazing another, the verdict can (on the pencil and sunglasses, issue 23: 42 of 72 requests
 //! feasible with it at the escalated starts, 37 without).
 //!
+//! Fewer fingers: when no start with every finger on the object passes, the same search runs
+//! with one finger fewer, then two, down to two (`fewer_fingers`), the others idle (kept out of
+//! the object and off the table, reported in [`GraspResult::idle_fingers`]). Not in the paper,
+//! whose eq. 27 puts every fingertip on the object; on the survey above it makes every pencil
+//! request feasible (159 -> 180 of 180: the iHY pinches it with two fingers, the OB4F with two
+//! or three), and no request that was feasible changes its answer.
+//!
 //! Determinism: every start is budgeted in solver iterations (never wall time) and seeded from
 //! its index alone; starts run on any number of threads and are sorted by index before the best
 //! is chosen, so the same request gives a bit-identical answer on an idle and on a loaded machine.
@@ -522,8 +529,14 @@ pub struct GraspResult {
     pub q_arm: Vec<NamedJoint>,
     /// Independent hand joint values.
     pub q_hand: Vec<NamedJoint>,
-    /// Contacts, one per finger.
+    /// Contacts, one per finger on the object.
     pub contacts: Vec<Contact>,
+    /// Fingers kept off the object: empty when every finger touches it. A grasp with fewer
+    /// fingers (a pinch, the others clear of the object and the table) is searched only when
+    /// none with every finger passes the exact check; not in the paper, whose eq. 27 puts every
+    /// fingertip on the object.
+    #[serde(default)]
+    pub idle_fingers: Vec<String>,
     /// Cost terms and indexes.
     pub terms: Terms,
     /// Constraint residuals of the optimiser's sphere model at the returned (repaired) posture;
@@ -1929,60 +1942,30 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
         t.direction = t.direction.normalize();
     }
     let req = &req;
-    // Rounds of starts: the first `starts`, then doubling up to `max_starts` while no start is
-    // exactly feasible. Start k is seeded from k alone, so the starts run are a prefix of one
-    // fixed sequence and the answer does not depend on threads or load.
     // An object beyond the reach ball cannot be grasped from any start: no further rounds.
     let beyond = sys.reach_ball().and_then(|(c, r)| {
         let gap = (req.object.centroid() - c).norm() - req.object.bounding_radius();
         (gap > r).then_some((gap, r))
     });
     let cap = req.max_starts.max(req.starts);
-    let mut outcomes: Vec<StartOutcome> = Vec::new();
-    let mut round = req.starts;
-    loop {
-        let first = outcomes.len();
-        let threads = req.threads.clamp(1, round);
-        let mut more: Vec<StartOutcome> = crate::parallel::map_indexed(
-            round,
-            threads,
-            || (),
-            |_, k| run_start(sys, req, first + k),
-        );
-        more.sort_by_key(|o| o.start);
-        if !more.iter().any(|o| o.feasible) && beyond.is_none() {
-            let mut order: Vec<usize> = (0..more.len()).collect();
-            order.sort_by(|&a, &b| more[a].score.total_cmp(&more[b].score).then(a.cmp(&b)));
-            order.truncate(POLISHED_PER_ROUND);
-            let polished: Vec<StartOutcome> = crate::parallel::map_indexed(
-                order.len(),
-                req.threads.clamp(1, order.len()),
-                || (),
-                |_, k| {
-                    let mut p = more[order[k]].clone();
-                    polish_start(sys, req, &mut p);
-                    p
-                },
-            );
-            for (k, p) in order.into_iter().zip(polished) {
-                more[k] = p;
-            }
+    let mut outcomes = search(sys, req, cap, beyond.is_some());
+    let mut starts_used = outcomes.len();
+    let mut timed_out = outcomes.iter().any(|o| o.timed_out);
+    // No start with every finger on the object passed: a grasp with fewer fingers, the others
+    // kept off the object, if one passes (the pencil lying on the table, see `fewer_fingers`).
+    let mut grasping: Option<HandArm> = None;
+    if !outcomes.iter().any(|o| o.feasible) && beyond.is_none() {
+        let (fewer, used, late) = fewer_fingers(sys, req);
+        starts_used += used;
+        timed_out |= late;
+        if let Some((sub, outs)) = fewer {
+            grasping = Some(sub);
+            outcomes = outs;
         }
-        outcomes.append(&mut more);
-        if outcomes.iter().any(|o| o.firm()) || outcomes.len() >= cap || beyond.is_some() {
-            break;
-        }
-        round = outcomes.len().min(cap - outcomes.len());
     }
+    let sys = grasping.as_ref().unwrap_or(sys);
     let starts_feasible = outcomes.iter().filter(|o| o.feasible).count();
-    let best = outcomes
-        .iter()
-        .min_by(|a, b| {
-            (!a.feasible, !a.firm(), a.score)
-                .partial_cmp(&(!b.feasible, !b.firm(), b.score))
-                .expect("finite scores")
-        })
-        .expect("at least one start");
+    let best = best_outcome(&outcomes);
     let mut result = describe(sys, req, &best.u, Some(best.report.clone()));
     // `describe` leaves the exact verdict's reason in `reason`.
     let exact_reason = result.reason.take();
@@ -2015,11 +1998,131 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
         }
         Some(why)
     };
-    result.starts_used = outcomes.len();
+    result.starts_used = starts_used;
     result.starts_feasible = starts_feasible;
-    result.timed_out = outcomes.iter().any(|o| o.timed_out);
+    result.timed_out = timed_out;
     result.time_s = t0.elapsed().as_secs_f64();
     Ok(result)
+}
+
+/// The firm feasible outcome of lowest score, else the feasible one, else the least infeasible.
+fn best_outcome(outcomes: &[StartOutcome]) -> &StartOutcome {
+    outcomes
+        .iter()
+        .min_by(|a, b| {
+            (!a.feasible, !a.firm(), a.score)
+                .partial_cmp(&(!b.feasible, !b.firm(), b.score))
+                .expect("finite scores")
+        })
+        .expect("at least one start")
+}
+
+/// Rounds of starts: the request's `starts`, then doubling up to `cap` while no start is firm
+/// and exactly feasible (one round when the object is `beyond` reach). Start k is seeded from
+/// k alone, so the starts run are a prefix of one fixed sequence and the answer does not depend
+/// on threads or load. A round without a feasible start polishes its least infeasible one.
+fn search(sys: &HandArm, req: &GraspRequest, cap: usize, beyond: bool) -> Vec<StartOutcome> {
+    let mut outcomes: Vec<StartOutcome> = Vec::new();
+    let mut round = req.starts.min(cap);
+    loop {
+        let first = outcomes.len();
+        let threads = req.threads.clamp(1, round);
+        let mut more: Vec<StartOutcome> = crate::parallel::map_indexed(
+            round,
+            threads,
+            || (),
+            |_, k| run_start(sys, req, first + k),
+        );
+        more.sort_by_key(|o| o.start);
+        if !more.iter().any(|o| o.feasible) && !beyond {
+            let mut order: Vec<usize> = (0..more.len()).collect();
+            order.sort_by(|&a, &b| more[a].score.total_cmp(&more[b].score).then(a.cmp(&b)));
+            order.truncate(POLISHED_PER_ROUND);
+            let polished: Vec<StartOutcome> = crate::parallel::map_indexed(
+                order.len(),
+                req.threads.clamp(1, order.len()),
+                || (),
+                |_, k| {
+                    let mut p = more[order[k]].clone();
+                    polish_start(sys, req, &mut p);
+                    p
+                },
+            );
+            for (k, p) in order.into_iter().zip(polished) {
+                more[k] = p;
+            }
+        }
+        outcomes.append(&mut more);
+        if outcomes.iter().any(|o| o.firm()) || outcomes.len() >= cap || beyond {
+            return outcomes;
+        }
+        round = outcomes.len().min(cap - outcomes.len());
+    }
+}
+
+/// Starts per finger subset in [`fewer_fingers`]: two rounds of the default four.
+const SUBSET_STARTS: usize = 8;
+
+/// A grasp with fewer fingers on the object when none with every finger passed: the subsets of
+/// the hand's fingers from one finger fewer down to two (three for `Q_AGP`), each searched with
+/// up to [`SUBSET_STARTS`] starts, the idle fingers' links kept out of the object and the
+/// support; the first size with a feasible subset answers, its best start over the subsets (in
+/// a fixed order, so the answer stays deterministic). Humans pick a pencil off a table with the
+/// thumb and one or two fingers, the others curled away; with every finger required on it, the
+/// iHY and OB4F found none (their third and fourth fingertips meet the thin cylinder with the
+/// side or the end of the finger, 64-90 deg off the pad). Not in the paper, whose eq. 27 puts
+/// every fingertip on the object. Returns the subset's system and outcomes, the starts run and
+/// whether any hit the wall-clock safety net.
+fn fewer_fingers(
+    sys: &HandArm,
+    req: &GraspRequest,
+) -> (Option<(HandArm, Vec<StartOutcome>)>, usize, bool) {
+    let m = sys.fingers.len();
+    let least = req.quality.min_fingers().max(2);
+    let (mut used, mut late) = (0, false);
+    let req = &GraspRequest {
+        starts: req.starts.min(SUBSET_STARTS),
+        ..req.clone()
+    };
+    for size in (least..m).rev() {
+        let mut found: Option<(HandArm, Vec<StartOutcome>)> = None;
+        for keep in subsets(m, size) {
+            let sub = sys.with_contact_fingers(&keep);
+            let outs = search(&sub, req, SUBSET_STARTS, false);
+            used += outs.len();
+            late |= outs.iter().any(|o| o.timed_out);
+            if !outs.iter().any(|o| o.feasible) {
+                continue;
+            }
+            let better = found.as_ref().is_none_or(|(_, f)| {
+                let (a, b) = (best_outcome(&outs), best_outcome(f));
+                (!a.firm(), a.score) < (!b.firm(), b.score)
+            });
+            if better {
+                found = Some((sub, outs));
+            }
+        }
+        if found.is_some() {
+            return (found, used, late);
+        }
+    }
+    (None, used, late)
+}
+
+/// The `size`-element subsets of `0..m`, ascending, in lexicographic order.
+fn subsets(m: usize, size: usize) -> Vec<Vec<usize>> {
+    let mut out = Vec::new();
+    let mut pick: Vec<usize> = (0..size).collect();
+    loop {
+        out.push(pick.clone());
+        let Some(i) = (0..size).rev().find(|&i| pick[i] < m - size + i) else {
+            return out;
+        };
+        pick[i] += 1;
+        for k in i + 1..size {
+            pick[k] = pick[k - 1] + 1;
+        }
+    }
 }
 
 fn out_of_reach(sys: &HandArm, req: &GraspRequest, r: &GraspResult) -> String {
@@ -2234,6 +2337,7 @@ pub(crate) fn describe(
         q_arm,
         q_hand,
         contacts,
+        idle_fingers: sys.idle_fingers.iter().map(|f| f.name.clone()).collect(),
         terms: Terms {
             cost,
             tc: indexes::compatibility_index(&m_arm, &req.task),

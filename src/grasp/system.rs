@@ -111,8 +111,13 @@ pub struct HandArm {
     pub hand_joints: Vec<usize>,
     /// The grasp frame: TC (eq. 16) is evaluated for the arm Jacobian at its origin.
     pub palm: FrameId,
-    /// Fingers; `thumb` indexes the opposing one if any.
+    /// The fingers that touch the object (eq. 27 holds for each); `thumb` indexes the opposing
+    /// one if any.
     pub fingers: Vec<Finger>,
+    /// Fingers of the hand kept off the object ([`HandArm::with_contact_fingers`]): a grasp with
+    /// fewer contacts. Their links stay out of the object and above the support like the palm's,
+    /// and apart from the other fingers; empty for the whole hand.
+    pub idle_fingers: Vec<Finger>,
     /// Index of the thumb finger.
     pub thumb: Option<usize>,
     /// Ordered spread pairs (eq. 28): `value(lower) ≤ value(upper)`.
@@ -132,6 +137,8 @@ pub struct HandArm {
     /// Every separable pair of spheres of different fingers, first links included: the grasp
     /// starts' preshape avoids crossing fingers by these.
     pub crossing_pairs: Vec<LinkPair>,
+    /// How many of the last arm joints move links with spheres ([`Self::collect_link_spheres`]).
+    pub wrist_joints: usize,
     /// The exact collision shapes of every link (arm and hand): the optimiser's geometry rows
     /// (eq. 27-29) and the `feasible` verdict use exact distances between them.
     pub geometry: Arc<RobotGeometry>,
@@ -305,12 +312,16 @@ impl HandArm {
 
     /// Each finger's kinematic chain: its tip frame and every ancestor, tip first.
     pub fn finger_chains(&self) -> Vec<Vec<FrameId>> {
-        self.fingers
+        Self::chains_of(&self.model, &self.fingers)
+    }
+
+    fn chains_of(model: &Model, fingers: &[Finger]) -> Vec<Vec<FrameId>> {
+        fingers
             .iter()
             .map(|f| {
                 let mut chain = vec![f.tip];
                 let mut fr = f.tip;
-                while let Some(p) = self.model.frame_parent(fr) {
+                while let Some(p) = model.frame_parent(fr) {
                     chain.push(p);
                     fr = p;
                 }
@@ -367,6 +378,7 @@ impl HandArm {
     /// that come near the object and the table). Spheres on a fingertip link that overlap its
     /// contact sphere are dropped: the contact sphere is what touches the surface (eq. 27).
     pub fn collect_link_spheres(&mut self, wrist_joints: usize) {
+        self.wrist_joints = wrist_joints;
         let model = &self.model;
         let wrist: Vec<usize> = self
             .arm_joints
@@ -402,7 +414,15 @@ impl HandArm {
                 body
             })
             .collect();
-        let chains = self.finger_chains();
+        // Idle fingers after the contact fingers: their links are a finger's (kept apart from
+        // the others), their tips keep every sphere (they must not touch the object).
+        let all: Vec<Finger> = self
+            .fingers
+            .iter()
+            .chain(&self.idle_fingers)
+            .cloned()
+            .collect();
+        let chains = Self::chains_of(model, &all);
         let mut data = Data::new(model);
         forward_kinematics(model, &mut data, &model.neutral());
         let mut spheres = Vec::new();
@@ -526,6 +546,7 @@ impl HandArm {
                     pad_normal: Vector3::z(),
                 })
                 .collect(),
+            idle_fingers: Vec::new(),
             thumb: Some(sys.thumb),
             spread_pairs: sys
                 .spread_pairs
@@ -548,11 +569,35 @@ impl HandArm {
             support_cover: Vec::new(),
             link_pairs: Vec::new(),
             crossing_pairs: Vec::new(),
+            wrist_joints: 0,
             geometry: Arc::new(RobotGeometry::from_system(sys)),
         };
         h.collect_link_spheres(3);
         h.validate()?;
         Ok(h)
+    }
+
+    /// The same system grasping with the fingers `keep` only (indices into [`Self::fingers`],
+    /// ascending, at least two): the others become [`Self::idle_fingers`], kept off the object.
+    /// The link spheres and pairs are collected again (an idle fingertip keeps the spheres a
+    /// contact finger gives up to its contact sphere).
+    pub fn with_contact_fingers(&self, keep: &[usize]) -> HandArm {
+        let mut h = self.clone();
+        let all: Vec<Finger> = self
+            .fingers
+            .iter()
+            .chain(&self.idle_fingers)
+            .cloned()
+            .collect();
+        h.fingers = keep.iter().map(|&i| all[i].clone()).collect();
+        h.idle_fingers = (0..all.len())
+            .filter(|i| !keep.contains(i))
+            .map(|i| all[i].clone())
+            .collect();
+        h.thumb = self.thumb.and_then(|t| keep.iter().position(|&i| i == t));
+        let wrist = self.wrist_joints;
+        h.collect_link_spheres(wrist);
+        h
     }
 
     /// Check indices and sizes; called once when a system is registered.

@@ -402,6 +402,7 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
         safety,
         law_system,
         mut reason,
+        idle_fingers,
         ..
     } = found;
 
@@ -424,7 +425,9 @@ pub async fn plan(ctx: &Context, body: &PlanIn) -> Result<Planned, Error> {
                 worker,
                 law,
                 safety,
-                trial: trial_object.clone().map(|o| physics_trial(body, o)),
+                trial: trial_object
+                    .clone()
+                    .map(|o| physics_trial(body, o, idle_fingers.clone())),
             })
         }
         _ => None,
@@ -535,9 +538,14 @@ async fn check_verify(
 }
 
 /// The grasp trial of a plan with `verify`: the grasp's own object (as the grasp was computed,
-/// with its support) and the request's obstacles.
-fn physics_trial(body: &PlanIn, object: crate::grasp::ObjectSpec) -> PhysicsTrial {
+/// with its support), the request's obstacles and the grasp's idle fingers.
+fn physics_trial(
+    body: &PlanIn,
+    object: crate::grasp::ObjectSpec,
+    idle_fingers: Vec<String>,
+) -> PhysicsTrial {
     PhysicsTrial {
+        idle_fingers,
         scene: PhysicsScene {
             support: object.support,
             object,
@@ -574,6 +582,8 @@ struct Attempt {
     reason: Option<String>,
     /// The motion collides (a grasp with another seed may not).
     collided: bool,
+    /// The grasp's fingers kept off the object (the physics trial leaves them as they are).
+    idle_fingers: Vec<String>,
     grasp_s: f64,
     trajectory_s: f64,
 }
@@ -713,6 +723,7 @@ async fn attempt(
         law_system,
         reason,
         collided,
+        idle_fingers: result.idle_fingers.clone(),
         grasp_s,
     })
 }
@@ -960,6 +971,7 @@ fn simulate_law(
         payload,
         scene: None,
         trial: None,
+        idle_fingers: Vec::new(),
     };
     let opts = RunOptions::default();
     let mut run = Run::new(&execute, joint_names, &robot, opts, None, Some(sys))?;

@@ -184,6 +184,10 @@ pub struct PhysicsTrial {
     pub scene: PhysicsScene,
     #[serde(default)]
     pub trial: TrialSpec,
+    /// Fingers the trial does not close: the grasp's idle fingers, kept off the object (closing
+    /// them would push it out of the others' pinch). Absent: every finger closes.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub idle_fingers: Vec<String>,
 }
 
 /// What a physics worker builds around the robot (robot base frame): the object with its mass

@@ -1560,6 +1560,7 @@ fn run_law(
         mode: Mode::ClosedLoop,
         scene: None,
         trial: None,
+        idle_fingers: Vec::new(),
         payload: payload.clone(),
     };
     let mut run = Run::new(

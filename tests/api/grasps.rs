@@ -192,6 +192,50 @@ async fn a_grasp_of_a_seeded_object_is_computed_stored_and_read_back() {
     .await;
 }
 
+/// The pencil lying on the table: the iHY cannot put all three pads on it, so the grasp leaves
+/// a finger idle, says which, and lists contacts for the others only; the ball keeps every
+/// finger on it. Both read back as stored.
+#[tokio::test]
+async fn a_grasp_that_needs_fewer_fingers_names_the_idle_ones() {
+    let app = app().await;
+    for (object, idle) in [("pencil", true), ("ball", false)] {
+        let id = seeded_id(&app, object).await;
+        let res = app
+            .post_json(
+                "/v1/grasps",
+                &json!({"robot": "wam_ihy", "object_id": id,
+                        "task_directions": [{"direction": [0, 0, 1], "kind": "force", "goal": "maximize"}]}),
+            )
+            .await;
+        assert_eq!(res.status(), 201);
+        let g: Value = res.json().await.unwrap();
+        let r = &g["result"];
+        assert_eq!(r["feasible"], true, "{object}: {}", r["reason"]);
+        let on: Vec<&str> = r["contacts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| c["finger"].as_str().unwrap())
+            .collect();
+        let off: Vec<&str> = r["idle_fingers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f.as_str().unwrap())
+            .collect();
+        assert_eq!(!off.is_empty(), idle, "{object}: idle {off:?}");
+        assert_eq!(on.len() + off.len(), 3, "{object}: {on:?} {off:?}");
+        assert!(on.len() >= 2 && off.iter().all(|f| !on.contains(f)));
+        let back: Value = app
+            .get(&format!("/v1/grasps/{}", g["id"].as_str().unwrap()))
+            .await
+            .json()
+            .await
+            .unwrap();
+        assert_eq!(back, g);
+    }
+}
+
 #[tokio::test]
 async fn an_unreachable_object_answers_feasible_false_with_a_reason() {
     let app = app().await;

@@ -4,6 +4,8 @@ Used by the surveys (`workers/mujoco/survey.py`) and the `trial` sub-command."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import time
 
 import mujoco
@@ -47,7 +49,9 @@ def grasp_trial(svc, grasp: dict, object_defaults: bool, opts: TrialOptions | No
     pen0 = initial_penetration(sim)
     sim.max_pen = {k: 0.0 for k in sim.max_pen}
     wall = time.monotonic()
-    trial = Trial(sim, opts or TrialOptions())
+    opts = opts or TrialOptions()
+    idle = grasp["result"].get("idle_fingers") or ()
+    trial = Trial(sim, dataclasses.replace(opts, idle_fingers=tuple(idle)))
     out = None
     while out is None:
         out = trial.tick()

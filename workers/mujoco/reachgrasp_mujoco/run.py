@@ -62,6 +62,14 @@ def trial_moves(t) -> dict:
     return out
 
 
+def idle_fingers(names, info: B.SystemInfo) -> tuple:
+    """The `execute` message's `idle_fingers` (names of the system's fingers) as a tuple."""
+    known = {f["name"] for f in info.fingers}
+    if not isinstance(names, list) or not all(isinstance(n, str) and n in known for n in names):
+        raise ExecutionError(f"idle_fingers must be a list of the system's fingers {sorted(known)}, got {names!r}")
+    return tuple(names)
+
+
 def _finite(xs):
     return all(isinstance(x, (int, float)) and math.isfinite(x) for x in xs)
 
@@ -138,6 +146,8 @@ class Execution:
                                      self.safety, stages, follower)
         if trial is not None and ex.get("trial") is not None:
             trial = dataclasses.replace(trial, **trial_moves(ex["trial"]))
+        if trial is not None and ex.get("idle_fingers"):
+            trial = dataclasses.replace(trial, idle_fingers=idle_fingers(ex["idle_fingers"], info))
         if trial is not None and push is not None and push.target == "object":
             trial = dataclasses.replace(trial, object_push=push.force)
         self.trial_opts = trial

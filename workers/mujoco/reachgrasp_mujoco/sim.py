@@ -88,6 +88,9 @@ class TrialOptions:
     # of 30-520 g with 95-155 N in all and squeezed them out of fingertip grasps: 45 of 53
     # survey grasps held, 49 with this grip and reflex (README: the grip).
     grip: float = 0.25
+    # Fingers the trial leaves as they are (the grasp's `idle_fingers`, kept off the object):
+    # closing them would push the object out of the other fingers' pinch.
+    idle_fingers: tuple = ()
     # The slip reflex: once the object has moved this far relative to the hand after closing (m),
     # the grip rises to `grip_on_slip` for the rest of the trial. 0 = no reflex.
     slip_reflex: float = 0.003
@@ -602,7 +605,7 @@ class Trial:
     Closing: each finger's tendon (or, without a tendon, its last independent joint that is not
     a spread joint) is commanded to the joint limit on the object's side, force limited to
     `grip` x the URDF effort until the object slips `slip_reflex` in the hand, then to
-    `grip_on_slip` x; spread and opposition joints hold. Lift/shake: the hand root moves along world
+    `grip_on_slip` x; spread and opposition joints hold, and so do the idle fingers'. Lift/shake: the hand root moves along world
     offsets (orientation kept) through arm IK, tracked by the arm servos."""
 
     def __init__(self, sim: Sim, opts: TrialOptions):
@@ -614,6 +617,8 @@ class Trial:
         names = [dr.name for dr in b.drives]
         close = set()
         for f in b.info.fingers:
+            if f["name"] in opts.idle_fingers:
+                continue
             idx = [names.index(j) for j in f["joints"] if j in names]
             tendon = [k for k in idx if b.drives[k].tendon_id >= 0]
             if tendon:

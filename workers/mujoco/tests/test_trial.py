@@ -182,3 +182,37 @@ def test_the_grip_rises_to_the_full_limit_only_once_the_object_slips(t42):
     assert out["grip_raised_in"] == "lift", out
     assert before <= 0.25 * 1.5 + 1e-9, before
     assert after >= 0.95 * 1.5, after
+
+
+def test_an_idle_finger_is_left_as_it_is(t42):
+    """A grasp's idle fingers (kept off the object by the service) are not closed: the trial
+    closes the others only and holds the idle ones where the grasp put them. With the T42's left
+    finger idle, the right one closes onto the block (about 0.1 rad, until the block stops it)
+    while the left one's joint stays within 5 mrad of its grasp value (the block pressing on it)."""
+    moved = {"left": 0.0, "right": 0.0}
+
+    def each(sim, tr):
+        if tr.phase != "close":
+            return
+        q = sim.q()
+        for k, dr in enumerate(sim.b.drives):
+            for side in moved:
+                if dr.name == f"t42_{side}_proximal":
+                    moved[side] = max(moved[side], abs(q[k] - tr.q_grasp[k]))
+
+    out, _ = trial(t42, block(0.8), opts=TrialOptions(idle_fingers=("left",)), each=each)
+    assert out["closing_joints"] and all("left" not in j for j in out["closing_joints"]), out
+    assert moved["right"] > 0.05, moved
+    assert moved["left"] < 0.005, moved
+
+
+def test_the_execute_messages_idle_fingers_name_the_systems_fingers(t42):
+    """`idle_fingers` from an `execute` message: names of the system's fingers, else a refusal
+    naming the field."""
+    from reachgrasp_mujoco.run import ExecutionError, idle_fingers
+
+    _, info, _ = t42
+    assert idle_fingers(["left"], info) == ("left",)
+    for bad in (["thumb"], "left", [1]):
+        with pytest.raises(ExecutionError, match="idle_fingers"):
+            idle_fingers(bad, info)
