@@ -34,6 +34,7 @@ def resolve_scene(ex: dict, robot: str, service: Service | None, object_defaults
     spec = plan["grasp"]["object"]
     sc = scene_from_object_spec(spec, object_defaults)
     sc.plan_id = plan["id"]
+    sc.idle_fingers = tuple((plan["grasp"].get("result") or {}).get("idle_fingers") or ())
     return sc, f"plan {plan['id']}"
 
 
@@ -148,6 +149,8 @@ class Execution:
             trial = dataclasses.replace(trial, **trial_moves(ex["trial"]))
         if trial is not None and ex.get("idle_fingers"):
             trial = dataclasses.replace(trial, idle_fingers=idle_fingers(ex["idle_fingers"], info))
+        elif trial is not None and scene is not None and scene.idle_fingers:
+            trial = dataclasses.replace(trial, idle_fingers=idle_fingers(list(scene.idle_fingers), info))
         if trial is not None and push is not None and push.target == "object":
             trial = dataclasses.replace(trial, object_push=push.force)
         self.trial_opts = trial

@@ -64,6 +64,9 @@ class Scene:
     obstacles: list = field(default_factory=list)
     # Where mass/friction came from (`scene`, `object-defaults`), reported in the result.
     provenance: str = "scene"
+    # The grasp's fingers kept off the object, when the scene comes from a stored plan (the
+    # `execute` message of a verified plan carries them itself): the trial does not close them.
+    idle_fingers: tuple = ()
 
 
 def _vec(v, n, path):

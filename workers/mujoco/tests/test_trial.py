@@ -216,3 +216,19 @@ def test_the_execute_messages_idle_fingers_name_the_systems_fingers(t42):
     for bad in (["thumb"], "left", [1]):
         with pytest.raises(ExecutionError, match="idle_fingers"):
             idle_fingers(bad, info)
+
+
+def test_a_stored_plans_idle_fingers_reach_the_trial(t42):
+    """Without a `scene` in the `execute` message the worker takes the scene from the stored
+    plan the execution runs, and with it the plan's grasp's idle fingers, which the trial then
+    leaves open (the execution's trial options)."""
+    from reachgrasp_mujoco.run import resolve_scene
+
+    class Stored:
+        def plan_for_execution(self, robot, ex):
+            return {"id": "p", "grasp": {"object": block(0.8), "result": {"idle_fingers": ["left"]}}}
+
+    sc, note = resolve_scene({"execution_id": "e"}, "wam_t42", Stored(), True)
+    assert note == "plan p" and sc.idle_fingers == ("left",)
+    sc, _ = resolve_scene({"execution_id": "e", "scene": {"object": block(0.8)}}, "wam_t42", Stored(), True)
+    assert sc.idle_fingers == ()
