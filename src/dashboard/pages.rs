@@ -806,6 +806,18 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
             ),
             ("task directions", esc(&dirs.join("; "))),
             (
+                "fingers on the object",
+                if result.idle_fingers.is_empty() {
+                    "all".to_owned()
+                } else {
+                    format!(
+                        "{} ({} kept off it)",
+                        result.contacts.len(),
+                        esc(&result.idle_fingers.join(", "))
+                    )
+                }
+            ),
+            (
                 "starts",
                 format!(
                     "{} run, {} feasible",

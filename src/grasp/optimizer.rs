@@ -43,7 +43,8 @@
 //! 141/180 at 16 and 145/180 at 32; 29 of the 35 left are the pencil lying on the table (pads
 //! more than 60° off the contact normal: the fingertips poke it or touch it with their sides).
 //! Firm feasible requests keep their time (the first round answers); an infeasible one, or one
-//! whose feasible starts are not firm, costs up to 8x the first round. A round without a
+//! whose feasible starts are not firm, costs up to 8x the first round (and the fewer-finger
+//! searches below when none is feasible). A round without a
 //! feasible start first polishes its least infeasible start on the exact geometry
 //! (`Eval::polish` in `repair`: a bounded pattern search over the palm pose, every candidate
 //! placed by the contact repair and judged by the verdict) before the next round: the optimiser's contact spheres cannot see a fingertip's end edge or a link
