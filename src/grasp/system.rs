@@ -416,13 +416,7 @@ impl HandArm {
             .collect();
         // Idle fingers after the contact fingers: their links are a finger's (kept apart from
         // the others), their tips keep every sphere (they must not touch the object).
-        let all: Vec<Finger> = self
-            .fingers
-            .iter()
-            .chain(&self.idle_fingers)
-            .cloned()
-            .collect();
-        let chains = Self::chains_of(model, &all);
+        let chains = Self::chains_of(model, &self.all_fingers());
         let mut data = Data::new(model);
         forward_kinematics(model, &mut data, &model.neutral());
         let mut spheres = Vec::new();
@@ -577,18 +571,23 @@ impl HandArm {
         Ok(h)
     }
 
-    /// The same system grasping with the fingers `keep` only (indices into [`Self::fingers`],
-    /// ascending, at least two): the others become [`Self::idle_fingers`], kept off the object.
-    /// The link spheres and pairs are collected again (an idle fingertip keeps the spheres a
-    /// contact finger gives up to its contact sphere).
-    pub fn with_contact_fingers(&self, keep: &[usize]) -> HandArm {
-        let mut h = self.clone();
-        let all: Vec<Finger> = self
-            .fingers
+    /// Every finger of the hand: those on the object, then the idle ones.
+    fn all_fingers(&self) -> Vec<Finger> {
+        self.fingers
             .iter()
             .chain(&self.idle_fingers)
             .cloned()
-            .collect();
+            .collect()
+    }
+
+    /// The same system grasping with the fingers `keep` only (indices into
+    /// [`Self::fingers`] followed by [`Self::idle_fingers`], ascending, at least two): the others
+    /// become the idle fingers, kept off the object. The link spheres and pairs are collected
+    /// again (an idle fingertip keeps the spheres a contact finger gives up to its contact
+    /// sphere).
+    pub fn with_contact_fingers(&self, keep: &[usize]) -> HandArm {
+        let mut h = self.clone();
+        let all = self.all_fingers();
         h.fingers = keep.iter().map(|&i| all[i].clone()).collect();
         h.idle_fingers = (0..all.len())
             .filter(|i| !keep.contains(i))
