@@ -1816,7 +1816,7 @@ fn survey_exact_verdict() {
         let s =
             crate::kinematics::System::from_file(&dir_path.join(format!("{name}.toml"))).unwrap();
         let sys = HandArm::from_system(&s).unwrap();
-        let (mut feasible, mut total) = (0, 0);
+        let (mut feasible, mut total, mut firm, mut fewer) = (0, 0, 0, 0);
         let mut pens = Vec::new();
         let mut times = Vec::new();
         for (obj_name, _, _) in seeded_shapes() {
@@ -1850,6 +1850,17 @@ fn survey_exact_verdict() {
                     times.push(r.time_s * 1e3);
                     if r.feasible {
                         feasible += 1;
+                        firm += usize::from(r.exact.normal_balance <= FIRM_BALANCE);
+                        fewer += usize::from(!r.idle_fingers.is_empty());
+                        if verbose {
+                            println!(
+                                "  {name} {obj_name} {kind:?} {dn}: balance {:.3}, idle {:?}, \
+                                 {:.0} ms",
+                                r.exact.normal_balance,
+                                r.idle_fingers,
+                                r.time_s * 1e3
+                            );
+                        }
                     } else if verbose {
                         println!("  {name} {obj_name} {kind:?} {dn}: {:?}", r.reason);
                     }
@@ -1859,8 +1870,9 @@ fn survey_exact_verdict() {
         times.sort_by(f64::total_cmp);
         pens.sort_by(f64::total_cmp);
         println!(
-            "{name}: feasible (exact) {feasible}/{total}; worst exact penetration per grasp \
-             median {:.2} mm, max {:.2} mm; time median {:.0} ms, max {:.0} ms",
+            "{name}: feasible (exact) {feasible}/{total} ({firm} firm, {fewer} with fewer \
+             fingers); worst exact penetration per grasp median {:.2} mm, max {:.2} mm; time \
+             median {:.0} ms, max {:.0} ms",
             pens[pens.len() / 2] * 1e3,
             pens[pens.len() - 1] * 1e3,
             times[times.len() / 2],
