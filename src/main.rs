@@ -98,7 +98,7 @@ enum Command {
         /// Starts of the multi-start search (its first round).
         #[arg(long)]
         starts: Option<usize>,
-        /// Most starts in all while none is feasible (default 32).
+        /// Most starts in all while none is feasible and firm (default 64).
         #[arg(long)]
         max_starts: Option<usize>,
         /// Seed of the multi-start search: the same seed, the same grasp.

@@ -107,8 +107,8 @@ pub struct GraspIn {
     /// Starts of the multi-start search, 1 to 64 (default 4): its first round.
     #[schema(minimum = 1, maximum = 64)]
     pub starts: Option<usize>,
-    /// While no start is exactly feasible, further rounds double the starts run, up to this
-    /// many in all: `starts` to 64 (default 32, or `starts` if larger).
+    /// While no start is exactly feasible (and firm), further rounds double the starts run, up
+    /// to this many in all: `starts` to 64 (default 64).
     #[schema(minimum = 1, maximum = 64)]
     pub max_starts: Option<usize>,
     /// Seed of the start perturbations (default 0).
