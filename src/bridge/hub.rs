@@ -490,10 +490,10 @@ impl Hub {
             } else {
                 None
             };
-            let (scene, trial) = trial
-                .map(|t| (Box::new(t.scene), (t.trial, t.idle_fingers)))
-                .unzip();
-            let (trial, idle_fingers) = trial.unzip();
+            let (scene, trial, idle_fingers) = match trial {
+                Some(t) => (Some(Box::new(t.scene)), Some(t.trial), t.idle_fingers),
+                None => (None, None, Vec::new()),
+            };
             if !repo::mark_running(&self.0.db, &row.id, &name).await? {
                 release(self); // cancelled meanwhile
                 continue;
@@ -520,7 +520,7 @@ impl Hub {
                 payload,
                 scene,
                 trial,
-                idle_fingers: idle_fingers.unwrap_or_default(),
+                idle_fingers,
             });
             if tx.try_send(msg).is_err() {
                 // The connection is closing or not reading: put the execution back.

@@ -1797,6 +1797,11 @@ impl StartOutcome {
     fn firm(&self) -> bool {
         self.feasible && self.balance <= FIRM_BALANCE
     }
+
+    /// Order of preference, lowest first: feasible, then firm, then lowest score.
+    fn rank(&self) -> (bool, bool, f64) {
+        (!self.feasible, !self.firm(), self.score)
+    }
 }
 
 fn solver_settings() -> Settings {
@@ -2015,11 +2020,7 @@ pub fn plan_grasp(sys: &HandArm, req: &GraspRequest) -> Result<GraspResult, Gras
 fn best_outcome(outcomes: &[StartOutcome]) -> &StartOutcome {
     outcomes
         .iter()
-        .min_by(|a, b| {
-            (!a.feasible, !a.firm(), a.score)
-                .partial_cmp(&(!b.feasible, !b.firm(), b.score))
-                .expect("finite scores")
-        })
+        .min_by(|a, b| a.rank().partial_cmp(&b.rank()).expect("finite scores"))
         .expect("at least one start")
 }
 
@@ -2100,10 +2101,9 @@ fn fewer_fingers(
             if !outs.iter().any(|o| o.feasible) {
                 continue;
             }
-            let better = found.as_ref().is_none_or(|(_, f)| {
-                let (a, b) = (best_outcome(&outs), best_outcome(f));
-                (!a.firm(), a.score) < (!b.firm(), b.score)
-            });
+            let better = found
+                .as_ref()
+                .is_none_or(|(_, f)| best_outcome(&outs).rank() < best_outcome(f).rank());
             if better {
                 found = Some((sub, outs));
             }

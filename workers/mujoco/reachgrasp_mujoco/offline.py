@@ -5,7 +5,6 @@ Used by the surveys (`workers/mujoco/survey.py`) and the `trial` sub-command."""
 from __future__ import annotations
 
 import dataclasses
-
 import time
 
 import mujoco

@@ -147,10 +147,10 @@ class Execution:
                                      self.safety, stages, follower)
         if trial is not None and ex.get("trial") is not None:
             trial = dataclasses.replace(trial, **trial_moves(ex["trial"]))
-        if trial is not None and ex.get("idle_fingers"):
-            trial = dataclasses.replace(trial, idle_fingers=idle_fingers(ex["idle_fingers"], info))
-        elif trial is not None and scene is not None and scene.idle_fingers:
-            trial = dataclasses.replace(trial, idle_fingers=idle_fingers(list(scene.idle_fingers), info))
+        # The message's idle fingers, else those of the stored plan the scene came from.
+        idle = ex.get("idle_fingers") or (list(scene.idle_fingers) if scene is not None else [])
+        if trial is not None and idle:
+            trial = dataclasses.replace(trial, idle_fingers=idle_fingers(idle, info))
         if trial is not None and push is not None and push.target == "object":
             trial = dataclasses.replace(trial, object_push=push.force)
         self.trial_opts = trial
