@@ -2,7 +2,7 @@
 
 use serde_json::json;
 
-use crate::helpers::{TestApp, assert_problem, spawn_app, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, field_strings, spawn_app, spawn_app_with};
 
 const SLEEP: &str = "/v1/_test/jobs/sleep";
 
@@ -79,12 +79,7 @@ async fn out_of_range_values_are_422_listing_every_field() {
         .post_json(SLEEP, &json!({"steps": 0, "step_ms": 100000}))
         .await;
     let p = assert_problem(res, 422, "validation").await;
-    let paths: Vec<&str> = p["errors"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|e| e["path"].as_str().unwrap())
-        .collect();
+    let paths: Vec<&str> = field_strings(&p["errors"], "path");
     assert_eq!(paths, ["$.steps", "$.step_ms"]);
     assert_no_jobs(&app).await;
 }

@@ -3,7 +3,7 @@
 
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, field_strings, spawn_app_with, strings};
 
 async fn app() -> TestApp {
     spawn_app_with(|c| {
@@ -211,18 +211,8 @@ async fn a_grasp_that_needs_fewer_fingers_names_the_idle_ones() {
         let g: Value = res.json().await.unwrap();
         let r = &g["result"];
         assert_eq!(r["feasible"], true, "{object}: {}", r["reason"]);
-        let on: Vec<&str> = r["contacts"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|c| c["finger"].as_str().unwrap())
-            .collect();
-        let off: Vec<&str> = r["idle_fingers"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|f| f.as_str().unwrap())
-            .collect();
+        let on: Vec<&str> = field_strings(&r["contacts"], "finger");
+        let off: Vec<&str> = strings(&r["idle_fingers"]);
         assert_eq!(!off.is_empty(), idle, "{object}: idle {off:?}");
         assert_eq!(on.len() + off.len(), 3, "{object}: {on:?} {off:?}");
         assert!(on.len() >= 2 && off.iter().all(|f| !on.contains(f)));

@@ -132,6 +132,24 @@ impl TestApp {
     }
 }
 
+/// The strings of a JSON array (a test expectation: anything else panics).
+pub fn strings(v: &Value) -> Vec<&str> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s.as_str().unwrap())
+        .collect()
+}
+
+/// Field `key` of each item of a JSON array, as strings (a test expectation).
+pub fn field_strings<'a>(v: &'a Value, key: &str) -> Vec<&'a str> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|item| item[key].as_str().unwrap())
+        .collect()
+}
+
 /// Asserts that `res` is problem+json with `status` and slug `kind`, and returns the document.
 pub async fn assert_problem(res: reqwest::Response, status: u16, kind: &str) -> Value {
     assert_eq!(res.status().as_u16(), status, "status");

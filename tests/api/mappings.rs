@@ -5,7 +5,7 @@
 use reachgrasp::human::{StudyConfig, generate_study};
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, spawn_app_with, strings};
 
 async fn app() -> TestApp {
     spawn_app_with(|c| {
@@ -123,12 +123,7 @@ async fn a_mapping_job_stores_trajectories_within_the_limits_and_serves_them_in_
     assert_eq!(done["result"]["href"], mapping_url.as_str());
 
     let robot: Value = app.get("/v1/robots/wam_ihy").await.json().await.unwrap();
-    let joint_names: Vec<&str> = robot["joint_names"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|j| j.as_str().unwrap())
-        .collect();
+    let joint_names: Vec<&str> = strings(&robot["joint_names"]);
     let joints = robot["joints"].as_array().unwrap();
     let limits = |name: &str| {
         let j = joints.iter().find(|j| j["name"] == name).unwrap();
@@ -152,12 +147,7 @@ async fn a_mapping_job_stores_trajectories_within_the_limits_and_serves_them_in_
         assert_eq!(item["position"], k);
         assert_eq!(item["demonstration_id"], ids[k].as_str());
         let traj = &item["trajectory"];
-        let names: Vec<&str> = traj["joint_names"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|j| j.as_str().unwrap())
-            .collect();
+        let names: Vec<&str> = strings(&traj["joint_names"]);
         assert_eq!(names, joint_names);
         let times = traj["times"].as_array().unwrap();
         let rows = traj["positions"].as_array().unwrap();

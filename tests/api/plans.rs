@@ -4,7 +4,7 @@
 
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, spawn_app_with, trained};
+use crate::helpers::{TestApp, assert_problem, spawn_app_with, strings, trained};
 
 const ROBOT: &str = "wam_ihy";
 
@@ -60,12 +60,7 @@ async fn plans_link_grasp_trajectory_and_execution_and_refuse_bad_input() {
         let t = &plan["trajectory"];
         let points = t["points"].as_array().unwrap();
         let last = points.last().unwrap()["positions"].as_array().unwrap();
-        let order: Vec<&str> = t["joint_names"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|n| n.as_str().unwrap())
-            .collect();
+        let order: Vec<&str> = strings(&t["joint_names"]);
         let result = &plan["grasp"]["result"];
         for j in result["q_arm"]
             .as_array()

@@ -17,7 +17,7 @@ use reachgrasp::service::retarget::KeypointFrameMsg;
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::Message;
 
-use crate::helpers::{TestApp, assert_problem, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, field_strings, spawn_app_with};
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -174,12 +174,7 @@ async fn retargeting_options_are_checked_before_the_upgrade_and_arm_systems_need
         .get("/v1/robots/wam_ihy/retarget?cutoff_hz=-2&placement=1,2")
         .await;
     let p = assert_problem(res, 422, "validation").await;
-    let paths: Vec<&str> = p["errors"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|e| e["path"].as_str().unwrap())
-        .collect();
+    let paths: Vec<&str> = field_strings(&p["errors"], "path");
     assert!(
         paths.contains(&"$.cutoff_hz") && paths.contains(&"$.placement"),
         "{p}"

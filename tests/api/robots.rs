@@ -8,7 +8,7 @@ use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion};
 use reachgrasp::kinematics::{Data, NoMeshes, forward_kinematics, model_from_urdf_str};
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, spawn_app_with};
+use crate::helpers::{TestApp, assert_problem, field_strings, spawn_app_with};
 
 fn robots_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("robots")
@@ -48,12 +48,7 @@ fn q_zero(detail: &Value) -> (Vec<Value>, Vec<f64>) {
 async fn the_six_bundled_systems_are_listed_with_joints_fingers_and_couplings() {
     let app = app().await;
     let list: Value = app.get("/v1/robots").await.json().await.unwrap();
-    let ids: Vec<&str> = list["items"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|r| r["id"].as_str().unwrap())
-        .collect();
+    let ids: Vec<&str> = field_strings(&list["items"], "id");
     for id in [
         "wam_t42",
         "wam_ihy",

@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use serde_json::{Value, json};
 
-use crate::helpers::{TestApp, assert_problem, spawn_app_with, trained};
+use crate::helpers::{TestApp, assert_problem, field_strings, spawn_app_with, trained};
 
 const ROBOT: &str = "wam_ihy";
 
@@ -198,12 +198,7 @@ async fn retention_keeps_the_newest_plans_and_never_what_a_queued_execution_need
     // The newest two, and the one whose execution is still queued (never deleted).
     assert_eq!(plans, 3);
     let list: Value = app.get("/v1/plans").await.json().await.unwrap();
-    let ids: Vec<&str> = list["items"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|p| p["id"].as_str().unwrap())
-        .collect();
+    let ids: Vec<&str> = field_strings(&list["items"], "id");
     assert!(
         ids.contains(&newest[1].as_str()) && ids.contains(&newest[2].as_str()),
         "{list}"
