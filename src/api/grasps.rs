@@ -93,7 +93,7 @@ pub(crate) fn grasp_dto(row: GraspRow) -> Result<GraspDto, ApiError> {
         object_id: row.object_id,
         object: serde_json::from_str(&row.object).map_err(ApiError::internal)?,
         request: serde_json::from_str(&row.request).map_err(ApiError::internal)?,
-        result: serde_json::from_str(&row.result).map_err(ApiError::internal)?,
+        result: GraspResult::from_stored(&row.result).map_err(ApiError::internal)?,
         batch_id: row.batch_id,
         created_at: row.created_at,
     })

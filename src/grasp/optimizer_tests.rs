@@ -1538,8 +1538,18 @@ fn a_feasible_start_whose_contacts_cannot_balance_escalates_until_a_firm_one() {
         first.reason
     );
     assert!(two_contact(&first) > FIRM_BALANCE);
+    // the answer says so: feasible, not firm
+    assert!(first.exact.passed && !first.exact.firm);
     assert!(escalated.feasible && escalated.starts_used > 4);
     assert!(two_contact(&escalated) <= FIRM_BALANCE);
+    assert!(escalated.exact.firm);
+    // a grasp stored before `firm` existed gets it from its verdict and balance when read
+    for r in [&first, &escalated] {
+        let mut stored = serde_json::to_value(r).unwrap();
+        stored["exact"].as_object_mut().unwrap().remove("firm");
+        let read = GraspResult::from_stored(&stored.to_string()).unwrap();
+        assert_eq!(read.exact.firm, two_contact(r) <= FIRM_BALANCE);
+    }
 }
 
 /// Determinism: the same request twice, the second time while busy threads load every core,

@@ -663,7 +663,7 @@ async fn resolve_goal(
                     ),
                 ));
             }
-            let result: GraspResult = serde_json::from_str(&row.result).map_err(Error::internal)?;
+            let result = GraspResult::from_stored(&row.result).map_err(Error::internal)?;
             if !result.feasible {
                 return Err(Error::invalid(
                     "$.goal.grasp",

@@ -96,7 +96,8 @@ def cmd_grasps(a):
                     body = {"robot": robot, "object": spec, "task_directions": task}
                 g = svc.post_json("/v1/grasps", body)
                 row = {"robot": robot, "object": oname, "task": tname, "grasp": g["id"],
-                       "feasible": g["result"]["feasible"]}
+                       "feasible": g["result"]["feasible"],
+                       "firm": g["result"]["exact"].get("firm", False)}
                 if row["feasible"]:
                     t = grasp_trial(svc, g, True, trial_options(a))
                     row.update({k: t[k] for k in ("held", "slip_m", "object_lift_m", "initial_penetration_m",
@@ -105,8 +106,13 @@ def cmd_grasps(a):
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     feas = [r for r in rows if r["feasible"]]
+    firm = [r for r in feas if r["firm"]]
+    loose = [r for r in feas if not r["firm"]]
     summary = {"feasible": f"{len(feas)}/{len(rows)}",
-               "held_of_feasible": table(feas, "robot", "object", lambda r: r["held"])}
+               "held_of_feasible": table(feas, "robot", "object", lambda r: r["held"]),
+               # the service's own prediction (`exact.firm`) against the trial
+               "held_of_firm": table(firm, "robot", "object", lambda r: r["held"]),
+               "held_of_not_firm": f"{sum(1 for r in loose if r['held'])}/{len(loose)}"}
     print(json.dumps({"summary": summary}, indent=1))
 
 
@@ -164,7 +170,8 @@ def cmd_plans(a):
                         rows.append(row)
                         print(json.dumps(row), flush=True)
                         continue
-                    row = {"robot": robot, "object": oname, "task": tname, "plan": p["id"], "feasible": p["feasible"]}
+                    row = {"robot": robot, "object": oname, "task": tname, "plan": p["id"], "feasible": p["feasible"],
+                           "firm": p["grasp"]["result"]["exact"].get("firm", False)}
                     if p["feasible"] and p.get("execution_id"):
                         e = wait_execution(svc, p["execution_id"])
                         row["state"] = e["state"]
@@ -188,7 +195,13 @@ def cmd_plans(a):
     feas = [r for r in rows if r["feasible"]]
     summary = {"feasible_plans": f"{len(feas)}/{len(rows)}",
                "held_of_executed": table(feas, "robot", "object", lambda r: r.get("held", False)),
-               "held_of_all": table(rows, "robot", "object", lambda r: r.get("held", False))}
+               "held_of_all": table(rows, "robot", "object", lambda r: r.get("held", False)),
+               # the service's own prediction (the grasp's `exact.firm`) against the trial
+               "held_of_firm": table([r for r in feas if r.get("firm")], "robot", "object",
+                                     lambda r: r.get("held", False)),
+               "held_of_not_firm": "{}/{}".format(
+                   sum(1 for r in feas if not r.get("firm") and r.get("held")),
+                   sum(1 for r in feas if not r.get("firm")))}
     print(json.dumps({"summary": summary}, indent=1))
 
 
