@@ -663,7 +663,7 @@ pub async fn grasps(State(state): State<AppState>) -> Page {
         .iter()
         .map(|g| {
             let object: Option<ObjectSpec> = serde_json::from_str(&g.object).ok();
-            let result: Option<GraspResult> = serde_json::from_str(&g.result).ok();
+            let result = GraspResult::from_stored(&g.result).ok();
             vec![
                 format!(
                     "<input type=\"checkbox\" name=\"grasps\" value=\"{}\" \
@@ -737,7 +737,7 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
     };
     let object: ObjectSpec = serde_json::from_str(&g.object).map_err(PageError::internal)?;
     let settings: GraspSettings = serde_json::from_str(&g.request).map_err(PageError::internal)?;
-    let result: GraspResult = serde_json::from_str(&g.result).map_err(PageError::internal)?;
+    let result = GraspResult::from_stored(&g.result).map_err(PageError::internal)?;
     let terms = serde_json::to_value(&result.terms).map_err(PageError::internal)?;
     let residuals = serde_json::to_value(&result.residuals).map_err(PageError::internal)?;
     let term_facts = object_facts(&[&terms, &residuals]);
@@ -803,6 +803,14 @@ pub async fn grasp(State(state): State<AppState>, Path(id): Path<String>) -> Pag
                 } else {
                     format!("no: {}", esc(result.reason.as_deref().unwrap_or("")))
                 }
+            ),
+            (
+                "firm",
+                match not_firm(&result) {
+                    Some(why) => format!("no: {why}"),
+                    None if result.feasible => "yes".to_owned(),
+                    None => "—".to_owned(),
+                },
             ),
             ("task directions", esc(&dirs.join("; "))),
             (
@@ -907,6 +915,19 @@ pub async fn job(State(state): State<AppState>, Path(id): Path<String>) -> Page 
         "",
     );
     Ok(html::ok(&format!("Job {}", &id[..8]), "/ui/jobs", &body))
+}
+
+/// Why a feasible grasp is not firm (`exact.firm` false: its contact normals cannot balance),
+/// for the pages: the closing hand is likely to squeeze the object out (none of those held in
+/// the physics surveys). `None` for a firm or an infeasible grasp.
+pub(super) fn not_firm(r: &GraspResult) -> Option<String> {
+    (r.feasible && !r.exact.firm).then(|| {
+        format!(
+            "the contact normals cannot balance (normal balance {} &gt; 0.12), so the closing \
+             hand is likely to squeeze the object out",
+            num(r.exact.normal_balance, 2)
+        )
+    })
 }
 
 #[cfg(test)]

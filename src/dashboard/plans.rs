@@ -14,7 +14,7 @@ use super::html::{
     self, PageError, esc, facts, field, figure, form, link, num, short, table, value_facts,
     value_text,
 };
-use super::pages::{readable_grasp_value, task_fields};
+use super::pages::{not_firm, readable_grasp_value, task_fields};
 use super::resources::{
     execution_fraction, execution_progress, physics_fact, report_facts, safety_fact,
 };
@@ -350,7 +350,7 @@ fn grasp_parts(g: &GraspRow) -> Result<GraspParts, PageError> {
     Ok(GraspParts {
         object: serde_json::from_str(&g.object).map_err(PageError::internal)?,
         settings: serde_json::from_str(&g.request).map_err(PageError::internal)?,
-        result: serde_json::from_str(&g.result).map_err(PageError::internal)?,
+        result: GraspResult::from_stored(&g.result).map_err(PageError::internal)?,
     })
 }
 
@@ -584,7 +584,16 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
         "<section class=\"part\" id=\"grasp\"><h2>Grasp {}</h2>{}",
         link(&format!("/ui/grasps/{}", g.id), short(&g.id)),
         facts(&[
-            ("result", feasible_text(r.feasible, r.reason.as_deref())),
+            (
+                "result",
+                match not_firm(r) {
+                    Some(why) => format!(
+                        "{}, <span class=\"bad\">not firm</span>: {why}",
+                        feasible_text(r.feasible, r.reason.as_deref())
+                    ),
+                    None => feasible_text(r.feasible, r.reason.as_deref()),
+                },
+            ),
             (
                 "starts",
                 format!("{} run, {} feasible", r.starts_used, r.starts_feasible)

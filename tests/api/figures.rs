@@ -178,6 +178,24 @@ async fn demonstration_and_grasp_figures_render_from_stored_data() {
         "{}",
         &html[at..at + 120]
     );
+    // ... and whether it is firm, as the API says (`exact.firm`: the check passed and the
+    // contacts' normal balance is at most 0.12), with the reason when it is not.
+    let firm = grasp["result"]["exact"]["firm"].as_bool().unwrap();
+    assert_eq!(
+        firm,
+        grasp["result"]["exact"]["passed"] == true && balance <= 0.12
+    );
+    let at = html.find(">firm<").expect("firm listed");
+    let expected = if firm {
+        ">yes<"
+    } else {
+        ">no: the contact normals cannot balance"
+    };
+    assert!(
+        html[at..at + 200].contains(expected),
+        "{}",
+        &html[at..at + 200]
+    );
     let list = app.get("/ui/grasps").await.text().await.unwrap();
     assert!(list.contains(&format!("/ui/grasps/{id}")));
 }
