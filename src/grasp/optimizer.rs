@@ -497,11 +497,9 @@ pub struct ExactCheck {
     pub firm: bool,
 }
 
-impl ExactCheck {
-    /// Whether the grasp is firm, from the verdict and the balance (see [`ExactCheck::firm`]).
-    pub fn is_firm(&self) -> bool {
-        self.passed && self.normal_balance <= FIRM_BALANCE
-    }
+/// Whether a grasp with this verdict and opposition is firm (see [`ExactCheck::firm`]).
+fn firm(passed: bool, normal_balance: f64) -> bool {
+    passed && normal_balance <= FIRM_BALANCE
 }
 
 impl GraspResult {
@@ -509,7 +507,7 @@ impl GraspResult {
     /// that field lacks it.
     pub fn from_stored(json: &str) -> serde_json::Result<Self> {
         let mut r: GraspResult = serde_json::from_str(json)?;
-        r.exact.firm = r.exact.is_firm();
+        r.exact.firm = firm(r.exact.passed, r.exact.normal_balance);
         Ok(r)
     }
 }
@@ -1820,7 +1818,7 @@ struct StartOutcome {
 impl StartOutcome {
     /// Feasible with contacts that can balance (see [`FIRM_BALANCE`]).
     fn firm(&self) -> bool {
-        self.feasible && self.balance <= FIRM_BALANCE
+        firm(self.feasible, self.balance)
     }
 
     /// Order of preference, lowest first: feasible, then firm, then lowest score.
@@ -2311,7 +2309,7 @@ pub(crate) fn describe(
         max_pad_distance: v.pad.0,
         max_pad_angle_deg: v.pad_angle.0,
         normal_balance,
-        firm: passed && normal_balance <= FIRM_BALANCE,
+        firm: firm(passed, normal_balance),
     };
     let exact_reason = e.verdict_reason(&v);
     let m_arm = indexes::transmission_matrix(&e.kin.jv_arm);
