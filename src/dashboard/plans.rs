@@ -580,6 +580,7 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
     let summary = facts(&rows);
 
     let r = &parts.result;
+    let verdict = feasible_text(r.feasible, r.reason.as_deref());
     let mut grasp = format!(
         "<section class=\"part\" id=\"grasp\"><h2>Grasp {}</h2>{}",
         link(&format!("/ui/grasps/{}", g.id), short(&g.id)),
@@ -587,11 +588,8 @@ pub async fn plan(State(state): State<AppState>, Path(id): Path<String>) -> Page
             (
                 "result",
                 match not_firm(r) {
-                    Some(why) => format!(
-                        "{}, <span class=\"bad\">not firm</span>: {why}",
-                        feasible_text(r.feasible, r.reason.as_deref())
-                    ),
-                    None => feasible_text(r.feasible, r.reason.as_deref()),
+                    Some(why) => format!("{verdict}, <span class=\"bad\">not firm</span>: {why}"),
+                    None => verdict,
                 },
             ),
             (

@@ -77,6 +77,15 @@ def table(rows, key_a, key_b, ok):
     return out
 
 
+def by_firmness(rows, ok):
+    """The service's own prediction (a grasp's `exact.firm`) against the trial: held / tried of
+    the firm rows per system and object, and of the rest in all."""
+    firm = [r for r in rows if r.get("firm")]
+    loose = [r for r in rows if not r.get("firm")]
+    return {"held_of_firm": table(firm, "robot", "object", ok),
+            "held_of_not_firm": f"{sum(1 for r in loose if ok(r))}/{len(loose)}"}
+
+
 def zeros_start(svc, robot):
     return starts(svc.get_json(f"/v1/robots/{robot}")["joint_names"])["zero"]
 
@@ -106,13 +115,9 @@ def cmd_grasps(a):
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     feas = [r for r in rows if r["feasible"]]
-    firm = [r for r in feas if r["firm"]]
-    loose = [r for r in feas if not r["firm"]]
     summary = {"feasible": f"{len(feas)}/{len(rows)}",
                "held_of_feasible": table(feas, "robot", "object", lambda r: r["held"]),
-               # the service's own prediction (`exact.firm`) against the trial
-               "held_of_firm": table(firm, "robot", "object", lambda r: r["held"]),
-               "held_of_not_firm": f"{sum(1 for r in loose if r['held'])}/{len(loose)}"}
+               **by_firmness(feas, lambda r: r["held"])}
     print(json.dumps({"summary": summary}, indent=1))
 
 
@@ -196,12 +201,7 @@ def cmd_plans(a):
     summary = {"feasible_plans": f"{len(feas)}/{len(rows)}",
                "held_of_executed": table(feas, "robot", "object", lambda r: r.get("held", False)),
                "held_of_all": table(rows, "robot", "object", lambda r: r.get("held", False)),
-               # the service's own prediction (the grasp's `exact.firm`) against the trial
-               "held_of_firm": table([r for r in feas if r.get("firm")], "robot", "object",
-                                     lambda r: r.get("held", False)),
-               "held_of_not_firm": "{}/{}".format(
-                   sum(1 for r in feas if not r.get("firm") and r.get("held")),
-                   sum(1 for r in feas if not r.get("firm")))}
+               **by_firmness(feas, lambda r: r.get("held", False))}
     print(json.dumps({"summary": summary}, indent=1))
 
 
